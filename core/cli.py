@@ -1,0 +1,57 @@
+"""Command line: ``python -m core {calibrate,track,fit,evaluate} ...``.
+
+Each sub-command lives in the module of its stage and registers itself here through
+``COMMANDS`` (name -> "module:function"), imported lazily so that a broken or slow
+stage never slows the others.  Bad input raises :class:`~core.errors.InputError`,
+printed as one line ``somacap: error: ...`` with exit status 2.  Progress goes to
+stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from .errors import InputError
+
+#: sub-command -> (module, "add_arguments" function, "run" function, help)
+COMMANDS = {
+    "calibrate": ("core.calibrate_cli", "Calibrate the cameras from the scene's wand/ sequence"),
+    "track": ("core.track_cli", "Measure the surface at frame 0 and track it through the take"),
+    "fit": ("core.fit_cli", "Run the whole pipeline and write the fitted state"),
+    "evaluate": ("core.evaluate_cli", "Score a fitted state against the scene's truth.npz"),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m core", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    for name, (module, help_text) in COMMANDS.items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        try:
+            mod = importlib.import_module(module)
+        except ModuleNotFoundError as exc:
+            if exc.name != module:
+                raise
+            p.set_defaults(_missing=module)
+            continue
+        mod.add_arguments(p)
+        p.set_defaults(_run=mod.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if getattr(args, "_missing", None):
+        print(f"somacap: error: '{args.command}' is not available yet", file=sys.stderr)
+        return 2
+    try:
+        return int(args._run(args) or 0)
+    except InputError as exc:
+        print(f"somacap: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("somacap: cancelled", file=sys.stderr)
+        return 130

@@ -167,3 +167,148 @@ class Camera:
     def copy(self) -> Camera:
         return Camera(self.name, self.size, self.K.copy(), self.dist.copy(), self.R.copy(),
                       self.t.copy())
+
+
+# -- parameter packing and analytic Jacobians ----------------------------------------
+#: Interior parameters in the order of a packed camera vector (after rvec, t).
+#: ``f`` = fx (px), ``aspect`` = fx / fy, ``cx``, ``cy`` (px), radial k1..k3,
+#: decentring p1, p2 (OpenCV's model).
+INTRINSIC_NAMES = ("f", "aspect", "cx", "cy", "k1", "k2", "k3", "p1", "p2")
+#: Exterior parameters: Rodrigues vector world -> camera, translation (m).
+EXTRINSIC_NAMES = ("rx", "ry", "rz", "tx", "ty", "tz")
+#: Names of the 15 entries of a packed camera vector (see :func:`pack_camera`).
+PARAM_NAMES = EXTRINSIC_NAMES + INTRINSIC_NAMES
+N_PARAMS = len(PARAM_NAMES)
+
+
+def pack_camera(cam: Camera) -> np.ndarray:
+    """Camera -> parameter vector (15,) in the order of :data:`PARAM_NAMES`.
+
+    The skew ``K[0, 1]`` is not a parameter (taken as zero).
+    """
+    k1, k2, p1, p2, k3 = cam.dist
+    fx, fy = cam.K[0, 0], cam.K[1, 1]
+    return np.concatenate([cam.rvec, cam.t,
+                           [fx, fx / fy, cam.K[0, 2], cam.K[1, 2], k1, k2, k3, p1, p2]])
+
+
+def unpack_camera(p: np.ndarray, name: str, size: tuple[int, int]) -> Camera:
+    """Parameter vector (15,) (see :data:`PARAM_NAMES`) -> :class:`Camera`."""
+    p = np.asarray(p, dtype=float).reshape(N_PARAMS)
+    f, aspect, cx, cy, k1, k2, k3, p1, p2 = p[6:]
+    K = np.array([[f, 0.0, cx], [0.0, f / aspect, cy], [0.0, 0.0, 1.0]])
+    return Camera(name, size, K, np.array([k1, k2, p1, p2, k3]), rodrigues_to_matrix(p[:3]),
+                  p[3:6])
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """Cross-product matrices of vectors (..., 3) -> (..., 3, 3)."""
+    z = np.zeros(v.shape[:-1])
+    return np.stack([np.stack([z, -v[..., 2], v[..., 1]], -1),
+                     np.stack([v[..., 2], z, -v[..., 0]], -1),
+                     np.stack([-v[..., 1], v[..., 0], z], -1)], -2)
+
+
+def rodrigues_batch(rvec: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation vectors (M, 3) -> matrices R (M, 3, 3) and dR/drvec (M, 3, 3, 3).
+
+    ``dR[m, i]`` is the derivative of ``R[m]`` with respect to ``rvec[m, i]``
+    (Gallego & Yezzi 2015, "A compact formula for the derivative of a 3-D rotation in
+    exponential coordinates", eq. 9); near zero it tends to the skew matrix of e_i.
+    """
+    rvec = np.asarray(rvec, dtype=float).reshape(-1, 3)
+    theta = np.linalg.norm(rvec, axis=1)
+    small = theta < 1e-9
+    th = np.where(small, 1.0, theta)
+    k = rvec / th[:, None]
+    Kx = _skew(k)
+    s, c = np.sin(theta)[:, None, None], np.cos(theta)[:, None, None]
+    R = np.eye(3) + s * Kx + (1.0 - c) * (Kx @ Kx)
+    R[small] = np.eye(3) + _skew(rvec[small])
+    eye = np.eye(3)
+    Vx = _skew(rvec)                                          # (M, 3, 3)
+    ImR = eye - R                                             # (M, 3, 3)
+    dR = np.empty(rvec.shape[:1] + (3, 3, 3))
+    for i in range(3):  # three components, not a loop over points
+        cross = np.cross(rvec, ImR[:, :, i])                  # v x ((I - R) e_i)
+        A = rvec[:, i, None, None] * Vx + _skew(cross)
+        dR[:, i] = (A / (th**2)[:, None, None]) @ R
+    dR[small] = _skew(np.broadcast_to(eye, (int(small.sum()), 3, 3)))
+    return R, dR
+
+
+def project_params(params: np.ndarray, xyz: np.ndarray, jacobian: bool = True):
+    """Project points with per-point camera parameter vectors, with Jacobians.
+
+    Parameters
+    ----------
+    params : ndarray, shape (M, 15) or (15,)
+        Packed camera vectors (:data:`PARAM_NAMES`), one per point or one for all.
+    xyz : ndarray, shape (M, 3)
+        World points, metres.
+    jacobian : bool
+        Also return the analytic Jacobians.
+
+    Returns
+    -------
+    uv : ndarray, shape (M, 2)
+        Image points, pixels (NaN behind the camera).
+    J_cam : ndarray, shape (M, 2, 15)
+        d uv / d params (only when ``jacobian``).
+    J_xyz : ndarray, shape (M, 2, 3)
+        d uv / d xyz (only when ``jacobian``).
+    """
+    xyz = np.asarray(xyz, dtype=float).reshape(-1, 3)
+    params = np.broadcast_to(np.asarray(params, dtype=float), (xyz.shape[0], N_PARAMS))
+    R, dR = rodrigues_batch(params[:, :3])
+    t = params[:, 3:6]
+    f, a, cx, cy, k1, k2, k3, p1, p2 = params[:, 6:].T
+    fy = f / a
+    pc = np.einsum("mij,mj->mi", R, xyz) + t
+    z = pc[:, 2]
+    front = z > 1e-9
+    zs = np.where(front, z, np.nan)
+    x, y = pc[:, 0] / zs, pc[:, 1] / zs
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+    uv = np.stack([f * xd + cx, fy * yd + cy], axis=-1)
+    if not jacobian:
+        return uv
+    # d(xd, yd) / d(x, y)
+    D = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)
+    dxd_dx = radial + 2.0 * x * x * D + 2.0 * p1 * y + 6.0 * p2 * x
+    dxd_dy = 2.0 * x * y * D + 2.0 * p1 * x + 2.0 * p2 * y
+    dyd_dx = dxd_dy
+    dyd_dy = radial + 2.0 * y * y * D + 6.0 * p1 * y + 2.0 * p2 * x
+    J_d = np.stack([np.stack([f * dxd_dx, f * dxd_dy], -1),
+                    np.stack([fy * dyd_dx, fy * dyd_dy], -1)], -2)       # (M, 2, 2)
+    zero = np.zeros_like(x)
+    J_n = np.stack([np.stack([1.0 / zs, zero, -x / zs], -1),
+                    np.stack([zero, 1.0 / zs, -y / zs], -1)], -2)         # (M, 2, 3)
+    J_pc = J_d @ J_n                                                      # d uv / d pc
+    J_xyz = J_pc @ R
+    dpc_dr = np.einsum("mkij,mj->mik", dR, xyz)                            # (M, 3, 3)
+    J_cam = np.zeros((xyz.shape[0], 2, N_PARAMS))
+    J_cam[:, :, 0:3] = J_pc @ dpc_dr
+    J_cam[:, :, 3:6] = J_pc
+    one = np.ones_like(x)
+    J_cam[:, 0, 6], J_cam[:, 1, 6] = xd, yd / a
+    J_cam[:, 1, 7] = -fy * yd / a
+    J_cam[:, 0, 8], J_cam[:, 1, 9] = one, one
+    r4 = r2 * r2
+    for j, rp in enumerate((r2, r4, r4 * r2)):
+        J_cam[:, 0, 10 + j] = f * x * rp
+        J_cam[:, 1, 10 + j] = fy * y * rp
+    J_cam[:, 0, 13], J_cam[:, 1, 13] = f * 2.0 * x * y, fy * (r2 + 2.0 * y * y)
+    J_cam[:, 0, 14], J_cam[:, 1, 14] = f * (r2 + 2.0 * x * x), fy * 2.0 * x * y
+    return uv, J_cam, J_xyz
+
+
+def camera_project_jacobians(cam: Camera, xyz: np.ndarray):
+    """``cam.project`` of points (M, 3) with d uv / d params (M, 2, 15) and d uv / d xyz.
+
+    See :func:`project_params`; ``cam.K[0, 1]`` (skew) must be zero.
+    """
+    return project_params(pack_camera(cam), xyz)

@@ -2,7 +2,15 @@ import cv2
 import numpy as np
 import pytest
 
-from core.camera import Camera, matrix_to_rodrigues, rodrigues_to_matrix
+from core.camera import (
+    Camera,
+    matrix_to_rodrigues,
+    pack_camera,
+    project_params,
+    rodrigues_batch,
+    rodrigues_to_matrix,
+    unpack_camera,
+)
 
 
 def _camera(rng):
@@ -42,3 +50,58 @@ def test_rodrigues_round_trip(angle, rng):
 def test_pixel_aspect_is_fx_over_fy():
     cam = Camera("c", (10, 10), np.diag([800.0, 400.0, 1.0]))
     assert cam.aspect == pytest.approx(2.0)
+
+
+# -- packing and analytic Jacobians ------------------------------------------------------
+
+
+def _aspect_camera(rng):
+    K = np.array([[800.0, 0.0, 250.0], [0.0, 400.0, 95.0], [0.0, 0.0, 1.0]])
+    dist = np.array([-0.2, 0.05, 0.001, -0.002, 0.01])
+    R = rodrigues_to_matrix(rng.normal(size=3) * 0.3)
+    return Camera("cam01", (512, 192), K, dist, R, np.array([0.1, -0.2, 4.0]))
+
+
+def test_pack_round_trip(rng):
+    cam = _aspect_camera(rng)
+    p = pack_camera(cam)
+    assert p[7] == pytest.approx(2.0)
+    back = unpack_camera(p, cam.name, cam.size)
+    xyz = rng.normal(size=(50, 3)) * 0.5
+    np.testing.assert_allclose(back.project(xyz), cam.project(xyz), atol=1e-9)
+    np.testing.assert_allclose(project_params(p, xyz, jacobian=False), cam.project(xyz),
+                               atol=1e-9)
+
+
+@pytest.mark.parametrize("scale", [0.0, 1e-12, 0.3, 2.5])
+def test_rodrigues_derivative_matches_finite_differences(scale, rng):
+    rvec = rng.normal(size=(4, 3)) * scale
+    R, dR = rodrigues_batch(rvec)
+    for i, rv in enumerate(rvec):
+        np.testing.assert_allclose(R[i], cv2.Rodrigues(rv)[0], atol=1e-9)
+    h = 1e-6
+    for k in range(3):
+        e = np.zeros(3)
+        e[k] = h
+        num = (rodrigues_batch(rvec + e)[0] - rodrigues_batch(rvec - e)[0]) / (2 * h)
+        np.testing.assert_allclose(dR[:, k], num, atol=1e-6)
+
+
+def test_projection_jacobians_match_finite_differences(rng):
+    cam = _aspect_camera(rng)
+    p = pack_camera(cam)
+    xyz = rng.normal(size=(30, 3)) * 0.5
+    uv, J_cam, J_xyz = project_params(p, xyz)
+    steps = np.array([1e-6] * 6 + [1e-3, 1e-6, 1e-3, 1e-3] + [1e-6] * 5)
+    for k in range(p.size):
+        dp = np.zeros_like(p)
+        dp[k] = steps[k]
+        num = (project_params(p + dp, xyz, False) - project_params(p - dp, xyz, False)) / (
+            2 * steps[k])
+        np.testing.assert_allclose(J_cam[:, :, k], num, rtol=1e-5, atol=1e-4,
+                                   err_msg=f"parameter {k}")
+    for k in range(3):
+        d = np.zeros(3)
+        d[k] = 1e-6
+        num = (project_params(p, xyz + d, False) - project_params(p, xyz - d, False)) / 2e-6
+        np.testing.assert_allclose(J_xyz[:, :, k], num, rtol=1e-5, atol=1e-4)

@@ -1,0 +1,193 @@
+"""Per-camera background model and foreground masks (SPEC.md stage 6).
+
+The background of each camera is a per-pixel colour with a per-pixel noise level,
+estimated from frames without the person when there are some, or else by a robust
+temporal median that is refined iteratively: pixels classified as foreground in a
+frame are left out of that pixel's median in the next round, so a person who stays
+a while in one place does not burn into the background.
+
+A pixel is foreground when its colour differs from the background by more than
+``threshold`` noise levels *and* the difference is not a shadow: a cast shadow
+darkens the background colour (brightness ratio ``alpha`` in ``shadow_range``) without
+changing its chromaticity (Horprasert et al.'s brightness / chromaticity distortion).
+The mask is then cleaned by a morphological opening and closing, holes are filled,
+and connected components smaller than ``min_area_frac`` of the largest are dropped.
+
+Images are ``(H, W, 3)`` uint8 RGB (or grey ``(H, W)``), pixel coordinates as in
+:mod:`core.camera`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .errors import InputError
+
+
+@dataclass
+class BackgroundModel:
+    """Background of one camera.
+
+    Attributes
+    ----------
+    colour : ndarray, shape (H, W, 3), float32
+        Background colour, grey levels 0..255.
+    sigma : ndarray, shape (H, W), float32
+        Noise level of the colour difference per pixel, grey levels (≥ ``min_sigma``).
+    known : ndarray, shape (H, W), bool
+        Pixels whose background was seen often enough to be trusted; pixels that were
+        covered in (nearly) every frame stay unknown and are never called foreground
+        by colour alone.
+    """
+
+    colour: np.ndarray
+    sigma: np.ndarray
+    known: np.ndarray
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.colour.shape[:2]
+
+    def difference(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Normalised colour distance and brightness ratio of ``image`` against the model.
+
+        Returns
+        -------
+        dist : ndarray (H, W) float32
+            ``|I - B| / sigma`` (noise levels).
+        chroma : ndarray (H, W) float32
+            Chromaticity distortion ``|I - alpha B| / sigma`` (noise levels).
+        alpha : ndarray (H, W) float32
+            Brightness ratio ``<I, B> / <B, B>``.
+        """
+        img = _as_rgb(image).astype(np.float32)
+        b = self.colour
+        diff = img - b
+        dist = np.sqrt(np.einsum("hwc,hwc->hw", diff, diff)) / self.sigma
+        bb = np.einsum("hwc,hwc->hw", b, b) + 1e-3
+        alpha = np.einsum("hwc,hwc->hw", img, b) / bb
+        cd = img - alpha[..., None] * b
+        chroma = np.sqrt(np.einsum("hwc,hwc->hw", cd, cd)) / self.sigma
+        return dist, chroma, alpha
+
+    def foreground(self, image: np.ndarray, threshold: float = 5.0,
+                   shadow_range: tuple[float, float] = (0.45, 0.95),
+                   shadow_chroma: float = 4.0, min_area_frac: float = 0.1,
+                   clean_px: int = 2) -> np.ndarray:
+        """Foreground mask of one image, ``(H, W)`` bool (see the module docstring)."""
+        if image.shape[:2] != self.shape:
+            raise InputError(
+                f"image of size {image.shape[1]}x{image.shape[0]} does not match the "
+                f"background model {self.shape[1]}x{self.shape[0]}"
+            )
+        dist, chroma, alpha = self.difference(image)
+        fg = dist > threshold
+        shadow = (alpha > shadow_range[0]) & (alpha < shadow_range[1]) & (chroma < shadow_chroma)
+        fg &= ~shadow
+        fg &= self.known
+        return clean_mask(fg, clean_px=clean_px, min_area_frac=min_area_frac)
+
+
+def _as_rgb(image: np.ndarray) -> np.ndarray:
+    if image.ndim == 2:
+        return np.repeat(image[..., None], 3, axis=2)
+    return image
+
+
+def clean_mask(mask: np.ndarray, clean_px: int = 2, min_area_frac: float = 0.1) -> np.ndarray:
+    """Open, close, fill holes and drop small components of a boolean mask (H, W)."""
+    m = mask.astype(np.uint8)
+    if clean_px > 0:
+        k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * clean_px + 1, 2 * clean_px + 1))
+        m = cv2.morphologyEx(m, cv2.MORPH_OPEN, k)
+        m = cv2.morphologyEx(m, cv2.MORPH_CLOSE, k)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
+    if n <= 1:
+        return np.zeros(mask.shape, bool)
+    areas = stats[1:, cv2.CC_STAT_AREA]
+    keep = np.zeros(n, bool)
+    keep[1:] = areas >= min_area_frac * areas.max()
+    m = keep[labels].astype(np.uint8)
+    # fill holes: background regions not connected to the border
+    contours, _ = cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    filled = np.zeros_like(m)
+    cv2.drawContours(filled, contours, -1, 1, thickness=cv2.FILLED)
+    return filled.astype(bool)
+
+
+def fit_background(frames: np.ndarray, empty: np.ndarray | None = None, iterations: int = 2,
+                   threshold: float = 5.0, min_sigma: float = 2.0,
+                   max_frames: int = 40, min_known_frac: float = 0.15) -> BackgroundModel:
+    """Estimate a camera's background.
+
+    Parameters
+    ----------
+    frames : ndarray, shape (N, H, W, 3) or (N, H, W), uint8
+        Frames of the take (the person may be present).
+    empty : ndarray, shape (M, H, W, 3), optional
+        Frames without the person.  When given they alone define the background.
+    iterations : int
+        Refinement rounds of the masked temporal median.
+    threshold : float
+        Foreground threshold in noise levels used during refinement.
+    min_sigma : float
+        Floor of the per-pixel noise level, grey levels.
+    max_frames : int
+        At most this many frames (evenly spaced) enter the medians, for speed.
+    min_known_frac : float
+        A pixel is *known* when it was background in at least this fraction of frames.
+
+    Returns
+    -------
+    BackgroundModel
+    """
+    src = empty if empty is not None and len(empty) > 0 else frames
+    src = np.asarray(src)
+    if src.ndim not in (3, 4) or len(src) == 0:
+        raise InputError("background needs at least one frame of shape (H, W[, 3])")
+    if src.ndim == 3:
+        src = np.repeat(src[..., None], 3, axis=3)
+    if len(src) > max_frames:
+        src = src[np.linspace(0, len(src) - 1, max_frames).round().astype(int)]
+    stack = src.astype(np.float32)
+    colour = np.median(stack, axis=0)
+    sigma = _mad_sigma(stack, colour, min_sigma)
+    known = np.ones(colour.shape[:2], bool)
+    if empty is not None and len(empty) > 0:
+        return BackgroundModel(colour, sigma, known)
+    for _ in range(iterations):
+        model = BackgroundModel(colour, sigma, np.ones_like(known))
+        bg = np.empty(stack.shape[:3], bool)
+        for i, img in enumerate(src):
+            # dilated foreground so that soft edges stay out of the median
+            fg = model.foreground(img, threshold=threshold, min_area_frac=0.0, clean_px=1)
+            bg[i] = ~cv2.dilate(fg.astype(np.uint8), np.ones((7, 7), np.uint8)).astype(bool)
+        masked = np.where(bg[..., None], stack, np.nan)
+        counts = bg.sum(axis=0)
+        known = counts >= max(1, int(np.ceil(min_known_frac * len(src))))
+        with np.errstate(all="ignore"):
+            new = np.nanmedian(masked[:, known], axis=0)
+        colour = colour.copy()
+        colour[known] = new
+        sigma = _mad_sigma(stack, colour, min_sigma, weights=bg)
+    return BackgroundModel(colour.astype(np.float32), sigma.astype(np.float32), known)
+
+
+def _mad_sigma(stack, colour, min_sigma, weights=None):
+    """Per-pixel robust noise level of the colour distance (MAD scaled to σ)."""
+    d = np.sqrt(((stack - colour[None]) ** 2).sum(axis=-1))  # (N, H, W)
+    if weights is not None:
+        d = np.where(weights, d, np.nan)
+        with np.errstate(all="ignore"):
+            med = np.nanmedian(d, axis=0)
+        med = np.where(np.isfinite(med), med, min_sigma)
+    else:
+        med = np.median(d, axis=0)
+    # |difference| of 3-channel Gaussian noise: median ≈ 1.54 σ
+    sigma = med / 1.54
+    # a little spatial pooling keeps single noisy estimates from making holes
+    sigma = cv2.blur(sigma.astype(np.float32), (5, 5))
+    return np.maximum(sigma, min_sigma).astype(np.float32)

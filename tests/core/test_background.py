@@ -1,0 +1,63 @@
+"""Background model and foreground masks on seeded synthetic frames."""
+
+import cv2
+import numpy as np
+import pytest
+
+from core.background import fit_background
+from core.errors import InputError
+
+
+def _frames(rng, n=30, h=96, w=128, still=False):
+    """Textured background, a person-like blob moving (or standing), a cast shadow, noise."""
+    bg = cv2.GaussianBlur(rng.uniform(40, 220, (h, w, 3)).astype(np.float32), (0, 0), 3)
+    frames, masks = [], []
+    for i in range(n):
+        img = bg.copy()
+        cx = 24 + (0 if still and i < n * 0.4 else (80 * i) // n)
+        mask = np.zeros((h, w), np.uint8)
+        cv2.ellipse(mask, (cx, 50), (10, 30), 0, 0, 360, 1, -1)
+        shadow = np.zeros((h, w), np.uint8)
+        cv2.ellipse(shadow, (cx + 14, 84), (8, 4), 0, 0, 360, 1, -1)
+        img[shadow.astype(bool)] *= 0.6
+        person = np.array([200.0, 60.0, 90.0]) + rng.normal(0, 10, (h, w, 3))
+        img[mask.astype(bool)] = person[mask.astype(bool)]
+        img += rng.normal(0, 2.0, img.shape)
+        frames.append(np.clip(img, 0, 255).astype(np.uint8))
+        masks.append(mask.astype(bool))
+    return np.array(frames), np.array(masks)
+
+
+def _iou(a, b):
+    return (a & b).sum() / max(1, (a | b).sum())
+
+
+@pytest.mark.parametrize("still", [False, True])
+def test_foreground_iou_with_shadows(rng, still):
+    frames, masks = _frames(rng, still=still)
+    model = fit_background(frames)
+    ious = [_iou(model.foreground(f), m) for f, m in zip(frames, masks, strict=True)]
+    # a person standing still for 40 % of the take must not burn into the background
+    assert np.mean(ious) > 0.93, np.round(ious, 3)
+    assert min(ious) > 0.85
+
+
+def test_empty_frames_define_background(rng):
+    frames, masks = _frames(rng, n=10)
+    empty = frames.copy()
+    for e in empty:
+        e[:] = np.median(frames, axis=0).astype(np.uint8)  # an approximately empty plate
+    model = fit_background(frames, empty=empty[:3])
+    assert _iou(model.foreground(frames[5]), masks[5]) > 0.9
+
+
+def test_size_mismatch_is_clear(rng):
+    frames, _ = _frames(rng, n=5)
+    model = fit_background(frames)
+    with pytest.raises(InputError, match="does not match the background model"):
+        model.foreground(frames[0][:50])
+
+
+def test_no_frames_is_clear():
+    with pytest.raises(InputError, match="at least one frame"):
+        fit_background(np.zeros((0, 10, 10, 3), np.uint8))

@@ -19,6 +19,7 @@ Images are ``(H, W, 3)`` uint8 RGB (or grey ``(H, W)``), pixel coordinates as in
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import cv2
@@ -168,12 +169,18 @@ def fit_background(frames: np.ndarray, empty: np.ndarray | None = None, iteratio
         masked = np.where(bg[..., None], stack, np.nan)
         counts = bg.sum(axis=0)
         known = counts >= max(1, int(np.ceil(min_known_frac * len(src))))
-        with np.errstate(all="ignore"):
-            new = np.nanmedian(masked[:, known], axis=0)
+        new = _nanmedian0(masked[:, known])
         colour = colour.copy()
         colour[known] = new
         sigma = _mad_sigma(stack, colour, min_sigma, weights=bg)
     return BackgroundModel(colour.astype(np.float32), sigma.astype(np.float32), known)
+
+
+def _nanmedian0(a: np.ndarray) -> np.ndarray:
+    """Median over axis 0 ignoring NaN; all-NaN columns give NaN without a warning."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return np.nanmedian(a, axis=0)
 
 
 def _mad_sigma(stack, colour, min_sigma, weights=None):
@@ -181,8 +188,7 @@ def _mad_sigma(stack, colour, min_sigma, weights=None):
     d = np.sqrt(((stack - colour[None]) ** 2).sum(axis=-1))  # (N, H, W)
     if weights is not None:
         d = np.where(weights, d, np.nan)
-        with np.errstate(all="ignore"):
-            med = np.nanmedian(d, axis=0)
+        med = _nanmedian0(d)
         med = np.where(np.isfinite(med), med, min_sigma)
     else:
         med = np.median(d, axis=0)

@@ -1,0 +1,1 @@
+"""Synthetic capture studio (bpy) and the committed default sample scene."""

@@ -31,3 +31,8 @@ lint: $(STAMP)
 
 clean:
 	rm -rf out build dist .pytest_cache .ruff_cache
+
+# The installable extension zips (one per platform, scipy + OpenCV wheels bundled) in dist/.
+.PHONY: extension
+extension: $(STAMP)
+	$(PY) -m addon.packaging

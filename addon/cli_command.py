@@ -1,0 +1,163 @@
+"""The ``somacap`` command line inside Blender (``blender -c somacap …``).
+
+::
+
+    blender -c somacap fit SCENE --out take.blend [--target character.blend] [--fit fit.json]
+    blender -c somacap retarget fit.json --target character.blend --out take.blend
+    blender -c somacap batch TAKES_DIR --out OUT_DIR [--target character.blend]
+
+The same commands run with the ``bpy`` module of the project's environment through the
+launcher: ``python -m addon.launch fit SCENE --out take.blend`` (from the repository root).
+
+``fit`` builds a new file with the scene's cameras (footage as background), the body
+(armature, metaballs, action named after the take) and, with ``--target``, the motion
+retargeted onto the character.  It uses ``--fit FILE``, else ``SCENE/fit.json``, else
+runs core's fitter.  ``retarget`` does the same from a fitted state without cameras.
+``batch`` converts every take of a folder (scene folders and ``*.json`` states) into
+``OUT_DIR/<take>.blend``, continues past a failing take, prints the failures and exits
+with status 1 when any take failed.  Bad input: one line ``somacap: error: …``, status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import traceback
+from pathlib import Path
+
+from . import _core
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="somacap", description=__doc__.splitlines()[0])
+    sub = p.add_subparsers(dest="command", required=True)
+    f = sub.add_parser("fit", help="fit a scene folder and write a .blend")
+    f.add_argument("scene", type=Path)
+    f.add_argument("--out", type=Path, required=True)
+    f.add_argument("--target", type=Path, help="character .blend to retarget onto")
+    f.add_argument("--fit", type=Path, help="use this fitted state instead of fitting")
+    f.add_argument("--take", help="take / action name (default: the scene folder name)")
+    r = sub.add_parser("retarget", help="build a fitted state and retarget it")
+    r.add_argument("state", type=Path)
+    r.add_argument("--target", type=Path, required=True)
+    r.add_argument("--out", type=Path, required=True)
+    r.add_argument("--take", help="take / action name (default: the file's stem)")
+    b = sub.add_parser("batch", help="convert a folder of takes")
+    b.add_argument("takes", type=Path)
+    b.add_argument("--out", type=Path, required=True)
+    b.add_argument("--target", type=Path)
+    for sp in (f, r, b):
+        sp.add_argument("--export", choices=("bvh", "fbx"), action="append", default=[],
+                        help="also export the motion next to the .blend (repeatable)")
+    return p
+
+
+def _new_file():
+    import bpy
+
+    bpy.ops.wm.read_homefile(use_empty=True)
+
+
+def _save(out: Path):
+    import bpy
+
+    out = out.resolve()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    bpy.ops.wm.save_as_mainfile(filepath=str(out), check_existing=False)
+    return out
+
+
+def _take(state, take, target, out, exports, cameras_from=None):
+    """Build one take into a fresh file and save it; returns a one-line summary."""
+    from . import pipeline, retarget
+
+    _new_file()
+    if cameras_from is not None:
+        pipeline.create_scene_cameras(cameras_from)
+    arm, balls, action = pipeline.build_take(state, take)
+    msg = f"{take}: {state.n_frames} frames, action '{action.name}'"
+    if target is not None:
+        char = pipeline.load_character(target)
+        res = retarget.retarget(arm, char, take=take)
+        msg += f", retargeted {len(res.pairs)} bones onto {char.name}"
+        if res.unmapped_target:
+            msg += f" (unmapped: {len(res.unmapped_target)} bones)"
+    for fmt in exports:
+        pipeline.export_motion(arm, out.with_suffix(f".{fmt}"))
+    path = _save(out)
+    return f"{msg} -> {path}"
+
+
+def cmd_fit(args) -> int:
+    from . import pipeline
+
+    state = pipeline.state_for_scene(args.scene, args.fit, _core.progress.Progress())
+    take = args.take or args.scene.resolve().name
+    print(_take(state, take, args.target, args.out, args.export, cameras_from=args.scene))
+    return 0
+
+
+def cmd_retarget(args) -> int:
+    from . import pipeline
+
+    state = pipeline.read_state(args.state)
+    take = args.take or args.state.stem
+    print(_take(state, take, args.target, args.out, args.export))
+    return 0
+
+
+def _takes(folder: Path) -> list[Path]:
+    if not folder.is_dir():
+        raise _core.errors.InputError(f"{folder}: takes folder not found")
+    takes = sorted(p for p in folder.iterdir()
+                   if (p.is_dir() and (p / "scene.toml").is_file()) or p.suffix == ".json")
+    if not takes:
+        raise _core.errors.InputError(f"{folder}: no takes (scene folders or .json states)")
+    return takes
+
+
+def cmd_batch(args) -> int:
+    from . import pipeline
+
+    failures = []
+    done = 0
+    for take in _takes(args.takes):
+        out = args.out / f"{take.stem}.blend"
+        try:
+            if take.is_dir():
+                state = pipeline.state_for_scene(take, None, _core.progress.Progress())
+                print(_take(state, take.name, args.target, out, args.export, cameras_from=take))
+            else:
+                state = pipeline.read_state(take)
+                print(_take(state, take.stem, args.target, out, args.export))
+            done += 1
+        except _core.errors.InputError as exc:
+            failures.append((take.name, str(exc)))
+        except Exception as exc:  # a take must not stop the batch; report it in full
+            traceback.print_exc()
+            failures.append((take.name, f"{type(exc).__name__}: {exc}"))
+        sys.stdout.flush()
+    print(f"somacap batch: {done} converted, {len(failures)} failed")
+    for name, why in failures:
+        print(f"FAILED {name}: {why}", file=sys.stderr)
+    return 1 if failures else 0
+
+
+COMMANDS = {"fit": cmd_fit, "retarget": cmd_retarget, "batch": cmd_batch}
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point for ``blender -c somacap`` and the launcher; returns the exit status."""
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help or a usage error
+        return int(exc.code or 0)
+    try:
+        return COMMANDS[args.command](args)
+    except _core.errors.InputError as exc:
+        print(f"somacap: error: {exc}", file=sys.stderr)
+        return 2
+    except _core.progress.Cancelled:
+        print("somacap: cancelled", file=sys.stderr)
+        return 130

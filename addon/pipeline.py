@@ -1,0 +1,218 @@
+"""The add-on's jobs as plain functions, shared by the panel's operators and the CLI.
+
+Each function takes paths/objects, calls core, builds Blender data and returns what it
+made; bad input raises :class:`core.errors.InputError` before the user's data changes.
+"""
+
+from __future__ import annotations
+
+import tempfile
+import threading
+from pathlib import Path
+
+import numpy as np
+
+from . import _core, builders, cameras
+
+
+def read_state(path):
+    """Read and validate a fitted state (InputError naming the file on any problem)."""
+    return _core.state.read_state(path)
+
+
+def run_fit(scene_dir, out_json, progress=None) -> Path:
+    """Run core's whole pipeline on a scene folder and write ``fit.json``.
+
+    Uses ``core.fit.fit_scene(scene, progress=…)`` when core provides it, else core's
+    command line (``python -m core fit SCENE -o OUT``).
+    """
+    scene_dir, out_json = Path(scene_dir), Path(out_json)
+    try:
+        fit_mod = _core.load("fit")
+    except ModuleNotFoundError:
+        fit_mod = None
+    if fit_mod is not None and hasattr(fit_mod, "fit_scene"):
+        state = fit_mod.fit_scene(_core.scene.load_scene(scene_dir), progress=progress)
+        _core.state.write_state(out_json, state)
+        return out_json
+    rc = _core.cli.main(["fit", str(scene_dir), "-o", str(out_json)])
+    if rc != 0 or not out_json.is_file():
+        raise _core.errors.InputError(
+            f"{scene_dir}: core fit failed (exit status {rc}); see the messages above")
+    return out_json
+
+
+def state_for_scene(scene_dir, fit_path=None, progress=None):
+    """The fitted state of a scene: ``fit_path``, else ``SCENE/fit.json``, else fit now."""
+    scene_dir = Path(scene_dir)
+    if fit_path:
+        return read_state(fit_path)
+    if (scene_dir / "fit.json").is_file():
+        return read_state(scene_dir / "fit.json")
+    with tempfile.TemporaryDirectory() as tmp:
+        return read_state(run_fit(scene_dir, Path(tmp) / "fit.json", progress))
+
+
+def create_scene_cameras(scene_dir, calibration=None):
+    """Blender cameras for a scene folder (or an explicit calibration file), with the
+    camera's image sequence as background.  Returns the camera objects."""
+    scene_dir = Path(scene_dir) if scene_dir else None
+    if calibration:
+        cams = _core.calibration_io.read_calibration(calibration)
+    elif scene_dir is not None:
+        cams = _core.calibration_io.read_calibration(scene_dir / "calibration.toml")
+    else:
+        raise _core.errors.InputError("choose a scene folder or a calibration file")
+    image_dirs = {}
+    if scene_dir is not None:
+        image_dirs = {c.name: scene_dir / "images" / c.name for c in cams
+                      if (scene_dir / "images" / c.name).is_dir()}
+    return cameras.create_cameras(cams, image_dirs=image_dirs)
+
+
+def place_clicks(scene_dir):
+    """Empties at the forward intersection of the scene's clicked key joints.
+
+    Returns ``{joint: empty}``; the empties are named ``click_<joint>`` and can be
+    moved in the viewport (read back with :func:`clicked_positions`).
+    """
+    import bpy
+
+    sc = _core.scene.load_scene(scene_dir, check_images=False)
+    cams = sc.calibration()
+    clicks = sc.clicks()
+    joints = sorted(clicks["joints"])
+    uv = np.full((len(joints), len(cams), 2), np.nan)
+    for i, j in enumerate(joints):
+        for c, cam in enumerate(cams):
+            if cam.name in clicks["joints"][j]:
+                uv[i, c] = clicks["joints"][j][cam.name]
+    xyz = _core.intersect.triangulate(cams, uv).xyz
+    coll = bpy.data.collections.new("Somacap clicks")
+    bpy.context.scene.collection.children.link(coll)
+    out = {}
+    for j, p in zip(joints, xyz, strict=True):
+        if not np.all(np.isfinite(p)):
+            continue
+        e = bpy.data.objects.new(f"click_{j}", None)
+        e.empty_display_type = "SPHERE"
+        e.empty_display_size = 0.03
+        e.location = p.tolist()
+        e["somacap_joint"] = j
+        coll.objects.link(e)
+        out[j] = e
+    return out
+
+
+def clicked_positions() -> dict:
+    """``{joint: xyz (3,)}`` from the (possibly user-edited) click empties."""
+    import bpy
+
+    return {o["somacap_joint"]: np.array(o.matrix_world.translation)
+            for o in bpy.data.objects if "somacap_joint" in o}
+
+
+def build_take(state, take: str):
+    """Armature, metaballs and action of a state; per-frame quality on the armature."""
+    arm, balls, action = builders.build_body(state, take=take)
+    q = state.quality
+    arm["somacap_rmse_mm"] = [float(v) * 1000.0 if np.isfinite(v) else -1.0 for v in q.rmse_m]
+    arm["somacap_diverged"] = [int(v) for v in q.diverged]
+    return arm, balls, action
+
+
+def load_character(path):
+    """Append every object of a character .blend; returns its main armature object.
+
+    Raises InputError (and removes what it appended) when the file has no armature.
+    """
+    import bpy
+
+    path = Path(path)
+    if not path.is_file():
+        raise _core.errors.InputError(f"{path}: character file not found")
+    if path.suffix.lower() != ".blend":
+        raise _core.errors.InputError(f"{path}: a character must be a .blend file")
+    with bpy.data.libraries.load(str(path), link=False) as (src, dst):
+        dst.objects = list(src.objects)
+    objs = [o for o in dst.objects if o is not None]
+    arms = [o for o in objs if o.type == "ARMATURE"]
+    if not arms:
+        for o in objs:
+            bpy.data.objects.remove(o)
+        raise _core.errors.InputError(f"{path}: has no armature to retarget onto")
+    coll = bpy.data.collections.new(f"Character {path.stem}")
+    bpy.context.scene.collection.children.link(coll)
+    for o in objs:
+        coll.objects.link(o)
+    return max(arms, key=lambda o: len(o.data.bones))
+
+
+def export_motion(armature, path, fmt: str | None = None) -> Path:
+    """Export the armature's current action with Blender's own BVH or FBX exporter."""
+    import bpy
+
+    path = Path(path)
+    fmt = (fmt or path.suffix.lstrip(".")).lower()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    for o in bpy.context.view_layer.objects:
+        o.select_set(False)
+    armature.select_set(True)
+    bpy.context.view_layer.objects.active = armature
+    scene = bpy.context.scene
+    if fmt == "bvh":
+        bpy.ops.export_anim.bvh(filepath=str(path), frame_start=scene.frame_start,
+                                frame_end=scene.frame_end, rotate_mode="NATIVE",
+                                root_transform_only=True)
+    elif fmt == "fbx":
+        bpy.ops.export_scene.fbx(filepath=str(path), use_selection=True,
+                                 object_types={"ARMATURE"}, bake_anim=True,
+                                 add_leaf_bones=False)
+    else:
+        raise _core.errors.InputError(f"{path}: export format must be .bvh or .fbx")
+    return path
+
+
+class BackgroundJob:
+    """Run ``job(progress)`` in a worker thread; the main thread polls it.
+
+    Blender data must only be touched on the main thread: the job computes plain data
+    (e.g. a fitted state), the operator builds Blender objects from ``result`` after
+    :attr:`done`.  :meth:`cancel` sets the progress cancel flag; the job stops at its
+    next ``progress.update``/``check`` with :class:`core.progress.Cancelled`.
+    """
+
+    def __init__(self, job):
+        self.fraction = 0.0
+        self.message = ""
+        self.result = None
+        self.error: BaseException | None = None
+        self.progress = _core.progress.Progress(callback=self._update)
+        self._thread = threading.Thread(target=self._run, args=(job,), daemon=True)
+
+    def _update(self, fraction, message):
+        self.fraction, self.message = float(fraction), str(message)
+
+    def _run(self, job):
+        try:
+            self.result = job(self.progress)
+        except BaseException as exc:  # reported on the main thread
+            self.error = exc
+
+    def start(self) -> BackgroundJob:
+        self._thread.start()
+        return self
+
+    @property
+    def done(self) -> bool:
+        return not self._thread.is_alive()
+
+    def cancel(self) -> None:
+        self.progress.cancel()
+
+    def join(self, timeout: float | None = None) -> None:
+        self._thread.join(timeout)
+
+    @property
+    def cancelled(self) -> bool:
+        return isinstance(self.error, _core.progress.Cancelled)

@@ -1,0 +1,56 @@
+"""Scene settings of the Somacap panel (``scene.somacap``)."""
+
+from __future__ import annotations
+
+import bpy
+from bpy.props import (
+    CollectionProperty,
+    EnumProperty,
+    FloatProperty,
+    IntProperty,
+    PointerProperty,
+    StringProperty,
+)
+
+
+def _is_armature(self, obj):
+    return obj.type == "ARMATURE"
+
+
+class SOMACAP_PG_bone_pair(bpy.types.PropertyGroup):
+    """One row of the editable bone mapping: canonical bone -> target bone name."""
+
+    canonical: StringProperty(name="Canonical bone")
+    bone: StringProperty(name="Target bone")
+
+
+class SOMACAP_PG_settings(bpy.types.PropertyGroup):
+    scene_dir: StringProperty(name="Scene folder", subtype="DIR_PATH",
+                              description="A Somacap scene folder (scene.toml, images/, …)")
+    calibration: StringProperty(name="Calibration", subtype="FILE_PATH",
+                                description="calibration.toml (default: the scene's)")
+    state_path: StringProperty(name="Fitted state", subtype="FILE_PATH",
+                               description="fit.json to build the body from")
+    take: StringProperty(name="Take", default="take",
+                         description="Name of the new action(s)")
+    body: PointerProperty(name="Body", type=bpy.types.Object, poll=_is_armature,
+                          description="The recovered armature (source of retargeting)")
+    target: PointerProperty(name="Target", type=bpy.types.Object, poll=_is_armature,
+                            description="A rigged character to retarget onto")
+    mapping: CollectionProperty(type=SOMACAP_PG_bone_pair)
+    mapping_index: IntProperty()
+    mapping_scheme: StringProperty(name="Scheme")
+    export_format: EnumProperty(name="Format", items=[("BVH", "BVH", ""), ("FBX", "FBX", "")])
+    progress: FloatProperty(name="Progress", subtype="PERCENTAGE", min=0, max=100)
+    status: StringProperty(name="Status")
+
+
+classes = (SOMACAP_PG_bone_pair, SOMACAP_PG_settings)
+
+
+def register_properties():
+    bpy.types.Scene.somacap = PointerProperty(type=SOMACAP_PG_settings)
+
+
+def unregister_properties():
+    del bpy.types.Scene.somacap

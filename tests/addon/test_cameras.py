@@ -1,0 +1,77 @@
+"""Blender cameras from a calibration and back (OpenCV K, R, t <-> lens, sensor, shift)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from addon import cameras as bc
+from core.camera import Camera, rodrigues_to_matrix
+
+
+def _random_cameras(rng, n=3):
+    cams = []
+    for i in range(n):
+        W, H = [(512, 384), (640, 240), (320, 480)][i % 3]
+        aspect = [1.0, 2.0, 0.8][i % 3]  # fx / fy: square, one interlaced field, tall
+        fx = rng.uniform(400, 900)
+        K = [[fx, 0, W / 2 + rng.uniform(-20, 20)], [0, fx / aspect, H / 2 + rng.uniform(-15, 15)],
+             [0, 0, 1]]
+        R = rodrigues_to_matrix(rng.normal(size=3))
+        t = rng.uniform(-1, 1, 3) + [0, 0, 5]
+        cams.append(Camera(f"cam{i:02d}", (W, H), K, rng.normal(0, 0.01, 5), R, t))
+    return cams
+
+
+def test_intrinsics_round_trip_pure(rng):
+    for cam in _random_cameras(rng, 6):
+        p = bc.blender_intrinsics(cam.K, cam.size)
+        H_mm = p["sensor_width"] * cam.size[1] / cam.size[0]
+        K = bc.intrinsics_from_blender(p["lens"], p["sensor_width"], H_mm, p["sensor_fit"],
+                                       p["shift_x"], p["shift_y"], cam.size,
+                                       p["pixel_aspect_x"], p["pixel_aspect_y"])
+        np.testing.assert_allclose(K, cam.K, rtol=1e-12, atol=1e-9)
+        assert min(p["pixel_aspect_x"], p["pixel_aspect_y"]) == 1.0
+        assert p["pixel_aspect_y"] / p["pixel_aspect_x"] == pytest.approx(cam.aspect)
+
+
+def test_extrinsics_round_trip_pure(rng):
+    for cam in _random_cameras(rng, 4):
+        M = bc.blender_matrix_world(cam.R, cam.t)
+        # Blender camera looks down its -z: the world direction to the optical axis.
+        np.testing.assert_allclose(-M[:3, 2], cam.R[2], atol=1e-12)
+        R, t = bc.extrinsics_from_matrix_world(M)
+        np.testing.assert_allclose(R, cam.R, atol=1e-12)
+        np.testing.assert_allclose(t, cam.t, atol=1e-12)
+
+
+@pytest.mark.blender
+def test_blender_cameras_round_trip_and_project(empty_blend, rng):
+    bpy = empty_blend
+    from bpy_extras.object_utils import world_to_camera_view
+    from mathutils import Vector
+
+    cams = _random_cameras(rng, 3)
+    objs = bc.create_cameras(cams, scene=bpy.context.scene)
+    assert [o.name for o in objs] == [c.name for c in cams]
+    for cam, obj in zip(cams, objs, strict=True):
+        back = bc.camera_from_object(obj)
+        # Blender stores floats in single precision: 1e-6 relative / metres.
+        np.testing.assert_allclose(back.K, cam.K, rtol=1e-6, atol=1e-6)
+        np.testing.assert_allclose(back.R, cam.R, atol=1e-6)
+        np.testing.assert_allclose(back.t, cam.t, atol=1e-6)
+        np.testing.assert_allclose(back.dist, cam.dist, atol=1e-12)
+
+    # Blender's own projection agrees with the OpenCV model (no distortion).
+    scene = bpy.context.scene
+    for cam, obj in zip(cams, objs, strict=True):
+        bc._apply_render_settings(scene, obj)
+        ideal = Camera(cam.name, cam.size, cam.K, np.zeros(5), cam.R, cam.t)
+        xyz = cam.center + (rng.uniform(-0.3, 0.3, (20, 3)) + [0, 0, 4]) @ cam.R
+        uv = ideal.project(xyz)
+        W, H = cam.size
+        uv_bl = []
+        for p in xyz:
+            q = world_to_camera_view(scene, obj, Vector(p.tolist()))
+            uv_bl.append([q.x * W - 0.5, (1.0 - q.y) * H - 0.5])
+        np.testing.assert_allclose(np.array(uv_bl), uv, atol=2e-3)

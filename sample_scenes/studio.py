@@ -37,6 +37,7 @@ from core.calibration_io import write_calibration
 from core.camera import Camera
 from core.errors import InputError
 from core.landmarks import CLICK_JOINTS, JOINTS
+from core.progress import Progress
 
 from .bvh import CMU_SCALE, read_bvh
 from .retarget import Rig, retarget
@@ -354,7 +355,7 @@ def wand_positions(cams: list[Camera], lo: np.ndarray, hi: np.ndarray, n: int, l
 
 
 def _render_wand(cams, cam_objs, hide, options: Options, lo, hi, out: Path, tmp: Path,
-                 rng) -> tuple[int, float]:
+                 rng, progress=None) -> tuple[int, float]:
     bpy = _bpy()
     sc = bpy.context.scene
     for o in hide:
@@ -400,6 +401,8 @@ def _render_wand(cams, cam_objs, hide, options: Options, lo, hi, out: Path, tmp:
             rgb, _ = _compose(_render_rgba(obj, tmp), black, options.noise, rng)
             _write_png(out / "wand" / cam.name / f"{i:06d}.png", rgb)
             renders += 1
+        if progress is not None:
+            progress.update(i + 1, len(xyz), f"rendered wand position {i + 1}/{len(xyz)}")
     for o in targets:
         o.hide_render = True
     if options.engine == "workbench":
@@ -421,6 +424,9 @@ def render_scene(out_dir: str | Path, progress=None, **options) -> Path:
 
     Keyword options are the fields of :class:`Options` (e.g. ``rig="ring4"``,
     ``size=(64, 48)``, ``frames=3``).  Raises :class:`~core.errors.InputError` for bad input.
+    A ``.blend`` character is opened as the current file (replacing what bpy had open);
+    run it in a subprocess (``python -m sample_scenes.studio``) to keep a session intact.
+    ``progress`` (a :class:`core.progress.Progress`) is updated once per rendered frame.
     """
     opt = Options(**options)
     opt.size = (int(opt.size[0]), int(opt.size[1]))
@@ -482,7 +488,8 @@ def render_scene(out_dir: str | Path, progress=None, **options) -> Path:
     timing = {}
     with tempfile.TemporaryDirectory() as td:
         tmp = Path(td)
-        renders, secs = _render_wand(cams, cam_objs, meshes, opt, lo, hi, out, tmp, rng)
+        renders, secs = _render_wand(cams, cam_objs, meshes, opt, lo, hi, out, tmp, rng,
+                                     progress)
         timing["wand_seconds_per_image"] = secs / max(renders, 1)
         if not opt.wand_only:
             masks, secs, renders = _render_frames(opt, arm, rig, rt, cams, cam_objs, out, tmp,
@@ -523,7 +530,7 @@ def _render_frames(opt, arm, rig, rt, cams, cam_objs, out, tmp, rng, progress):
             masks[c, i] = mask[0::2] if opt.interlace else mask
             _write_png(out / "images" / cam.name / f"{i:06d}.png", rgb)
         if progress is not None:
-            progress.update(i + 1, n)
+            progress.update(i + 1, n, f"rendered frame {i + 1}/{n}")
     return masks, time.perf_counter() - t0, renders
 
 
@@ -649,7 +656,7 @@ def main(argv: list[str] | None = None) -> int:
     opts = {k: v for k, v in vars(args).items() if k != "out"}
     try:
         t0 = time.perf_counter()
-        out = render_scene(args.out, **opts)
+        out = render_scene(args.out, progress=Progress(interval=5.0), **opts)
     except InputError as exc:
         print(f"studio: error: {exc}", file=sys.stderr)
         return 2

@@ -108,6 +108,7 @@ def test_knees_follow_the_bvh(tiny, shared_data):
         assert np.linalg.norm(got - ref[:, bvh.index(bone)], axis=1).max() < 0.04
 
 
+@pytest.mark.slow
 def test_interlaced_noisy_scene(tmp_path, shared_data):
     out = tmp_path / "field"
     _studio("--out", out, "--size", "64x48", "--frames", 2, "--interlace", "--noise", 2,
@@ -131,6 +132,7 @@ def test_interlaced_noisy_scene(tmp_path, shared_data):
     assert err.max() > 0.01 and err.max() < 8  # noisy clicks, within a few sigma
 
 
+@pytest.mark.slow
 def test_bad_inputs_exit_2_naming_the_file(tmp_path, shared_data):
     garbled = tmp_path / "garbled.bvh"
     garbled.write_text("HIERARCHY\nROOT Hips\n{\n OFFSET 0 0\n")

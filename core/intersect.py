@@ -52,9 +52,12 @@ def _dlt(cameras: list[Camera], uv: np.ndarray, seen: np.ndarray) -> np.ndarray:
     n, c = uv.shape[:2]
     A = np.zeros((n, 2 * c, 4))
     for j, cam in enumerate(cameras):
-        xy = cam.undistort_points(np.where(seen[:, j, None], uv[:, j], 0.0))
+        with np.errstate(over="ignore", invalid="ignore"):
+            xy = cam.undistort_points(np.where(seen[:, j, None], uv[:, j], 0.0))
+        good = seen[:, j] & np.all(np.isfinite(xy), axis=1) & np.all(np.abs(xy) < 1e6, axis=1)
+        xy = np.where(good[:, None], xy, 0.0)
         Rt = np.hstack([cam.R, cam.t[:, None]])                  # (3, 4)
-        w = seen[:, j, None].astype(float)
+        w = good[:, None].astype(float)
         A[:, 2 * j] = w * (xy[:, 0, None] * Rt[2] - Rt[0])
         A[:, 2 * j + 1] = w * (xy[:, 1, None] * Rt[2] - Rt[1])
     # Row scaling does not change the solution but keeps the SVD well conditioned.
@@ -101,6 +104,7 @@ def triangulate(cameras: list[Camera], uv: np.ndarray, sigma_px: float = 0.1,
     xyz = np.full((n, 3), np.nan)
     if np.any(enough):
         xyz[enough] = _dlt(cameras, uv[enough], seen[enough])
+    xyz[~np.all(np.isfinite(xyz) & (np.abs(xyz) < 1e9), axis=1)] = np.nan
     active = enough & np.all(np.isfinite(xyz), axis=1)
     N = np.zeros((n, 3, 3))
     res = np.zeros((n, c, 2))
@@ -113,8 +117,10 @@ def triangulate(cameras: list[Camera], uv: np.ndarray, sigma_px: float = 0.1,
         J = np.zeros((idx.size, c, 2, 3))
         r = np.zeros((idx.size, c, 2))
         for j in range(c):
-            pred, _, J_xyz = project_params(params[j], xyz[idx])
-            ok_j = seen[idx, j] & np.all(np.isfinite(pred), axis=1)
+            with np.errstate(over="ignore", invalid="ignore"):
+                pred, _, J_xyz = project_params(params[j], xyz[idx])
+            ok_j = (seen[idx, j] & np.all(np.isfinite(pred), axis=1)
+                    & np.all(np.isfinite(J_xyz), axis=(1, 2)))
             front[idx, j] = ok_j | ~seen[idx, j]
             r[:, j] = np.where(ok_j[:, None], uv[idx, j] - pred, 0.0)
             J[:, j] = np.where(ok_j[:, None, None], J_xyz, 0.0)
@@ -126,6 +132,7 @@ def triangulate(cameras: list[Camera], uv: np.ndarray, sigma_px: float = 0.1,
         good = np.abs(np.linalg.det(N[idx])) > 1e-30
         step = np.zeros((idx.size, 3))
         step[good] = np.linalg.solve(N[idx][good], g[good][..., None])[..., 0]
+        step[~np.all(np.isfinite(step), axis=1)] = 0.0
         xyz[idx] += step
         it += 1
         # One more pass after convergence refreshes N and the residuals.

@@ -136,7 +136,7 @@ def retarget(source, target, take: str, frames=None, source_preset=None, target_
         ad.action.use_fake_user = True  # keep the user's action
     channels = {}
     quats = builders.matrices_to_quaternions(basis)
-    for i, b in enumerate(ti):
+    for b in ti:
         name = tgt_names[b]
         pb = target.pose.bones[name]
         path = f'pose.bones["{name}"]'
@@ -148,9 +148,12 @@ def retarget(source, target, take: str, frames=None, source_preset=None, target_
         else:
             from scipy.spatial.transform import Rotation
 
-            eul = Rotation.from_matrix(basis[:, b, :3, :3]).as_euler(pb.rotation_mode.lower())
-            channels[(path + ".rotation_euler", name)] = np.unwrap(eul, axis=0)
-        del i
+            # Blender's order "YXZ" applies Y, then X, then Z about fixed axes: scipy's
+            # extrinsic "yxz"; the F-curves are indexed by axis (x, y, z), not by order.
+            seq = pb.rotation_mode.lower()
+            eul = Rotation.from_matrix(basis[:, b, :3, :3]).as_euler(seq)
+            xyz = eul[:, [seq.index(a) for a in "xyz"]]
+            channels[(path + ".rotation_euler", name)] = np.unwrap(xyz, axis=0)
     hip_bone = target.data.bones[hip_b]
     if not hip_bone.use_connect:
         channels[(f'pose.bones["{tgt_names[hip_b]}"].location', tgt_names[hip_b])] = \

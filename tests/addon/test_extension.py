@@ -106,3 +106,39 @@ def test_install_enable_disable_reenable(built_zip, tmp_path):
     # Re-enabled: exactly what the first enable registered.
     for key in ("ops", "types", "scene_prop", "enabled", "n_types"):
         assert again[key] == inst[key], key
+
+
+def test_new_user_runs_the_panel_operators(built_zip, tmp_path):
+    """Install the zip, then press the panel's buttons in order, as a new user would."""
+    import numpy as np
+
+    from core.calibration_io import write_calibration
+    from core.camera import Camera, rodrigues_to_matrix
+    from core.state import write_state
+
+    from .state_fixtures import synthetic_state
+
+    scene = tmp_path / "scene"
+    scene.mkdir()
+    cams = [Camera(f"cam{i}", (64, 48), [[80, 0, 32], [0, 80, 24], [0, 0, 1]], np.zeros(5),
+                   rodrigues_to_matrix([1.6, 0, 0.5 * i]), [0, -1, 5]) for i in range(2)]
+    write_calibration(scene / "calibration.toml", cams)
+    write_state(scene / "fit.json", synthetic_state(5))
+    env = {**os.environ, "BLENDER_USER_RESOURCES": str(tmp_path / "user")}
+    proc = subprocess.run([sys.executable, str(HERE / "user_scenario.py"), str(built_zip),
+                           str(scene), str(tmp_path)], env=env, capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    r = json.loads(proc.stdout.strip().splitlines()[-1])
+    for step in ("install", "cameras", "fit", "map", "retarget", "export", "build_again"):
+        assert r[step] == ["FINISHED"], step
+    assert r["camera_objects"] == ["cam0", "cam1"]
+    assert r["body"] == "demo_armature" and r["mapped"] >= 18
+    assert r["target_action"] == "demo.001"
+    assert {"demo", "demo.001", "demo.002"} <= set(r["actions"])
+    assert (tmp_path / "demo.bvh").read_text().startswith("HIERARCHY")
+    assert "panel Somacap (VIEW_3D/UI/Somacap)" in r["panel"]
+    assert "button somacap.fit" in r["panel"] and "button somacap.retarget" in r["panel"]
+    assert any(line.startswith("label Frame 1: RMSE") for line in r["panel"])
+    assert "nope.json: fitted-state file not found" in r["bad_state"]
+    assert r["objects_unchanged"]

@@ -127,7 +127,11 @@ def retarget(source, target, take: str, frames=None, source_preset=None, target_
     rest = builders.armature_rest(target)
     parent = np.array([tgt_names.index(b.parent.name) if b.parent else -1
                        for b in target.data.bones])
-    pose = rt.pose_matrices(rest, parent, rot, root, len(fr))
+    # Bones left unmapped keep their current local pose (Blender keeps unkeyed values).
+    buf = np.zeros(len(tgt_names) * 16, dtype=np.float32)
+    target.pose.bones.foreach_get("matrix_basis", buf)
+    static = buf.reshape(-1, 4, 4).transpose(0, 2, 1).astype(float)
+    pose = rt.pose_matrices(rest, parent, rot, root, len(fr), basis=static)
     basis = builders.basis_matrices(rest, parent, pose)
 
     # Nothing has been changed so far; now write the new action.

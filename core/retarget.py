@@ -91,7 +91,7 @@ def scale_root_path(src_xyz: np.ndarray, k: float, src_origin: np.ndarray,
 
 
 def pose_matrices(rest: np.ndarray, parent: np.ndarray, rot: dict, root_xyz: dict,
-                  n_frames: int) -> np.ndarray:
+                  n_frames: int, basis: np.ndarray | None = None) -> np.ndarray:
     """Armature-space pose matrices (F, B, 4, 4) of a target rig.
 
     Parameters
@@ -102,16 +102,20 @@ def pose_matrices(rest: np.ndarray, parent: np.ndarray, rot: dict, root_xyz: dic
         orientation relative to their parent.
     root_xyz : bone index -> (F, 3) wanted head position; other bones' heads follow
         their parent (rigidly, as at rest).
+    basis : (B, 4, 4), optional
+        The static local pose (``matrix_basis``) that bones without keys keep
+        (default: identity, the rest pose).
     """
     B = len(rest)
     pose = np.zeros((n_frames, B, 4, 4))
     inv_rest = np.linalg.inv(rest)
+    basis = np.tile(np.eye(4), (B, 1, 1)) if basis is None else np.asarray(basis, float)
     for b in range(B):
         p = parent[b]
         if p < 0:
-            M = np.broadcast_to(rest[b], (n_frames, 4, 4)).copy()
+            M = np.broadcast_to(rest[b] @ basis[b], (n_frames, 4, 4)).copy()
         else:
-            M = pose[:, p] @ (inv_rest[p] @ rest[b])[None]
+            M = pose[:, p] @ (inv_rest[p] @ rest[b] @ basis[b])[None]
         if b in rot:
             M[:, :3, :3] = rot[b]
         if b in root_xyz:

@@ -86,3 +86,16 @@ def test_pose_matrices_follow_hierarchy(rng):
     # Head of 1 rides rigidly on 0.
     np.testing.assert_allclose(pose[:, 1, :3, 3],
                                (pose[:, 0] @ (np.linalg.inv(rest[0]) @ rest[1]))[:, :3, 3])
+
+
+def test_unkeyed_bones_keep_their_static_pose(rng):
+    rest = np.tile(np.eye(4), (3, 1, 1))
+    rest[:, :3, 3] = [[0, 0, 1], [0, 0.2, 1], [0, 0.4, 1]]
+    parent = np.array([-1, 0, 1])
+    basis = np.tile(np.eye(4), (3, 1, 1))
+    basis[1, :3, :3] = _rot(rng, 1)[0]  # the user's static pose of unmapped bone 1
+    rot = {2: _rot(rng, 4)}
+    pose = rt.pose_matrices(rest, parent, rot, {}, 4, basis=basis)
+    np.testing.assert_allclose(pose[:, 1, :3, :3],
+                               np.broadcast_to(basis[1, :3, :3], (4, 3, 3)), atol=1e-12)
+    np.testing.assert_allclose(pose[:, 2, :3, :3], rot[2])  # mapped: absolute world rotation

@@ -108,6 +108,7 @@ def clicked_positions() -> dict:
     """``{joint: xyz (3,)}`` from the (possibly user-edited) click empties."""
     import bpy
 
+    bpy.context.view_layer.update()  # matrix_world of moved/new empties
     return {o["somacap_joint"]: np.array(o.matrix_world.translation)
             for o in bpy.data.objects if "somacap_joint" in o}
 

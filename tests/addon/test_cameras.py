@@ -75,3 +75,25 @@ def test_blender_cameras_round_trip_and_project(empty_blend, rng):
             q = world_to_camera_view(scene, obj, Vector(p.tolist()))
             uv_bl.append([q.x * W - 0.5, (1.0 - q.y) * H - 0.5])
         np.testing.assert_allclose(np.array(uv_bl), uv, atol=2e-3)
+
+
+@pytest.mark.blender
+def test_clicked_joints_placed_at_their_intersection(empty_blend):
+    from addon import pipeline
+    from core.scene import load_scene
+    from tests.conftest import DEFAULT_SCENE
+
+    if not (DEFAULT_SCENE / "clicks.json").is_file() or not (DEFAULT_SCENE / "truth.npz").is_file():
+        pytest.skip("default scene without clicks/truth")
+    empties = pipeline.place_clicks(DEFAULT_SCENE)
+    sc = load_scene(DEFAULT_SCENE, check_images=False)
+    truth = sc.truth
+    names = [str(n) for n in truth["joint_names"]]
+    frame = sc.clicks()["frame"]
+    assert set(empties) == set(sc.clicks()["joints"])
+    got = pipeline.clicked_positions()
+    for joint, xyz in got.items():
+        err = np.linalg.norm(xyz - truth["joints_xyz"][frame, names.index(joint)])
+        assert err < 0.03, (joint, err)  # clicks carry a few pixels of noise
+    empties["l_knee"].location.x += 0.1  # the user drags an empty
+    assert pipeline.clicked_positions()["l_knee"][0] == pytest.approx(got["l_knee"][0] + 0.1)

@@ -34,7 +34,7 @@ LIMB_BONES = ("l_shoulder", "l_elbow", "r_shoulder", "r_elbow",
 #: Visible half-thickness (metres) of each bone's flesh: (across x, across y) for the
 #: template body; the along-bone radius follows from the bone length and the count.
 _THICKNESS = {
-    "pelvis": (0.15, 0.10), "lowerback": (0.14, 0.10), "spine": (0.14, 0.10),
+    "lowerback": (0.14, 0.10), "spine": (0.14, 0.10),
     "chest": (0.15, 0.11), "neck": (0.05, 0.05), "head": (0.08, 0.09),
     "l_clavicle": (0.05, 0.06), "r_clavicle": (0.05, 0.06),
     "l_shoulder": (0.05, 0.05), "r_shoulder": (0.05, 0.05),
@@ -117,8 +117,18 @@ def make_metaballs(skel: Skeleton, model: str = "simplified", s: np.ndarray | No
     bone, center, group, rot, radii = [], [], [], [], []
     for b, name in enumerate(skel.bone_names):
         tail = skel.joint_index(skel.bone_tail[b])
+        if name == "pelvis":  # the hip girdle, off the hip axis so that it fixes the root
+            w = float(np.linalg.norm(skel.joint_offset[skel.joint_index("l_hip")]))
+            hg = int(skel.joint_group[skel.joint_index("l_hip")])
+            for cx in ((0.0,) if model == "simplified" else (-0.5, 0.0, 0.5)):
+                bone.append(b)
+                center.append(np.array([cx * w, 0.01, -0.04]))
+                group.append(hg)
+                rot.append(np.eye(3))
+                radii.append((0.16 / VISIBLE, 0.10 / VISIBLE, 0.09 / VISIBLE))
+            continue
         if skel.joint_bone[tail] != b:
-            continue  # pelvis: flesh is carried by lowerback and the hips
+            continue
         off = skel.joint_offset[tail]
         g = int(skel.joint_group[tail])
         length = float(np.linalg.norm(off) * (s[g] if g >= 0 else 1.0))
@@ -230,10 +240,19 @@ def pose_jacobian(skel: Skeleton, pose_f: Pose, balls: Metaballs, s: np.ndarray,
     mask = anc[dof_of].astype(float)  # (M, n)
     w = pose_f.axes[frame]  # (n, 3)
     pk = pose_f.p[frame]  # (n, 3)
-    # ∂f_m/∂θ_k = −gm · (ω_k × (x − p_k)) = −(x − p_k) · (gm × ω_k)
-    gxw = np.cross(gm[:, :, None, :], w[None, None])  # (N, M, n, 3)
     dx = x[:, None, :] - pk[None]  # (N, n, 3)
-    J_theta = -np.einsum("nmki,nki,mk->nk", gxw, dx, mask)
+    # ∂f_m/∂θ_k = −gm · (ω_k × (x − p_k)) = −(x − p_k) · (gm × ω_k); metaballs of one
+    # bone share their ancestors, so sum their gradients first (memory O(N·n) per bone)
+    J_theta = np.zeros((len(x), skel.n_dof))
+    for b in np.unique(balls.bone):
+        on = balls.bone == b
+        rows = np.nonzero(np.any(f[:, on] != 0.0, axis=1))[0]  # points this bone touches
+        if len(rows) == 0:
+            continue
+        gb = gm[rows][:, on].sum(axis=1)  # (N_b, 3)
+        cols = np.nonzero(anc[skel.bone_dof[b]])[0]
+        gxw = np.cross(gb[:, None, :], w[None, cols])  # (N_b, K, 3)
+        J_theta[np.ix_(rows, cols)] -= np.einsum("nki,nki->nk", gxw, dx[rows][:, cols])
     J_root = -gm.sum(axis=1)
     # scales: centre c_m moves by Σ_{k anc, group g} R_par(k) o_k + [g_m = g] R_b c0_m
     G = skel.n_groups

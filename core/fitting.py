@@ -1,0 +1,340 @@
+"""Weighted least-squares fit of the metaball body to 3-D observations (paper 1, §4).
+
+Observation equations by type, each weighted by its a-priori σ (eq. 12,
+``p_i / p_j = σ_j² / σ_i²``; here every residual is divided by its σ):
+
+* **attractor points** (eq. 15): ``(Σ_{m ∈ part} exp(−2 d_m(x)) − 0.5) / σ_field`` for a
+  3-D point x assigned to a body part (a bone; see :mod:`core.segment`);
+* **joint positions** (clicked or predicted): ``(x_joint(θ, s) − obs) / σ_joint``;
+* **pose prior** (e.g. the prediction from the previous frames):
+  ``(θ − θ_pred) / σ_pred``;
+* **soft joint limits** (:func:`core.skeleton.limit_residuals`);
+* **shape prior** (weak, keeps unobserved radii near their start):
+  ``(radii − radii0) / σ_radius``.
+
+Unknowns per frame: ``θ`` (n) and ``root_xyz`` (3) — the pose; ``s`` (G) and the
+metaball radii (3M) — the shape.  As in the paper, pose and shape are solved
+alternately (better convergence from a rough start), then optionally polished
+together.  Each solve is a robust (soft-L1 on attractor residuals) trust-region
+Gauss–Newton (``scipy.optimize.least_squares``) with analytic Jacobians.  Per frame
+the result reports the attractor RMSE (field units and approximately metres), σ of
+every joint angle from the normal matrix, and converged / diverged flags.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .metaballs import THRESHOLD, Metaballs, pose_jacobian, radius_jacobian, world_frames
+from .metaballs import field as mb_field
+from .skeleton import Skeleton, forward, joint_jacobians, limit_residuals
+
+
+@dataclass
+class Observations:
+    """One frame's observations.
+
+    Attributes
+    ----------
+    xyz : (N, 3) attractor points, world metres
+    part : (N,) int — body part (bone index) of each point
+    sigma_field : a-priori σ of an attractor residual (field units)
+    joint_idx : (K,) int — observed joints (index into ``skeleton.joint_names``)
+    joint_xyz : (K, 3) metres
+    sigma_joint : σ of a joint observation, metres
+    theta_pred, sigma_pred : optional pose prior (n,) radians and its σ (scalar or (n,))
+    """
+
+    xyz: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    part: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    sigma_field: float = 0.02
+    joint_idx: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    joint_xyz: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    sigma_joint: float = 0.01
+    theta_pred: np.ndarray | None = None
+    sigma_pred: float | np.ndarray = 0.2
+
+
+@dataclass
+class FitResult:
+    """Result of a fit of one frame (or of the shape over several frames)."""
+
+    theta: np.ndarray
+    root_xyz: np.ndarray
+    s: np.ndarray
+    radii: np.ndarray
+    rmse_field: float
+    rmse_m: float
+    theta_sigma: np.ndarray
+    converged: bool
+    diverged: bool
+    message: str = ""
+    nfev: int = 0
+
+
+@dataclass
+class FitSettings:
+    """Weights and solver settings."""
+
+    sigma_limits: float = 0.05
+    sigma_radius: float = 0.05
+    robust_scale: float = 3.0  # soft-L1 knee, in σ units of the attractor residual
+    rounds: int = 3
+    polish: bool = True
+    max_nfev: int = 100
+    tol: float = 1e-12
+    use_limits: bool = True
+    shape_prior: bool = True
+
+
+class _Problem:
+    """Residuals and Jacobian for any subset of the unknown blocks, one or more frames."""
+
+    def __init__(self, skel: Skeleton, balls: Metaballs, obs: list[Observations],
+                 settings: FitSettings, radii0: np.ndarray):
+        self.skel, self.balls, self.obs, self.cfg = skel, balls, obs, settings
+        self.anc = skel.ancestors()
+        self.radii0 = radii0
+        self.members = [o.part[:, None] == balls.bone[None, :] for o in obs]
+
+    def blocks(self, theta, root, s, radii):
+        """Residual r (m,) and Jacobian blocks per unknown group for every frame."""
+        skel, balls, cfg = self.skel, self.balls, self.cfg
+        rows = []
+        for f, o in enumerate(self.obs):
+            pose = forward(skel, theta[f][None], root[f][None], s)
+            Rw, cw = world_frames(skel, pose, balls, s)
+            parts = []
+            if len(o.xyz):
+                F, _, fm, y = mb_field(o.xyz, Rw[0], cw[0], radii, self.members[f])
+                Jt, Jr, Js = pose_jacobian(skel, pose, balls, s, o.xyz, fm, y, radii,
+                                           anc=self.anc)
+                Jrad = radius_jacobian(fm, y, radii).reshape(len(o.xyz), -1)
+                w = 1.0 / o.sigma_field
+                parts.append(("point", (F - THRESHOLD) * w, Jt * w, Jr * w, Js * w, Jrad * w))
+            if len(o.joint_idx):
+                x, Jt, Js = joint_jacobians(skel, theta[f][None], root[f][None], s)
+                w = 1.0 / o.sigma_joint
+                k = len(o.joint_idx)
+                parts.append(("joint", ((x[0, o.joint_idx] - o.joint_xyz) * w).ravel(),
+                              Jt[0, o.joint_idx].reshape(3 * k, -1) * w,
+                              np.tile(np.eye(3), (k, 1)) * w,
+                              Js[0, o.joint_idx].reshape(3 * k, -1) * w,
+                              np.zeros((3 * k, radii.size))))
+            if o.theta_pred is not None:
+                w = 1.0 / np.broadcast_to(np.asarray(o.sigma_pred, float), (skel.n_dof,))
+                parts.append(("prior", (theta[f] - o.theta_pred) * w, np.diag(w),
+                              np.zeros((skel.n_dof, 3)), np.zeros((skel.n_dof, skel.n_groups)),
+                              np.zeros((skel.n_dof, radii.size))))
+            if cfg.use_limits:
+                r, d = limit_residuals(skel, theta[f][None], cfg.sigma_limits)
+                parts.append(("limit", r[0], np.diag(d[0]), np.zeros((skel.n_dof, 3)),
+                              np.zeros((skel.n_dof, skel.n_groups)),
+                              np.zeros((skel.n_dof, radii.size))))
+            rows.append(parts)
+        return rows
+
+
+def _huber_weights(r: np.ndarray, k: float) -> np.ndarray:
+    a = np.abs(r)
+    return np.where(a <= k, 1.0, np.sqrt(k / np.maximum(a, 1e-300)))
+
+
+def _solve(prob: _Problem, theta, root, s, radii, free: str, max_nfev: int):
+    """Solve for the blocks in ``free`` ("pose", "shape" or "all"); returns updated
+    (theta, root, s, radii, least_squares result, final residual parts)."""
+    nf, n, G, M3 = len(prob.obs), prob.skel.n_dof, prob.skel.n_groups, radii.size
+    cfg = prob.cfg
+    pose_free = free in ("pose", "all")
+    shape_free = free in ("shape", "all")
+
+    def unpack(x):
+        th, rt, ss, rd = theta, root, s, radii
+        i = 0
+        if pose_free:
+            th = x[:nf * n].reshape(nf, n)
+            rt = x[nf * n:nf * (n + 3)].reshape(nf, 3)
+            i = nf * (n + 3)
+        if shape_free:
+            ss = x[i:i + G]
+            rd = x[i + G:i + G + M3].reshape(radii.shape)
+        return th, rt, ss, rd
+
+    x0 = []
+    if pose_free:
+        x0 += [theta.ravel(), root.ravel()]
+    if shape_free:
+        x0 += [s, radii.ravel()]
+    x0 = np.concatenate(x0)
+    cache = {}
+
+    def system(x):
+        key = x.tobytes()
+        if key in cache:
+            return cache[key]
+        th, rt, ss, rd = unpack(x)
+        rows = prob.blocks(th, rt, ss, rd)
+        res, jac = [], []
+        m_pose = nf * (n + 3)
+        for f, parts in enumerate(rows):
+            for kind, r, Jt, Jr, Js, Jrad in parts:
+                J = np.zeros((len(r), len(x)))
+                i = 0
+                if pose_free:
+                    J[:, f * n:(f + 1) * n] = Jt
+                    J[:, nf * n + 3 * f:nf * n + 3 * f + 3] = Jr
+                    i = m_pose
+                if shape_free:
+                    J[:, i:i + G] = Js
+                    J[:, i + G:i + G + M3] = Jrad
+                if kind == "point" and cfg.robust_scale:
+                    wgt = _huber_weights(r, cfg.robust_scale)
+                    r, J = r * wgt, J * wgt[:, None]
+                res.append(r)
+                jac.append(J)
+        if shape_free and cfg.shape_prior:
+            i = m_pose if pose_free else 0
+            w = 1.0 / cfg.sigma_radius
+            res.append((rd.ravel() - prob.radii0.ravel()) * w)
+            J = np.zeros((M3, len(x)))
+            J[:, i + G:] = np.eye(M3) * w
+            jac.append(J)
+        out = (np.concatenate(res), np.concatenate(jac, axis=0))
+        cache.clear()
+        cache[key] = out
+        return out
+
+    lo = np.full(len(x0), -np.inf)
+    if shape_free:
+        i = nf * (n + 3) if pose_free else 0
+        lo[i:i + G] = 0.2
+        lo[i + G:] = 1e-3
+    x0 = np.maximum(x0, lo)
+    sol = _levenberg_marquardt(system, x0, lo, max_nfev, cfg.tol)
+    th, rt, ss, rd = unpack(sol.x)
+    return th, rt, ss, rd, sol
+
+
+def fit(skel: Skeleton, balls: Metaballs, obs: Observations | list[Observations],
+        theta0: np.ndarray, root0: np.ndarray, s0: np.ndarray,
+        radii0: np.ndarray | None = None, solve: str = "alternate",
+        settings: FitSettings | None = None) -> FitResult | list[FitResult]:
+    """Fit pose and/or shape to one frame's (or several frames') observations.
+
+    Parameters
+    ----------
+    obs : Observations, or a list (one per frame) sharing the shape
+    theta0 : (n,) or (F, n); root0 : (3,) or (F, 3); s0 : (G,); radii0 : (M, 3)
+    solve : ``"pose"`` (shape fixed), ``"shape"`` (pose fixed), ``"alternate"``
+        (shape and pose in turn, ``settings.rounds`` times, then a joint polish when
+        ``settings.polish``) or ``"all"`` (everything at once)
+
+    Returns
+    -------
+    FitResult, or a list of them (one per frame, same shape) when ``obs`` is a list.
+    """
+    cfg = settings or FitSettings()
+    single = isinstance(obs, Observations)
+    obs_l = [obs] if single else list(obs)
+    nf = len(obs_l)
+    theta = np.array(theta0, float).reshape(nf, skel.n_dof)
+    root = np.array(root0, float).reshape(nf, 3)
+    s = np.array(s0, float)
+    radii = np.array(balls.radii if radii0 is None else radii0, float)
+    prob = _Problem(skel, balls, obs_l, cfg, radii.copy())
+    steps = {"pose": ["pose"], "shape": ["shape"], "all": ["all"],
+             "alternate": ["pose", "shape"] * cfg.rounds + (["all"] if cfg.polish else [])}
+    if solve not in steps:
+        raise ValueError(f"unknown solve mode {solve!r}")
+    sol = None
+    for step in steps[solve]:
+        theta, root, s, radii, sol = _solve(prob, theta, root, s, radii, step, cfg.max_nfev)
+    results = _report(prob, theta, root, s, radii, sol)
+    return results[0] if single else results
+
+
+def _report(prob: _Problem, theta, root, s, radii, sol) -> list[FitResult]:
+    """Per-frame quality: attractor RMSE, σ of the angles (pose-only normal matrix)."""
+    skel = prob.skel
+    out = []
+    rows = prob.blocks(theta, root, s, radii)
+    for f, parts in enumerate(rows):
+        r_pt = np.concatenate([p[1] for p in parts if p[0] == "point"] or [np.zeros(0)])
+        sig_f = prob.obs[f].sigma_field
+        rmse_field = float(np.sqrt(np.mean((r_pt * sig_f) ** 2))) if len(r_pt) else np.nan
+        # metres: field residual over the gradient norm at the point (first order)
+        rmse_m = np.nan
+        o = prob.obs[f]
+        if len(o.xyz):
+            pose = forward(skel, theta[f][None], root[f][None], s)
+            Rw, cw = world_frames(skel, pose, prob.balls, s)
+            F, g, _, _ = mb_field(o.xyz, Rw[0], cw[0], radii, prob.members[f])
+            dist = (F - THRESHOLD) / np.maximum(np.linalg.norm(g, axis=-1), 1e-9)
+            rmse_m = float(np.sqrt(np.mean(dist**2)))
+        J = np.concatenate([np.concatenate([p[2], p[3]], axis=1) for p in parts], axis=0)
+        r = np.concatenate([p[1] for p in parts])
+        dof = max(len(r) - J.shape[1], 1)
+        s0sq = float(r @ r) / dof
+        N = J.T @ J
+        try:
+            cov = np.linalg.pinv(N, rcond=1e-12, hermitian=True) * max(s0sq, 1e-30)
+            sig = np.sqrt(np.clip(np.diag(cov)[:skel.n_dof], 0, None))
+        except np.linalg.LinAlgError:
+            sig = np.full(skel.n_dof, np.nan)
+        finite = bool(np.all(np.isfinite(theta[f])) and np.all(np.isfinite(root[f])))
+        ok = bool(sol is not None and sol.status > 0 and finite)
+        out.append(FitResult(theta=theta[f].copy(), root_xyz=root[f].copy(), s=s.copy(),
+                             radii=radii.copy(), rmse_field=rmse_field, rmse_m=rmse_m,
+                             theta_sigma=sig, converged=ok, diverged=not finite,
+                             message="" if sol is None else sol.message,
+                             nfev=0 if sol is None else int(sol.nfev)))
+    return out
+
+
+@dataclass
+class _LMResult:
+    x: np.ndarray
+    cost: float
+    nfev: int
+    status: int  # 1 converged, 0 iteration limit, -1 no progress possible
+    message: str
+
+
+def _levenberg_marquardt(system, x0: np.ndarray, lo: np.ndarray, max_nfev: int,
+                         tol: float, max_step: float = 0.2) -> _LMResult:
+    """Levenberg–Marquardt on the normal equations (Marquardt's diagonal scaling),
+    with lower bounds by projection.  ``system(x) -> (r, J)``."""
+    x = x0.copy()
+    r, J = system(x)
+    cost = float(r @ r)
+    mu, nfev = 1e-3, 1
+    while nfev < max_nfev:
+        A = J.T @ J
+        g = J.T @ r
+        d = np.diag(A).copy()
+        d = np.maximum(d, 1e-12 * max(d.max(initial=0.0), 1e-30))
+        try:
+            step = np.linalg.solve(A + mu * np.diag(d), -g)
+        except np.linalg.LinAlgError:
+            mu *= 10.0
+            continue
+        big = np.abs(step).max(initial=0.0)
+        if big > max_step:  # a trust region in parameter units (radians, metres)
+            step *= max_step / big
+        xn = np.maximum(x + step, lo)
+        rn, Jn = system(xn)
+        nfev += 1
+        cn = float(rn @ rn)
+        if np.isfinite(cn) and cn < cost:
+            small = (cost - cn) <= tol * cost and mu < 1.0  # a full Gauss-Newton step
+            x, r, J, cost = xn, rn, Jn, cn
+            mu = max(mu / 5.0, 1e-15)
+            if small or cost < 1e-28:
+                return _LMResult(x, cost, nfev, 1, "converged")
+        else:
+            mu *= 5.0
+            if mu > 1e12:  # no step decreases the cost: a (robust-cost) minimum
+                return _LMResult(x, cost, nfev, 1, "converged (no further decrease)")
+    return _LMResult(x, cost, nfev, 0, "iteration limit")

@@ -16,7 +16,7 @@ $(STAMP): requirements.txt
 env: $(STAMP)
 
 demo: $(STAMP)
-	$(PY) -m bench.demo
+	$(PY) -m sample_scenes.demo
 
 test: $(STAMP)
 	$(PY) -m ruff check .

@@ -1,0 +1,161 @@
+"""Least squares matching on seeded synthetic patches with exactly known warps."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bench.patches import make_pairs
+from core.camera import Camera
+from core.lsm import ImageStack, Status, _cholesky_solve, epipolar_lines, match
+
+
+def _match(P, **kw):
+    n = len(P.template)
+    start = np.full((n, 2), P.centre)
+    return match(P.template, P.search, start, start, template_index=np.arange(n),
+                 search_index=np.arange(n), **kw)
+
+
+def test_shift_precision_matches_predicted_sigma():
+    P = make_pairs(300, seed=3, max_shift=1.0, noise=2.0)
+    r = _match(P)
+    assert r.ok.mean() > 0.98
+    err = (r.uv - P.uv_true)[r.ok]
+    rms = np.sqrt(np.mean(err ** 2))
+    pred = np.sqrt(np.mean(r.sigma_uv[r.ok] ** 2))
+    assert rms < 0.03
+    assert 0.75 < rms / pred < 1.3
+    assert np.all(r.iterations[r.ok] <= 10)
+
+
+def test_gain_and_offset_do_not_change_the_match():
+    a = _match(make_pairs(200, seed=4, max_shift=1.0, noise=2.0))
+    P = make_pairs(200, seed=4, max_shift=1.0, noise=2.0, gain=1.3, offset=20.0)
+    b = _match(P)
+    assert b.ok.mean() > 0.98
+    assert np.sqrt(np.mean((b.uv - P.uv_true)[b.ok] ** 2)) < 0.03
+    # The model is template = offset + gain * search: the inverse radiometry.
+    assert abs(np.median(b.gain[b.ok]) - 1 / 1.3) < 0.01
+    assert abs(np.median(b.offset[b.ok]) + 20 / 1.3) < 1.0
+    assert abs(np.median(b.sigma_uv) - np.median(a.sigma_uv)) < 0.01
+
+
+def test_affine_warp_recovered():
+    P = make_pairs(200, seed=5, max_shift=1.0, noise=2.0, scale=(0.9, 1.1), shear=0.1)
+    r = _match(P)
+    assert r.ok.mean() > 0.98
+    assert np.sqrt(np.mean((r.uv - P.uv_true)[r.ok] ** 2)) < 0.03
+    assert np.max(np.abs(r.affine - P.affine)[r.ok]) < 0.05
+
+
+def test_one_gauss_newton_step_is_quadratic():
+    """The analytic normal equations: from a small offset, one step lands almost exactly."""
+    P = make_pairs(50, seed=6, max_shift=0.0, noise=0.0, fmax=0.15)
+    n = len(P.template)
+    start = np.full((n, 2), P.centre) + np.array([0.05, -0.04])
+    r = match(P.template, P.search, np.full((n, 2), P.centre), start,
+              template_index=np.arange(n), search_index=np.arange(n), max_iter=2)
+    before = np.linalg.norm(start - P.uv_true, axis=1)
+    after = np.linalg.norm(r.uv - P.uv_true, axis=1)
+    assert np.median(after / before) < 0.1
+
+
+def test_bilinear_order_also_works():
+    P = make_pairs(200, seed=7, max_shift=1.0, noise=2.0)
+    r = _match(P, order=1)
+    assert r.ok.mean() > 0.97
+    assert np.sqrt(np.mean((r.uv - P.uv_true)[r.ok] ** 2)) < 0.035
+
+
+def test_rejections_are_flagged_per_patch():
+    P = make_pairs(4, seed=8, max_shift=0.5)
+    T = P.template.copy()
+    T[1] = 100          # textureless template
+    start = np.full((4, 2), P.centre)
+    start[2] = [2.0, 2.0]          # template leaves the image
+    uv_s = np.full((4, 2), P.centre)
+    uv_s[3] = np.nan               # no start
+    r = match(T, P.search, start, uv_s, template_index=np.arange(4), search_index=np.arange(4))
+    assert r.status[0] == Status.OK
+    assert r.status[1] == Status.WEAK_TEXTURE
+    assert r.status[2] == Status.OUT_OF_IMAGE
+    assert r.status[3] == Status.INVALID
+
+
+def test_drift_out_of_search_area_is_flagged():
+    P = make_pairs(50, seed=9, max_shift=0.0, noise=2.0)
+    n = len(P.template)
+    c = np.full((n, 2), P.centre)
+    r = match(P.template, P.search, c, c + 1.5, template_index=np.arange(n),
+              search_index=np.arange(n), max_shift_px=0.5)
+    assert np.all(r.status[~r.ok] == Status.OUT_OF_SEARCH)
+    assert (r.status == Status.OUT_OF_SEARCH).mean() > 0.9
+
+
+def test_search_leaving_the_image_is_flagged():
+    P = make_pairs(3, seed=10, max_shift=0.0)
+    c = np.full((3, 2), P.centre)
+    r = match(P.template, P.search, c, c + np.array([13.0, 0.0]), template_index=np.arange(3),
+              search_index=np.arange(3), max_shift_px=50)
+    assert np.all(r.status == Status.OUT_OF_IMAGE)
+
+
+def test_cholesky_solve_matches_numpy(rng):
+    J = rng.normal(size=(20, 30, 8))
+    N = J.transpose(0, 2, 1) @ J
+    B = rng.normal(size=(20, 8, 3))
+    x, ok = _cholesky_solve(N, B)
+    assert ok.all()
+    assert np.allclose(x, np.linalg.solve(N, B))
+    N[0] = 0.0
+    assert not _cholesky_solve(N, B)[1][0]
+
+
+def test_image_stack_sampling_is_exact_at_pixels_and_linear_between(rng):
+    img = rng.uniform(0, 255, (2, 20, 30))
+    st = ImageStack(img)
+    v, _, _ = st.sample(np.array([1, 0]), np.array([5.0, 7.0]), np.array([3.0, 11.0]), 3)
+    assert np.allclose(v, [img[1, 3, 5], img[0, 11, 7]], atol=1e-3)
+    lin = np.linspace(0, 29, 30)[None, None, :] * np.ones((1, 20, 1))
+    vals, du, dv = ImageStack(lin).sample(np.zeros(1, int), np.array([4.3]), np.array([5.0]), 1)
+    assert np.allclose(vals + du, 4.3, atol=1e-4)
+
+
+def _stereo_pair():
+    K = [[400.0, 0, 160], [0, 400.0, 120], [0, 0, 1]]
+    left = Camera("a", (320, 240), K, R=np.eye(3), t=[0.0, 0, 0])
+    right = Camera("b", (320, 240), K, dist=[0.05, 0, 0, 0, 0], R=np.eye(3), t=[-0.2, 0, 0])
+    return left, right
+
+
+def test_epipolar_lines_contain_the_true_match(rng):
+    left, right = _stereo_pair()
+    xyz = np.column_stack([rng.uniform(-0.3, 0.3, 20), rng.uniform(-0.2, 0.2, 20),
+                           rng.uniform(1.5, 3.0, 20)])
+    uv_l, uv_r = left.project(xyz), right.project(xyz)
+    normal, d = epipolar_lines(left, right, uv_l, uv_r + 3.0)
+    assert np.allclose(np.linalg.norm(normal, axis=1), 1.0)
+    assert np.max(np.abs(np.einsum("ni,ni->n", normal, uv_r) - d)) < 0.05
+
+
+def test_epipolar_constraint_pulls_the_match_onto_the_line():
+    P = make_pairs(100, seed=11, max_shift=1.0, noise=2.0)
+    n = len(P.template)
+    c = np.full((n, 2), P.centre)
+    normal = np.tile([0.0, 1.0], (n, 1))          # horizontal line v = true v + 0.3
+    d = P.uv_true[:, 1] + 0.3
+    r = match(P.template, P.search, c, c, template_index=np.arange(n),
+              search_index=np.arange(n), lines=(normal, d), sigma_line_px=0.001)
+    free = _match(P)
+    assert np.median(np.abs(r.uv[:, 1] - d)) < 0.01
+    assert np.median(np.abs(free.uv[:, 1] - d)) > 0.25
+
+
+def test_mismatched_inputs_raise():
+    P = make_pairs(2, seed=12)
+    with pytest.raises(ValueError, match="differ"):
+        match(P.template, P.search, np.zeros((2, 2)), np.zeros((3, 2)))
+    with pytest.raises(ValueError, match="outside the image stacks"):
+        match(P.template, P.search, np.zeros((2, 2)), np.zeros((2, 2)),
+              search_index=[0, 5])

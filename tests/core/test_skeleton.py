@@ -130,3 +130,34 @@ def test_dict_round_trip(skel):
     theta = np.linspace(-1, 1, skel.n_dof)[None]
     np.testing.assert_allclose(sk.joint_positions(back, theta, np.zeros(3), np.ones(11)),
                                sk.joint_positions(skel, theta, np.zeros(3), np.ones(11)))
+
+
+def _moves_outward(skel, dof, val, joint):
+    """Whether setting ``dof`` to ``val`` moves ``joint`` away from the body's midline (x = 0)
+    or up, seen from the rest pose."""
+    s = np.ones(skel.n_groups)
+    root = np.array([0.0, 0.0, 1.0])
+    th = np.zeros(skel.n_dof)
+    before = sk.joint_positions(skel, th, root, s)[skel.joint_index(joint)]
+    th[skel.dof_index(dof)] = val
+    after = sk.joint_positions(skel, th, root, s)[skel.joint_index(joint)]
+    return abs(after[0]) > abs(before[0]) + 1e-3, after[2] > before[2] + 1e-3
+
+
+@pytest.mark.parametrize("side", ["l", "r"])
+def test_limits_allow_abduction_more_than_adduction(skel, side):
+    """Arms and legs abduct (away from the midline) further than they adduct across it;
+    shoulders elevate further than they drop.  (LIMITS are in degrees.)"""
+    for bone, joint, wide in (("shoulder", "elbow", 150), ("hip", "knee", 60)):
+        dof = f"{side}_{bone}_y"
+        lo, hi = sk.LIMITS[dof]
+        outward_dir = 1.0 if _moves_outward(skel, dof, 0.3, f"{side}_{joint}")[0] else -1.0
+        abduction = hi if outward_dir > 0 else -lo
+        adduction = -lo if outward_dir > 0 else hi
+        assert abduction >= wide and adduction <= 35, (dof, lo, hi)
+    dof = f"{side}_clavicle_y"
+    lo, hi = sk.LIMITS[dof]
+    up_dir = 1.0 if _moves_outward(skel, dof, 0.3, f"{side}_shoulder")[1] else -1.0
+    elevation = hi if up_dir > 0 else -lo
+    depression = -lo if up_dir > 0 else hi
+    assert elevation > depression, (dof, lo, hi)

@@ -121,7 +121,8 @@ def clean_mask(mask: np.ndarray, clean_px: int = 2, min_area_frac: float = 0.1) 
 
 def fit_background(frames: np.ndarray, empty: np.ndarray | None = None, iterations: int = 2,
                    threshold: float = 5.0, min_sigma: float = 2.0,
-                   max_frames: int = 40, min_known_frac: float = 0.15) -> BackgroundModel:
+                   max_frames: int = 40, min_known_frac: float = 0.15,
+                   exclude: np.ndarray | None = None) -> BackgroundModel:
     """Estimate a camera's background.
 
     Parameters
@@ -140,6 +141,10 @@ def fit_background(frames: np.ndarray, empty: np.ndarray | None = None, iteratio
         At most this many frames (evenly spaced) enter the medians, for speed.
     min_known_frac : float
         A pixel is *known* when it was background in at least this fraction of frames.
+    exclude : ndarray, shape (N, H, W), bool, optional
+        Pixels known to show the person in each frame (e.g. the fitted body projected
+        and dilated): they never enter the medians.  This is what frees the background
+        where a person stood still for more than half of the take.
 
     Returns
     -------
@@ -151,13 +156,28 @@ def fit_background(frames: np.ndarray, empty: np.ndarray | None = None, iteratio
         raise InputError("background needs at least one frame of shape (H, W[, 3])")
     if src.ndim == 3:
         src = np.repeat(src[..., None], 3, axis=3)
+    use_empty = empty is not None and len(empty) > 0
+    if exclude is not None and not use_empty:
+        exclude = np.asarray(exclude, bool)
+        if exclude.shape != src.shape[:3]:
+            raise InputError(f"exclude masks of shape {exclude.shape} do not match the frames "
+                             f"{src.shape[:3]}")
+    else:
+        exclude = None
     if len(src) > max_frames:
-        src = src[np.linspace(0, len(src) - 1, max_frames).round().astype(int)]
+        pick = np.linspace(0, len(src) - 1, max_frames).round().astype(int)
+        src = src[pick]
+        exclude = None if exclude is None else exclude[pick]
     stack = src.astype(np.float32)
-    colour = np.median(stack, axis=0)
-    sigma = _mad_sigma(stack, colour, min_sigma)
+    if exclude is None:
+        colour = np.median(stack, axis=0)
+        sigma = _mad_sigma(stack, colour, min_sigma)
+    else:
+        colour = _nanmedian0(np.where(exclude[..., None], np.nan, stack))
+        colour = np.where(np.isfinite(colour), colour, np.median(stack, axis=0))
+        sigma = _mad_sigma(stack, colour, min_sigma, weights=~exclude)
     known = np.ones(colour.shape[:2], bool)
-    if empty is not None and len(empty) > 0:
+    if use_empty:
         return BackgroundModel(colour, sigma, known)
     for _ in range(iterations):
         model = BackgroundModel(colour, sigma, np.ones_like(known))
@@ -166,6 +186,8 @@ def fit_background(frames: np.ndarray, empty: np.ndarray | None = None, iteratio
             # dilated foreground so that soft edges stay out of the median
             fg = model.foreground(img, threshold=threshold, min_area_frac=0.0, clean_px=1)
             bg[i] = ~cv2.dilate(fg.astype(np.uint8), np.ones((7, 7), np.uint8)).astype(bool)
+            if exclude is not None:
+                bg[i] &= ~exclude[i]
         masked = np.where(bg[..., None], stack, np.nan)
         counts = bg.sum(axis=0)
         known = counts >= max(1, int(np.ceil(min_known_frac * len(src))))

@@ -61,3 +61,19 @@ def test_size_mismatch_is_clear(rng):
 def test_no_frames_is_clear():
     with pytest.raises(InputError, match="at least one frame"):
         fit_background(np.zeros((0, 10, 10, 3), np.uint8))
+
+
+def test_known_person_pixels_free_a_long_standing_background(rng):
+    """Standing still for 60 % of the take burns the person into a plain median; masks of
+    where the person is (e.g. the projected fitted body, dilated) free it."""
+    frames, masks = _frames(rng, n=30, still=True)
+    # make the still phase 60 % long
+    frames[:18] = frames[0]
+    masks[:18] = masks[0]
+    plain = fit_background(frames)
+    assert _iou(plain.foreground(frames[0]), masks[0]) < 0.5
+    dilated = np.array([cv2.dilate(m.astype(np.uint8), np.ones((9, 9), np.uint8)) > 0
+                        for m in masks])
+    guided = fit_background(frames, exclude=dilated)
+    ious = [_iou(guided.foreground(f), m) for f, m in zip(frames, masks, strict=True)]
+    assert min(ious) > 0.85, np.round(ious, 3)

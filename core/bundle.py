@@ -68,13 +68,22 @@ class BundleResult:
     length_residual_m : ndarray, shape (F,)
         ``|X_A - X_B| - L`` at the solution, metres (NaN for unused locations).
     outliers : ndarray, shape (F, C, 2), bool
-        Observations flagged as bad blobs by the robust pass.
+        Observations flagged as bad blobs (kept at weight :data:`FLAG_WEIGHT`, so out
+        of every figure above).
     used : ndarray, shape (F,), bool
-        Locations that entered the adjustment (both targets seen in ≥ 2 cameras).
+        Locations that entered the adjustment (both targets seen in ≥ 2 cameras and
+        intersected in front of them).
     free : tuple of str
         The interior parameters that were free.
     nfev : int
-        Function evaluations over both passes.
+        Function evaluations over all passes.
+    outlier_threshold_px : float
+        Residual length above which an observation was flagged (last round), px.
+    uv : ndarray, shape (F, C, 2, 2)
+        The observations as adjusted: the input with A/B exchanged where ``swapped``.
+    swapped : ndarray, shape (F, C), bool
+        Images whose A/B labels the robust rounds exchanged (a bad blob had misled the
+        epipolar labelling); ``outliers`` refers to ``uv``.
     """
 
     success: bool
@@ -92,6 +101,9 @@ class BundleResult:
     free: tuple = ()
     nfev: int = 0
     names: list = field(default_factory=list)
+    outlier_threshold_px: float = float("nan")
+    uv: np.ndarray | None = None
+    swapped: np.ndarray | None = None
 
     def sigma_of(self, cam: int, name: str) -> float:
         """σ of one camera parameter by name (see :data:`core.camera.PARAM_NAMES`)."""
@@ -101,7 +113,7 @@ class BundleResult:
 class _Problem:
     """Packing, residuals and sparse Jacobian of one adjustment (all arrays fixed)."""
 
-    def __init__(self, params0, xyz0, uv, obs, length, free, w_len):
+    def __init__(self, params0, xyz0, uv, obs, length, free, w_len, w_obs=None):
         self.params0 = params0                      # (C, 15)
         self.C = params0.shape[0]
         self.F = xyz0.shape[0]
@@ -125,6 +137,9 @@ class _Problem:
         self.target = uv[f, c, k]                                             # (M, 2)
         self.M = obs.shape[0]
         self.m = 2 * self.M + self.F
+        # weight of each observation's residual pair: 1, or ε for a flagged bad blob
+        # (kept in the problem so that its residual is predicted by the others)
+        self.w_obs = np.ones(self.M) if w_obs is None else np.asarray(w_obs, dtype=float)
 
     def pack(self, params, xyz):
         return np.concatenate([params[self.mask], xyz.ravel()])
@@ -139,7 +154,8 @@ class _Problem:
         f, c, k = self.obs.T
         out = project_params(params[c], xyz[f, k], jacobian=jacobian)
         uv = out[0] if jacobian else out
-        r_obs = (uv - self.target).ravel()
+        w = self.w_obs[:, None]
+        r_obs = (w * (uv - self.target)).ravel()
         d = xyz[:, 0] - xyz[:, 1]
         dist = np.linalg.norm(d, axis=1)
         r_len = self.w_len * (dist - self.length)
@@ -147,6 +163,7 @@ class _Problem:
         if not jacobian:
             return r
         _, J_cam, J_xyz = out
+        J_cam, J_xyz = J_cam * w[:, :, None], J_xyz * w[:, :, None]
         rows, cols, vals = [], [], []
         obs_rows = 2 * np.arange(self.M)[:, None] + np.arange(2)              # (M, 2)
         cc = self.cam_col[c]                                                   # (M, 15)
@@ -339,12 +356,105 @@ def _flag_by_intersection(cameras, uv, seen, thr):
     return flags.reshape(F, 2, C).transpose(0, 2, 1) & seen
 
 
+#: Weight of a flagged observation's residual pair: it stays in the adjustment, so that
+#: its residual is predicted by the other observations, with (almost) no influence.
+FLAG_WEIGHT = 1e-4
+
+
+def _intersect_targets(cameras, uv, use):
+    """Targets (F, 2, 3), metres, intersected from the observations ``use`` (F, C, 2).
+
+    NaN where fewer than two observations are used or the intersection is not ok
+    (e.g. behind a camera).
+    """
+    F, C = uv.shape[:2]
+    pts = np.where(use[..., None], uv, np.nan).transpose(0, 2, 1, 3).reshape(F * 2, C, 2)
+    with np.errstate(invalid="ignore", over="ignore"):
+        tri = triangulate(cameras, pts, iterations=5)
+    return np.where(tri.ok[:, None], tri.xyz, np.nan).reshape(F, 2, 3)
+
+
+def _residual_norms(params, xyz, uv, seen):
+    """Residual length |projection − observation| (F, C, 2), px, of every seen observation.
+
+    ``params`` (C, 15) packed cameras, ``xyz`` (F, 2, 3) targets.  NaN where not seen,
+    where the target is NaN, or where it lies behind the camera.
+    """
+    F, C = uv.shape[:2]
+    idx = np.argwhere(seen & np.all(np.isfinite(xyz), axis=-1)[:, None, :])
+    out = np.full((F, C, 2), np.nan)
+    if idx.size:
+        pred = project_params(params[idx[:, 1]], xyz[idx[:, 0], idx[:, 2]], jacobian=False)
+        out[tuple(idx.T)] = np.linalg.norm(pred - uv[tuple(idx.T)], axis=1)
+    return out
+
+
+def robust_scale(rn: np.ndarray) -> float:
+    """σ of one image coordinate from residual lengths (any shape, NaN ignored), px.
+
+    For Gaussian coordinates with σ the length is Rayleigh distributed with median
+    ``σ √(2 ln 2) = 1.1774 σ``; the median makes the estimate insensitive to bad blobs.
+    """
+    rn = rn[np.isfinite(rn)]
+    return float(np.median(rn) / np.sqrt(2.0 * np.log(2.0))) if rn.size else np.nan
+
+
+def _label_swaps(params, xyz, uv, seen, rn, cap):
+    """Images (F, C) whose A/B labels fit the adjusted targets better exchanged.
+
+    Each image with both targets measured compares ``min(r, cap)`` summed over its two
+    observations for the labels as they are (``rn``) and exchanged; the cap keeps one
+    bad blob from deciding.  Exchanged only when that is clearly better (by ``cap/2``).
+    """
+    both = np.all(seen, axis=2) & np.all(np.isfinite(rn), axis=2)
+    rs = _residual_norms(params, xyz[:, ::-1], uv, seen)
+    with np.errstate(invalid="ignore"):
+        keep = np.minimum(rn, cap).sum(axis=2)
+        swap = np.minimum(rs, cap).sum(axis=2)
+    return both & (swap < keep - 0.5 * cap)
+
+
+def flag_observations(rn: np.ndarray, seen: np.ndarray, thr: float,
+                      previous: np.ndarray) -> np.ndarray:
+    """Bad-blob flags (F, C, 2) from residual lengths ``rn`` (F, C, 2), px.
+
+    Flags are decided afresh every round, so an observation comes back as soon as its
+    residual is small again (no monotonic growth): flagged when ``rn > thr``; one
+    flagged before is re-admitted only below ``0.8 thr`` (hysteresis against
+    oscillation); a NaN residual (the target cannot be intersected in front of the
+    cameras from its views) flags the observation for this round.
+    A target seen in exactly two cameras cannot tell which of the two is wrong: when
+    either is flagged, both are (the epipolar and bar-length misfit of the location
+    is what flagged it; with more redundancy the single bad view stands out).
+    """
+    with np.errstate(invalid="ignore"):
+        new = np.where(previous, ~(rn < 0.8 * thr), rn > thr)
+    new = np.where(np.isfinite(rn), new, True) & seen
+    two = seen.sum(axis=1) == 2                                      # (F, 2) targets
+    either = np.any(new, axis=1) & two
+    return new | (either[:, None, :] & seen)
+
+
 def adjust_wand(cameras: list[Camera], uv: np.ndarray, xyz0: np.ndarray, length_m: float,
                 free: tuple[str, ...] = DEFAULT_FREE, sigma_px: float = 0.1,
                 sigma_length_m: float = 1e-4, f_scale_px: float = 1.0,
-                outlier_px: float | None = None, robust: bool = True,
-                solver: str = "lm", max_iter: int = 100) -> BundleResult:
-    """Self-calibrating bundle adjustment of wand observations.
+                outlier_px: float | None = None, outlier_sigma: float = 5.0,
+                outlier_floor_px: float = 0.25, robust: bool = True,
+                solver: str = "lm", max_iter: int = 100, max_rounds: int = 6
+                ) -> BundleResult:
+    """Self-calibrating bundle adjustment of wand observations, robust to bad blobs.
+
+    Robust scheme (``robust=True``): start by flagging, with the initial cameras,
+    observations a leave-one-out intersection shows off by more than ``max(20 px,
+    outlier_px)`` and re-intersecting their targets from the rest.  Then rounds of
+    (1) adjustment with the ``soft_l1`` loss (``f_scale_px``), flagged observations
+    kept at weight :data:`FLAG_WEIGHT`; (2) residual lengths of *all* observations
+    against the robust scale σ̂ (:func:`robust_scale` of the unflagged ones);
+    (3) flags decided afresh by :func:`flag_observations` with the threshold
+    ``outlier_px`` or ``max(outlier_floor_px, outlier_sigma · σ̂)``, so that
+    observations whose residual becomes small again are re-admitted.  The rounds stop
+    when the flags settle.  A final plain least-squares pass with the flags gives the
+    values and their precisions ``Σ = σ0² (JᵀJ)⁻¹``.
 
     Parameters
     ----------
@@ -365,10 +475,12 @@ def adjust_wand(cameras: list[Camera], uv: np.ndarray, xyz0: np.ndarray, length_
     f_scale_px : float
         Soft threshold of the robust loss, pixels.
     outlier_px : float, optional
-        Flag an observation whose residual (norm) exceeds this; default
-        ``max(1 px, 6 · robust σ)`` of the robust pass.
+        Fixed flagging threshold on the residual length, px (default: from σ̂).
+    outlier_sigma, outlier_floor_px : float
+        Threshold ``max(outlier_floor_px, outlier_sigma · σ̂)`` when ``outlier_px``
+        is not given.
     robust : bool
-        Run the robust pass and flag outliers (else plain least squares only).
+        Robust loss and flagging (else plain least squares only).
     solver : {"lm", "scipy:analytic", "scipy:2-point"}
         ``"lm"``: Levenberg–Marquardt with the points eliminated by the Schur
         complement (exact, fast).  ``"scipy:analytic"``: ``least_squares`` (trf,
@@ -376,6 +488,8 @@ def adjust_wand(cameras: list[Camera], uv: np.ndarray, xyz0: np.ndarray, length_
         ``"scipy:2-point"``: the same with finite differences and ``jac_sparsity``.
     max_iter : int
         Iterations (``lm``) or function evaluations (scipy) per pass.
+    max_rounds : int
+        Most robust adjust-and-flag rounds.
 
     Returns
     -------
@@ -388,57 +502,91 @@ def adjust_wand(cameras: list[Camera], uv: np.ndarray, xyz0: np.ndarray, length_
     F, C = uv.shape[:2]
     if uv.shape != (F, C, 2, 2) or C != len(cameras):
         raise ValueError(f"uv must have shape (F, {len(cameras)}, 2, 2), got {uv.shape}")
-    xyz0 = np.asarray(xyz0, dtype=float).reshape(F, 2, 3)
+    uv = uv.copy()                                                # labels may be exchanged
+    swapped = np.zeros((F, C), dtype=bool)
+    xyz = np.asarray(xyz0, dtype=float).reshape(F, 2, 3).copy()
     seen = np.all(np.isfinite(uv), axis=-1)                      # (F, C, 2)
-    used = np.all(seen.sum(axis=1) >= 2, axis=1) & np.all(np.isfinite(xyz0), axis=(1, 2))
-    fidx = np.flatnonzero(used)
-    params0 = np.stack([pack_camera(c) for c in cameras])
+    base = np.all(seen.sum(axis=1) >= 2, axis=1)                 # (F,) both targets ≥ 2 views
+    seen &= base[:, None, None]
+    xyz[~base] = np.nan
+    params = np.stack([pack_camera(c) for c in cameras])
     w_len = sigma_px / sigma_length_m
+    flags = np.zeros((F, C, 2), dtype=bool)
+    if robust:
+        thr0 = max(20.0, outlier_px or 0.0)
+        flags = _flag_by_intersection(cameras, uv, seen, thr0)
+        again = _intersect_targets(cameras, uv, seen & ~flags)
+        redo = np.any(flags, axis=1)[..., None] & np.isfinite(again)
+        xyz = np.where(redo, again, xyz)
 
-    def build(valid):
-        obs = np.argwhere(valid[fidx])
-        obs[:, 0] = np.arange(fidx.size)[obs[:, 0]] if obs.size else obs[:, 0]
-        return _Problem(params0, xyz0[fidx], uv[fidx], obs, length_m, free, w_len)
+    def solve(flags, loss):
+        rn = _residual_norms(params, xyz, uv, seen)
+        # both targets seen by ≥ 2 unflagged views (else the location waits outside the
+        # adjustment, its targets re-intersected every round) and in front of the cameras
+        incl = (base & np.all((seen & ~flags).sum(axis=1) >= 2, axis=1)
+                & np.all(np.isfinite(xyz), axis=(1, 2))
+                & ~np.any(seen & ~np.isfinite(rn), axis=(1, 2)))
+        fidx = np.flatnonzero(incl)
+        obs = np.argwhere(seen[fidx])
+        w_obs = np.where(flags[fidx][tuple(obs.T)], FLAG_WEIGHT, 1.0)
+        prob = _Problem(params, xyz[fidx], uv[fidx], obs, length_m, free, w_len, w_obs)
+        sol = _solve(prob, prob.pack(params, xyz[fidx]), loss, f_scale_px, solver, max_iter)
+        return prob, sol, fidx
 
-    outliers = np.zeros((F, C, 2), dtype=bool)
-    base_used = used.copy()
+    def update(prob, sol, fidx, thr):
+        """New cameras and targets; targets of the locations left out are intersected
+        afresh with the new cameras, leaving out the view that a leave-one-out
+        intersection finds off by more than ``thr`` (so that they can come back)."""
+        p, xyz_f = prob.unpack(sol.x)
+        cams = [unpack_camera(p[c], "", cameras[c].size) for c in range(C)]
+        out = np.ones(F, dtype=bool)
+        out[fidx] = False
+        out &= base
+        new = np.full((F, 2, 3), np.nan)
+        if np.any(out):
+            loo = _flag_by_intersection(cams, uv[out], seen[out], thr)
+            again = _intersect_targets(cams, uv[out], seen[out] & ~loo)
+            new[out] = np.where(np.isfinite(again), again,
+                                _intersect_targets(cams, uv[out], seen[out]))
+        new[fidx] = xyz_f
+        new[~base] = np.nan
+        return p, new
+
+    nfev, thr = 0, outlier_px
     loss = "soft_l1" if robust else "linear"
-    nfev = 0
-    thr = outlier_px
-    # Adjust, flag bad blobs (leave-one-out intersection with the adjusted cameras, and
-    # misfits of the adjustment), adjust again without them, until the flags settle.
-    # With f_scale ≫ the noise the soft_l1 loss weighs inliers like least squares.
-    for _ in range(4 if robust else 1):
-        valid = seen & ~outliers
-        used = base_used & np.all(valid.sum(axis=1) >= 2, axis=1)
-        fidx = np.flatnonzero(used)
-        prob = build(valid)
-        sol = _solve(prob, prob.pack(params0, xyz0[fidx]), loss, f_scale_px, solver, max_iter)
+    for _ in range(max_rounds if robust else 0):
+        prob, sol, fidx = solve(flags, loss)
         nfev += sol.nfev
-        params, xyz_f = prob.unpack(sol.x)
-        params0, xyz0 = params, xyz0.copy()
-        xyz0[fidx] = xyz_f
-        if not robust:
-            break
-        r = prob.residuals(sol.x)[: 2 * prob.M].reshape(-1, 2)
+        params, xyz = update(prob, sol, fidx, thr or 20.0)
+        rn = _residual_norms(params, xyz, uv, seen)
+        swap = _label_swaps(params, xyz, uv, seen, rn, thr if thr else 20.0)
+        if np.any(swap):
+            uv[swap] = uv[swap][:, ::-1]
+            swapped ^= swap
+            rn = _residual_norms(params, xyz, uv, seen)
+        scale = robust_scale(rn[~flags])
         if outlier_px is None:
-            thr = max(1.0, 6.0 * 1.4826 * float(np.median(np.abs(r))))
-        cams_now = [unpack_camera(params[c], "", cameras[c].size) for c in range(C)]
-        new = _flag_by_intersection(cams_now, uv, seen & base_used[:, None, None], thr)
-        all_obs = np.argwhere(seen[fidx])                       # incl. flagged ones
-        pred = project_params(params[all_obs[:, 1]], xyz_f[all_obs[:, 0], all_obs[:, 2]],
-                              jacobian=False)
-        rn = np.linalg.norm(pred - uv[fidx][tuple(all_obs.T)], axis=1)
-        far = all_obs[~(rn <= thr)]
-        new[fidx[far[:, 0]], far[:, 1], far[:, 2]] = True
-        new |= outliers & ~used[:, None, None]     # dropped locations keep their flags
-        if np.array_equal(new, outliers):
+            thr = max(outlier_floor_px, outlier_sigma * scale)
+        new = flag_observations(rn, seen, thr, flags)
+        if np.array_equal(new, flags):
             break
-        outliers = new
+        flags = new
+    prob, sol, fidx = solve(flags, "linear")
+    nfev += sol.nfev
+    params, xyz_all = update(prob, sol, fidx, thr or 20.0)
+    used = np.zeros(F, dtype=bool)
+    used[fidx] = True
+    xyz_f = xyz_all[fidx]
     r, J = prob.residuals(sol.x, jacobian=True)
+    inl = prob.w_obs == 1.0                                        # (M,)
     r_obs = r[: 2 * prob.M].reshape(-1, 2)
-    dof = max(prob.m - prob.n, 1)
-    sigma0 = float(np.sqrt(np.sum(r**2) / dof))
+    # redundancy: inlier coordinates + conditions − camera unknowns − the target
+    # coordinates the inliers determine (min(3, 2 · views) per target)
+    f, _, k = prob.obs.T
+    views = np.zeros((prob.F, 2))
+    np.add.at(views, (f[inl], k[inl]), 1)
+    dof = max(2 * int(inl.sum()) + prob.F - prob.n_cam - int(np.minimum(3, 2 * views).sum()), 1)
+    sigma0 = float(np.sqrt((np.sum(r_obs[inl] ** 2) + np.sum(r[2 * prob.M:] ** 2)) / dof))
     param_sigma = np.full((C, N_PARAMS), np.nan)
     xyz_sigma = np.full((F, 2, 3), np.nan)
     Ncc, Npc, Bp = _blocks((J.T @ J).tocsr(), prob.n_cam, prob.F)
@@ -456,7 +604,7 @@ def adjust_wand(cameras: list[Camera], uv: np.ndarray, xyz0: np.ndarray, length_
     xyz[fidx] = xyz_f
     rmse = np.full(C, np.nan)
     for c in range(C):  # C cameras, not points
-        sel = prob.obs[:, 1] == c
+        sel = (prob.obs[:, 1] == c) & inl
         if np.any(sel):
             rmse[c] = float(np.sqrt(np.mean(r_obs[sel] ** 2)))
     lres = np.full(F, np.nan)
@@ -464,7 +612,8 @@ def adjust_wand(cameras: list[Camera], uv: np.ndarray, xyz0: np.ndarray, length_
     cams = [unpack_camera(params[c], cameras[c].name, cameras[c].size) for c in range(C)]
     return BundleResult(
         success=bool(sol.success), message=str(sol.message), cameras=cams, xyz=xyz,
-        rmse_px=rmse, rms_px=float(np.sqrt(np.mean(r_obs**2))), sigma0=sigma0,
+        rmse_px=rmse, rms_px=float(np.sqrt(np.mean(r_obs[inl] ** 2))), sigma0=sigma0,
         param_sigma=param_sigma, xyz_sigma=xyz_sigma, length_residual_m=lres,
-        outliers=outliers, used=used, free=tuple(free), nfev=int(nfev),
-        names=[c.name for c in cameras])
+        outliers=flags, used=used, free=tuple(free), nfev=int(nfev),
+        names=[c.name for c in cameras], outlier_threshold_px=float(thr or np.nan),
+        uv=uv, swapped=swapped)

@@ -16,7 +16,7 @@ from .bundle import DEFAULT_FREE, BundleResult, adjust_wand
 from .camera import Camera
 from .errors import InputError
 from .intersect import triangulate
-from .orientation import initial_orientation
+from .orientation import search_focal
 from .progress import Progress
 from .wand import WandDetections, detect_sequence
 
@@ -27,7 +27,9 @@ class CalibrationReport:
 
     ``bar_residual_m`` (F,): ``|A - B| - L`` of the targets intersected *independently*
     with the final cameras (not the condition residuals, which the adjustment forces
-    small), NaN where not determined.
+    small), NaN where not determined.  ``uv`` (F, C, 2, 2): the target points with the
+    A/B labels made consistent across cameras, as adjusted (``bundle.outliers`` refers
+    to them).
     """
 
     cameras: list[Camera]
@@ -35,6 +37,7 @@ class CalibrationReport:
     detections: WandDetections
     length_m: float
     bar_residual_m: np.ndarray
+    uv: np.ndarray | None = None
 
     @property
     def bar_rms_mm(self) -> float:
@@ -98,11 +101,11 @@ def calibrate_detections(uv: np.ndarray, sizes, names, length_m: float,
         raise InputError(f"{source}: no frame shows both wand targets in two or more cameras")
     if progress is not None:
         progress.update(0.7, 1.0, "initial orientation")
-    init = initial_orientation(uv, sizes, length_m, names=names, aspect=aspect)
+    _, init = search_focal(uv, sizes, length_m, names=names, aspect=aspect)
     if progress is not None:
         progress.update(0.8, 1.0, "bundle adjustment")
     res = adjust_wand(init.cameras, init.uv, init.xyz, length_m, free=free)
-    ok_uv = np.where(res.outliers[..., None], np.nan, init.uv)
+    ok_uv = np.where(res.outliers[..., None], np.nan, res.uv)
     pts = ok_uv.transpose(0, 2, 1, 3).reshape(-1, len(names), 2)
     tri = triangulate(res.cameras, pts)
     xyz = np.where(tri.ok[:, None], tri.xyz, np.nan).reshape(-1, 2, 3)
@@ -112,7 +115,7 @@ def calibrate_detections(uv: np.ndarray, sizes, names, length_m: float,
     det = detections if detections is not None else WandDetections(
         uv, np.where(both, 2, 0))
     return CalibrationReport(cameras=res.cameras, bundle=res, detections=det,
-                             length_m=length_m, bar_residual_m=bar)
+                             length_m=length_m, bar_residual_m=bar, uv=res.uv)
 
 
 def calibrate_scene(scene, free: tuple[str, ...] | None = None,

@@ -1,7 +1,10 @@
 """Initial orientation of all cameras from wand points alone (no prior guess).
 
-Interior orientation is guessed from the image size (focal length = the image's longer
-side, principal point at the centre, the given pixel aspect, no distortion).  For a
+Interior orientation is guessed from the image size (principal point at the centre,
+the given pixel aspect, no distortion); the common focal length is searched
+(:func:`search_focal`): a wrong focal length distorts the oriented space, so the
+intersected bars' lengths scatter, and the focal length whose bars are most nearly
+equal wins.  For a
 camera pair the essential matrix (five-point RANSAC, OpenCV) gives the relative
 orientation; its scale follows from the bar length L (median of the intersected bar
 lengths).  Cameras are chained from camera 1 (the datum: its frame is the world)
@@ -180,3 +183,50 @@ def initial_orientation(uv: np.ndarray, sizes: list[tuple[int, int]], length_m: 
     res = triangulate(cams, pts, sigma_px=1.0)
     xyz = res.xyz.reshape(F, 2, 3)
     return InitialOrientation(cameras=cams, uv=uv, xyz=xyz, swapped=swapped, order=order)
+
+
+def bar_scatter(init: InitialOrientation) -> float:
+    """Relative scatter of the intersected bar lengths: MAD / median (NaN if none)."""
+    d = np.linalg.norm(init.xyz[:, 0] - init.xyz[:, 1], axis=1)
+    d = d[np.isfinite(d)]
+    if d.size < 5:
+        return np.nan
+    med = np.median(d)
+    return float(np.median(np.abs(d - med)) / med)
+
+
+def search_focal(uv: np.ndarray, sizes: list[tuple[int, int]], length_m: float,
+                 names: list[str] | None = None, aspect: float = 1.0,
+                 factors: tuple[float, ...] = tuple(2.0 ** (k / 3.0) for k in range(-3, 7))
+                 ) -> tuple[float, InitialOrientation]:
+    """Common focal length (px) whose initial orientation makes the bars most equal.
+
+    Candidates ``factor · max(width, height · aspect)`` of the first camera; the best
+    one is refined by a parabola through its neighbours on a log scale.  The median
+    and MAD make the criterion insensitive to bad blobs.  Returns the focal length and
+    the initial orientation made with it.
+    """
+    w, h = sizes[0]
+    base = float(max(w, h * aspect))
+    fs = base * np.asarray(factors, dtype=float)
+    score = np.full(fs.size, np.inf)
+    for i, f in enumerate(fs):  # a few candidates, each a full orientation
+        try:
+            score[i] = bar_scatter(initial_orientation(uv, sizes, length_m, names, aspect, f))
+        except InputError:
+            continue
+    score = np.where(np.isfinite(score), score, np.inf)
+    if not np.isfinite(score).any():
+        return base, initial_orientation(uv, sizes, length_m, names, aspect, base)
+    i = int(np.argmin(score))
+    f = fs[i]
+    if 0 < i < fs.size - 1 and np.all(np.isfinite(score[i - 1:i + 2])):
+        y0, y1, y2 = score[i - 1:i + 2]
+        den = y0 - 2 * y1 + y2
+        if den > 0:
+            step = np.log(fs[i + 1] / fs[i])
+            f = float(np.exp(np.log(fs[i]) + 0.5 * step * (y0 - y2) / den))
+    init = initial_orientation(uv, sizes, length_m, names, aspect, f)
+    if not bar_scatter(init) <= score[i]:
+        init, f = initial_orientation(uv, sizes, length_m, names, aspect, fs[i]), fs[i]
+    return float(f), init

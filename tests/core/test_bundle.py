@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from core.bundle import _Problem, adjust_wand
+from core.bundle import _Problem, adjust_wand, flag_observations
 from core.camera import Camera, pack_camera, rodrigues_to_matrix
 from tests.core.wand_truth import rig, similarity, wand_capture
 
@@ -96,3 +96,60 @@ def test_rejects_unknown_parameter(rng):
     xyz, uv, _ = wand_capture(cams, n=5)
     with pytest.raises(ValueError, match="unknown interior"):
         adjust_wand(cams, uv, xyz, 0.5, free=("focal",))
+
+
+def test_bad_blobs_in_two_view_targets_do_not_cascade(rng):
+    """Half the locations seen by only two of three cameras, 5 % wrong blobs.
+
+    The earlier flagging dropped a location whenever a two-view target disagreed and
+    never re-admitted its observations: flags grew round by round until most of the
+    wand was thrown away and the calibration was off by centimetres.
+    """
+    cams = rig("line3")
+    xyz, uv, bad = wand_capture(cams, n=120, noise_px=0.05, outlier_frac=0.05, seed=21,
+                                hidden_frac=0.5)
+    seen = np.all(np.isfinite(uv), -1)
+    two = seen.sum(axis=1) == 2                                   # (n, 2) two-view targets
+    assert two.any(axis=1).mean() > 0.4 and bad[two[:, None, :] & seen].sum() >= 3
+    init, x0 = _perturbed_start(cams, xyz, rng)
+    res = adjust_wand(init, uv, x0, 0.5)
+    assert res.success, res.message
+    # every wrong blob flagged; the labels were not exchanged (truth labels hold)
+    assert not res.swapped.any() and np.all(res.outliers[bad])
+    # extra flags only where a wrong blob leaves a target without redundancy
+    bad_target = np.any(bad, axis=1)                               # (n, 2)
+    unresolvable = bad_target & (seen.sum(axis=1) - bad.sum(axis=1) < 3)
+    extra = res.outliers & ~bad
+    assert np.all(np.any(extra, axis=1) <= unresolvable)
+    assert res.used.sum() >= 0.85 * 120
+    assert np.all(res.rmse_px < 0.1)
+    centers = np.array([c.center for c in res.cameras])
+    truth = np.array([c.center for c in cams])
+    s, R, t = similarity(centers, truth)
+    assert np.max(np.linalg.norm(s * centers @ R.T + t - truth, axis=1)) < 5e-3
+    np.testing.assert_allclose([c.K[0, 0] for c in res.cameras], [c.K[0, 0] for c in cams],
+                               rtol=3e-3)
+
+
+def test_flags_are_decided_afresh_each_round():
+    """Observations flagged before come back once their residual is small (hysteresis)."""
+    rn = np.array([[[0.1, 5.0], [0.19, 0.3]], [[0.1, 0.1], [0.1, 0.1]]])[:, :, :, None]
+    rn = np.repeat(rn, 1, axis=3)[..., 0]                          # (F=2, C=2, 2)
+    rn = np.concatenate([rn, np.full((2, 1, 2), 0.1)], axis=1)     # three cameras
+    seen = np.ones_like(rn, dtype=bool)
+    prev = np.zeros_like(seen)
+    prev[0, 1] = True                                              # flagged last round
+    prev[1, 0, 0] = True
+    new = flag_observations(rn, seen, 0.25, prev)
+    assert new[0, 0, 1] and not new[0, 1, 0]                       # 0.19 < 0.8 · 0.25
+    assert new[0, 1, 1]                                            # 0.3 stays flagged
+    assert not new[1].any()                                        # re-admitted
+    # a two-view target: one flagged view flags both
+    seen2 = seen.copy()
+    seen2[0, 2, 1] = False
+    rn2 = np.where(seen2, rn, np.nan)
+    new2 = flag_observations(rn2, seen2, 0.25, np.zeros_like(seen))
+    assert new2[0, 0, 1] and new2[0, 1, 1] and not new2[0, 2, 1]
+    # a target that cannot be intersected (NaN residuals) is flagged for the round
+    rn2[1, :, 0] = np.where(seen2[1, :, 0], np.nan, rn2[1, :, 0])
+    assert flag_observations(rn2, seen2, 0.25, np.zeros_like(seen))[1, :, 0].all()

@@ -2,8 +2,11 @@
 
 Steps: target centroids in every wand image (:mod:`core.wand`), initial orientation
 from nothing but those points and the bar length (:mod:`core.orientation`), then the
-self-calibrating bundle adjustment (:mod:`core.bundle`).  The world of the result is
-the first camera's frame (OpenCV axes, metres): the datum of the adjustment.
+self-calibrating bundle adjustment (:mod:`core.bundle`).  The adjustment's world is
+the first camera's frame (OpenCV axes, metres): its datum.  Optionally (``z_up``) the
+result is then expressed in a Z-up world (:func:`z_up_world`): the cameras' mean up
+direction is +Z, the origin is the wand volume's centroid dropped to its lowest wand
+position, +X is camera 1's x axis made horizontal.
 """
 
 from __future__ import annotations
@@ -29,7 +32,8 @@ class CalibrationReport:
     with the final cameras (not the condition residuals, which the adjustment forces
     small), NaN where not determined.  ``uv`` (F, C, 2, 2): the target points with the
     A/B labels made consistent across cameras, as adjusted (``bundle.outliers`` refers
-    to them).
+    to them).  ``world`` says which world ``cameras`` live in; ``world_from_datum``
+    (4, 4) maps the adjustment's datum frame to it (rigid, metres).
     """
 
     cameras: list[Camera]
@@ -38,6 +42,8 @@ class CalibrationReport:
     length_m: float
     bar_residual_m: np.ndarray
     uv: np.ndarray | None = None
+    world: str = "camera 1 frame (the adjustment datum)"
+    world_from_datum: np.ndarray | None = None
 
     @property
     def bar_rms_mm(self) -> float:
@@ -53,6 +59,7 @@ class CalibrationReport:
                  f"bar length L = {self.length_m * 1e3:.1f} mm; independently intersected "
                  f"bars: RMS residual {self.bar_rms_mm:.3f} mm",
                  "",
+                 f"world: {self.world}",
                  f"{'camera':8s} {'RMSE px':>8s} {'f px':>10s} {'sd':>6s} {'aspect':>7s} "
                  f"{'cx':>8s} {'cy':>8s} {'k1':>8s} {'k2':>8s}  centre (m)"]
         for i, c in enumerate(self.cameras):
@@ -66,6 +73,7 @@ class CalibrationReport:
         return {"adjusted": True, "error": float(self.bundle.rms_px),
                 "method": "somacap wand bundle adjustment",
                 "datum": "first camera fixed, scale from the bar length",
+                "world": self.world,
                 "bar_length_m": float(self.length_m),
                 "bar_rms_mm": self.bar_rms_mm,
                 "rmse_px": [float(x) for x in self.bundle.rmse_px]}
@@ -75,27 +83,53 @@ class _WandImages:
     """``images(cam_index, frame)`` over a scene's ``wand/`` folders (field applied)."""
 
     def __init__(self, scene):
-        import cv2
-
-        self._cv2 = cv2
         self.scene = scene
-        self.files = scene.wand_frames()
         self.n_cameras = len(scene.cameras)
-        self.n_frames = len(self.files[scene.cameras[0]])
+        self.n_frames = len(scene.wand_frames()[scene.cameras[0]])
 
     def __call__(self, c: int, f: int) -> np.ndarray:
-        path = self.files[self.scene.cameras[c]][f]
-        img = self._cv2.imread(str(path), self._cv2.IMREAD_GRAYSCALE)
-        if img is None:
-            raise InputError(f"{path}: cannot be read as an image")
-        return self.scene._apply_field(img)
+        return self.scene.wand_image(c, f)
+
+
+def z_up_world(cameras: list[Camera], xyz: np.ndarray) -> tuple[list[Camera], np.ndarray]:
+    """Express cameras in a Z-up world built from the cameras and the wand volume.
+
+    +Z: the mean of the cameras' up vectors (the −y camera axis in the world);
+    +X: camera 1's x axis with its Z part removed; origin: the centroid of the wand
+    targets ``xyz`` (any shape (..., 3), NaN ignored) moved along Z down to the lowest
+    target.  Rigid: scale and relative geometry are unchanged.
+
+    Returns the cameras and ``T`` (4, 4) with ``X_new = T @ [X_old, 1]``.
+    """
+    up = np.mean([-c.R[1] for c in cameras], axis=0)
+    z = up / np.linalg.norm(up)
+    x = cameras[0].R[0] - (cameras[0].R[0] @ z) * z
+    if np.linalg.norm(x) < 1e-9:                       # camera 1 looks straight down
+        x = np.cross(z, [0.0, 1.0, 0.0]) if abs(z[1]) < 0.9 else np.cross(z, [1.0, 0, 0])
+    x /= np.linalg.norm(x)
+    Rw = np.stack([x, np.cross(z, x), z])              # rows: new axes in the old frame
+    pts = np.asarray(xyz, dtype=float).reshape(-1, 3)
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    c = pts.mean(axis=0) if len(pts) else np.zeros(3)
+    h = pts @ z if len(pts) else np.zeros(1)
+    origin = c + (h.min() - c @ z) * z
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = Rw, -Rw @ origin
+    out = [Camera(cam.name, cam.size, cam.K.copy(), cam.dist.copy(), cam.R @ Rw.T,
+                  cam.t + cam.R @ origin) for cam in cameras]
+    return out, T
 
 
 def calibrate_detections(uv: np.ndarray, sizes, names, length_m: float,
                          free: tuple[str, ...] = DEFAULT_FREE, aspect: float = 1.0,
                          source: str = "wand", detections: WandDetections | None = None,
-                         progress: Progress | None = None) -> CalibrationReport:
-    """Calibrate from target points ``uv`` (F, C, 2, 2) (NaN where not measured)."""
+                         progress: Progress | None = None, z_up: bool = False
+                         ) -> CalibrationReport:
+    """Calibrate from target points ``uv`` (F, C, 2, 2) (NaN where not measured).
+
+    ``z_up``: express the result in the Z-up world of :func:`z_up_world` (the
+    adjustment itself keeps camera 1 fixed as its datum).
+    """
     both = np.all(np.isfinite(uv), axis=(2, 3))
     if not np.any(both.sum(axis=1) >= 2):
         raise InputError(f"{source}: no frame shows both wand targets in two or more cameras")
@@ -114,12 +148,19 @@ def calibrate_detections(uv: np.ndarray, sizes, names, length_m: float,
         progress.update(1.0, 1.0, "calibrated")
     det = detections if detections is not None else WandDetections(
         uv, np.where(both, 2, 0))
-    return CalibrationReport(cameras=res.cameras, bundle=res, detections=det,
-                             length_m=length_m, bar_residual_m=bar, uv=res.uv)
+    cams, world, T = res.cameras, "camera 1 frame (the adjustment datum)", np.eye(4)
+    if z_up:
+        cams, T = z_up_world(res.cameras, res.xyz)
+        world = ("Z up = mean camera up vector; origin = wand-volume centroid dropped to the "
+                 "lowest wand position; X = camera 1's x axis made horizontal")
+    return CalibrationReport(cameras=cams, bundle=res, detections=det,
+                             length_m=length_m, bar_residual_m=bar, uv=res.uv, world=world,
+                             world_from_datum=T)
 
 
 def calibrate_scene(scene, free: tuple[str, ...] | None = None,
-                    progress: Progress | None = None) -> CalibrationReport:
+                    progress: Progress | None = None, z_up: bool = False
+                    ) -> CalibrationReport:
     """Calibrate a loaded :class:`core.scene.Scene` from its ``wand/`` sequence.
 
     Single-field scenes (``field`` odd/even) start from pixel aspect 2 and adjust it.
@@ -139,7 +180,7 @@ def calibrate_scene(scene, free: tuple[str, ...] | None = None,
     sizes = [scene.camera_size(c) for c in scene.cameras]
     return calibrate_detections(det.uv, sizes, list(scene.cameras), length, free=free,
                                 aspect=aspect, source=str(scene.root / "wand"),
-                                detections=det, progress=progress)
+                                detections=det, progress=progress, z_up=z_up)
 
 
 def compare_to_reference(cameras: list[Camera], reference: list[Camera], source: str = ""

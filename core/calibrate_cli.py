@@ -23,6 +23,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="comma-separated free interior parameters, of "
                              f"{','.join(INTRINSIC_NAMES)} (default "
                              f"{','.join(DEFAULT_FREE)}, plus aspect for single fields)")
+    parser.add_argument("--no-z-up", dest="z_up", action="store_false",
+                        help="keep the adjustment's world (camera 1's frame) instead of "
+                             "the Z-up world (mean camera up = +Z, origin at the wand "
+                             "volume's centroid dropped to its lowest position)")
     parser.add_argument("--reference", type=Path, default=None,
                         help="compare with this calibration (e.g. the truth) after a "
                              "similarity alignment")
@@ -30,7 +34,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from .calibrate import calibrate_scene, compare_to_reference
-    from .scene import load_scene
+    from .scene import load_wand
 
     out = args.output if args.output is not None else args.scene / "calibration.toml"
     if out.exists() and not args.force:
@@ -44,12 +48,11 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"--free: unknown interior parameter '{bad[0]}' (choose from "
                              f"{', '.join(INTRINSIC_NAMES)})")
     reference = read_calibration(args.reference) if args.reference is not None else None
-    scene = load_scene(args.scene, check_images=False) if _has_images(args.scene) else \
-        _wand_only_scene(args.scene)
+    scene = load_wand(args.scene)
     if reference is not None and len(reference) != len(scene.cameras):
         raise InputError(f"{args.reference}: has {len(reference)} cameras but the scene has "
                          f"{len(scene.cameras)}: the camera counts must match")
-    report = calibrate_scene(scene, free=free, progress=Progress())
+    report = calibrate_scene(scene, free=free, progress=Progress(), z_up=args.z_up)
     print(report.text())
     if reference is not None:
         cmp = compare_to_reference(report.cameras, reference, str(args.reference))
@@ -61,35 +64,3 @@ def run(args: argparse.Namespace) -> int:
     print(f"\nwrote {out}")
     return 0 if report.bundle.success else 1
 
-
-def _has_images(root: Path) -> bool:
-    return (root / "scene.toml").is_file() and (
-        (root / "images").is_dir() or (root / "videos").is_dir())
-
-
-def _wand_only_scene(root: Path):
-    """A scene folder with only ``wand/`` (a wand-only render): cameras from its folders."""
-    import tomllib
-
-    from .scene import Scene, _image_folders
-
-    if not root.is_dir():
-        raise InputError(f"{root}: scene folder not found")
-    meta = {}
-    if (root / "scene.toml").is_file():
-        meta = tomllib.loads((root / "scene.toml").read_text(encoding="utf-8"))
-    wand = root / "wand"
-    if not wand.is_dir():
-        raise InputError(f"{wand}: the scene has no wand sequence")
-    cameras = [str(c) for c in meta.get("cameras", sorted(p.name for p in wand.iterdir()
-                                                          if p.is_dir()))]
-    files = _image_folders(wand, cameras, "wand")
-    import cv2
-
-    img = cv2.imread(str(files[cameras[0]][0]), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise InputError(f"{files[cameras[0]][0]}: cannot be read as an image")
-    size = (img.shape[1], img.shape[0])
-    fld = str(meta.get("field", "none"))
-    return Scene(root=root, name=root.name, fps=25.0, n_frames=0, cameras=cameras, size=size,
-                 field=fld, meta=meta)

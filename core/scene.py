@@ -222,6 +222,15 @@ class Scene:
         root = self.root / "wand"
         return _image_folders(root, self.cameras, "wand")
 
+    def wand_image(self, cam: str | int, frame: int) -> np.ndarray:
+        """One wand image as grey uint8 ``(H, W)``, field applied like :meth:`image`."""
+        cam = self.cameras[cam] if isinstance(cam, int) else cam
+        path = self.wand_frames()[cam][frame]
+        img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        if img is None:
+            raise InputError(f"{path}: cannot be read as an image")
+        return self._apply_field(img)
+
 
 def _read_toml(path: Path) -> dict:
     if not path.is_file():
@@ -360,3 +369,37 @@ def load_scene(path: str | Path, check_images: bool = True) -> Scene:
     return Scene(root=root, name=str(meta.get("name", root.name)),
                  fps=float(meta.get("fps", 25.0)), n_frames=n_frames, cameras=cameras,
                  size=size, field=fld, meta=meta, camera_sizes=sizes, _sources=sources)
+
+
+def load_wand(path: str | Path) -> Scene:
+    """Load a scene folder that may hold only a wand sequence (``wand/``, ``wand.toml``).
+
+    A full scene (``scene.toml`` with ``images/`` or ``videos/``) is loaded by
+    :func:`load_scene` without reading images; otherwise the cameras come from
+    ``scene.toml`` or, without one, the folder names under ``wand/``, and the size from
+    the first wand image.  ``n_frames`` is 0 (no capture images).
+    """
+    root = Path(path)
+    if not root.is_dir():
+        raise InputError(f"{root}: scene folder not found")
+    if (root / "scene.toml").is_file() and ((root / "images").is_dir()
+                                            or (root / "videos").is_dir()):
+        return load_scene(root, check_images=False)
+    wand = root / "wand"
+    if not wand.is_dir():
+        raise InputError(f"{wand}: the scene has no wand sequence")
+    meta = _read_toml(root / "scene.toml") if (root / "scene.toml").is_file() else {}
+    cameras = [str(c) for c in meta.get("cameras", sorted(p.name for p in wand.iterdir()
+                                                          if p.is_dir()))]
+    if not cameras:
+        raise InputError(f"{wand}: holds no camera folders")
+    fld = str(meta.get("field", "none"))
+    if fld not in ("none", "odd", "even"):
+        raise InputError(f"{root / 'scene.toml'}: field must be none, odd or even, got '{fld}'")
+    files = _image_folders(wand, cameras, "wand")
+    img = cv2.imread(str(files[cameras[0]][0]), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise InputError(f"{files[cameras[0]][0]}: cannot be read as an image")
+    return Scene(root=root, name=str(meta.get("name", root.name)),
+                 fps=float(meta.get("fps", 25.0)), n_frames=0, cameras=cameras,
+                 size=(img.shape[1], img.shape[0]), field=fld, meta=meta)

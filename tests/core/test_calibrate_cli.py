@@ -92,3 +92,32 @@ def test_calibrates_rendered_blobs_end_to_end(tmp_path, capsys):
     assert main(["calibrate", str(root), "-o", str(out), "--reference", str(ref)]) == 0
     text = capsys.readouterr().out
     assert "centre error" in text and out.is_file()
+
+
+def test_z_up_world_from_camera_up_vectors_and_wand_volume():
+    from core.calibrate import z_up_world
+    from core.camera import Camera
+    from tests.core.wand_truth import wand_capture
+
+    cams = rig("ring4")
+    xyz, _, _ = wand_capture(cams, n=40, seed=2)
+    # the adjustment's world: camera 1's frame, i.e. an arbitrary rigid motion of truth
+    R0, t0 = cams[0].R, cams[0].t
+    datum = [Camera(c.name, c.size, c.K, c.dist, c.R @ R0.T, c.t - c.R @ R0.T @ t0)
+             for c in cams]
+    xyz_d = xyz @ R0.T + t0
+    out, T = z_up_world(datum, xyz_d)
+    up_truth = np.mean([-c.R[1] for c in cams], axis=0)
+    up_truth /= np.linalg.norm(up_truth)
+    # the new Z is the truth's mean camera up, so the truth maps by a rotation about it
+    xyz_new = xyz_d.reshape(-1, 3) @ T[:3, :3].T + T[:3, 3]
+    rel_truth = xyz.reshape(-1, 3) - xyz.reshape(-1, 3)[0]
+    rel_new = xyz_new - xyz_new[0]
+    np.testing.assert_allclose(rel_new @ [0, 0, 1], rel_truth @ up_truth, atol=1e-9)
+    assert abs(xyz_new[:, 2].min()) < 1e-9                        # lowest target at Z = 0
+    np.testing.assert_allclose(xyz_new[:, :2].mean(axis=0), 0.0, atol=1e-9)
+    np.testing.assert_allclose(np.linalg.det(T[:3, :3]), 1.0)
+    # images unchanged: the same points project to the same pixels
+    for a, b in zip(datum, out, strict=True):
+        np.testing.assert_allclose(b.project(xyz_new), a.project(xyz_d.reshape(-1, 3)),
+                                   atol=1e-7)

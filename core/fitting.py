@@ -9,14 +9,19 @@ Observation equations by type, each weighted by its a-priori σ (eq. 12,
 * **pose prior** (e.g. the prediction from the previous frames):
   ``(θ − θ_pred) / σ_pred``;
 * **soft joint limits** (:func:`core.skeleton.limit_residuals`);
-* **shape prior** (weak, keeps unobserved radii near their start):
-  ``(radii − radii0) / σ_radius``.
+* **shape prior** (weak, keeps unobserved radii and centres near their start):
+  ``(radii − radii0) / σ_radius``, ``(centres − centres0) / σ_center``.
 
 Unknowns per frame: ``θ`` (n) and ``root_xyz`` (3) — the pose; ``s`` (G) and the
-metaball radii (3M) — the shape.  As in the paper, pose and shape are solved
-alternately (better convergence from a rough start), then optionally polished
-together.  Each solve is a robust (soft-L1 on attractor residuals) trust-region
-Gauss–Newton (``scipy.optimize.least_squares``) with analytic Jacobians.  Per frame
+metaball radii (3M) and, optionally, the metaball centres in their bones' frames (3M;
+the paper fixes them on the bone axis, but real flesh is not centred on the bone) —
+the shape (``∂f_m/∂c0_m = 4 f_m s_g rot_m q_m`` with ``q = y / l²``).  As in the
+paper, pose and shape are solved alternately (better convergence from a rough
+start), then optionally polished together.  Each solve is Levenberg–Marquardt on
+dense normal equations with Huber reweighting of the attractor residuals and
+analytic Jacobians.  The field of an attractor point sums the metaballs of its part
+(eq. 15), optionally also those of the adjacent parts or of the whole body
+(:func:`part_members`).  Per frame
 the result reports the attractor RMSE (field units and approximately metres), σ of
 every joint angle from the normal matrix, and converged / diverged flags.
 """
@@ -65,6 +70,7 @@ class FitResult:
     root_xyz: np.ndarray
     s: np.ndarray
     radii: np.ndarray
+    centers: np.ndarray
     rmse_field: float
     rmse_m: float
     theta_sigma: np.ndarray
@@ -87,21 +93,53 @@ class FitSettings:
     tol: float = 1e-12
     use_limits: bool = True
     shape_prior: bool = True
+    free_centers: bool = False
+    sigma_center: float = 0.03
+    members: str = "part"  # field of a point: "part", "neighbours" or "body" (all)
+
+
+def part_members(skel: Skeleton, balls: Metaballs, part: np.ndarray,
+                 members: str = "part") -> np.ndarray:
+    """``(N, M)`` bool: the metaballs whose field counts for each point.
+
+    ``"part"``: the metaballs of the point's part (bone), eq. 15 of the paper;
+    ``"neighbours"``: also those of the parent and child bones, so that the surface
+    stays continuous across a joint; ``"body"``: all metaballs — the visible body
+    surface ``Σ f = 0.5`` itself, where a wrong segmentation cannot pull a part.
+    Points with part −1 use none.
+    """
+    if members not in ("part", "neighbours", "body"):
+        raise ValueError(f"unknown membership {members!r}")
+    part = np.asarray(part, dtype=int)
+    nb = len(skel.bone_names)
+    adj = np.eye(nb, dtype=bool)
+    if members == "body":
+        adj[:] = True
+    elif members == "neighbours":
+        for b, p in enumerate(skel.bone_parent):
+            if p >= 0:
+                adj[b, p] = adj[p, b] = True
+    return adj[np.clip(part, 0, nb - 1)][:, balls.bone] & (part >= 0)[:, None]
 
 
 class _Problem:
     """Residuals and Jacobian for any subset of the unknown blocks, one or more frames."""
 
     def __init__(self, skel: Skeleton, balls: Metaballs, obs: list[Observations],
-                 settings: FitSettings, radii0: np.ndarray):
+                 settings: FitSettings, radii0: np.ndarray, centers0: np.ndarray):
         self.skel, self.balls, self.obs, self.cfg = skel, balls, obs, settings
         self.anc = skel.ancestors()
         self.radii0 = radii0
-        self.members = [o.part[:, None] == balls.bone[None, :] for o in obs]
+        self.centers0 = centers0
+        self.members = [part_members(skel, balls, o.part, settings.members) for o in obs]
 
-    def blocks(self, theta, root, s, radii):
-        """Residual r (m,) and Jacobian blocks per unknown group for every frame."""
-        skel, balls, cfg = self.skel, self.balls, self.cfg
+    def blocks(self, theta, root, s, radii, centers):
+        """Residual r (m,) and Jacobian blocks per unknown group for every frame:
+        ``(kind, r, J_theta, J_root, J_s, J_radii, J_centers)``."""
+        skel, cfg = self.skel, self.cfg
+        b0 = self.balls
+        balls = Metaballs(b0.bone, centers, b0.group, b0.rot, radii)
+        scale = np.where(b0.group >= 0, np.asarray(s, float)[np.maximum(b0.group, 0)], 1.0)
         rows = []
         for f, o in enumerate(self.obs):
             pose = forward(skel, theta[f][None], root[f][None], s)
@@ -112,8 +150,11 @@ class _Problem:
                 Jt, Jr, Js = pose_jacobian(skel, pose, balls, s, o.xyz, fm, y, radii,
                                            anc=self.anc)
                 Jrad = radius_jacobian(fm, y, radii).reshape(len(o.xyz), -1)
+                q = y / radii[None] ** 2
+                Jc = 4.0 * (fm * scale[None])[..., None] * np.einsum("mij,nmj->nmi", b0.rot, q)
                 w = 1.0 / o.sigma_field
-                parts.append(("point", (F - THRESHOLD) * w, Jt * w, Jr * w, Js * w, Jrad * w))
+                parts.append(("point", (F - THRESHOLD) * w, Jt * w, Jr * w, Js * w, Jrad * w,
+                              Jc.reshape(len(o.xyz), -1) * w))
             if len(o.joint_idx):
                 x, Jt, Js = joint_jacobians(skel, theta[f][None], root[f][None], s)
                 w = 1.0 / o.sigma_joint
@@ -122,16 +163,18 @@ class _Problem:
                               Jt[0, o.joint_idx].reshape(3 * k, -1) * w,
                               np.tile(np.eye(3), (k, 1)) * w,
                               Js[0, o.joint_idx].reshape(3 * k, -1) * w,
-                              np.zeros((3 * k, radii.size))))
+                              np.zeros((3 * k, radii.size)), np.zeros((3 * k, radii.size))))
             if o.theta_pred is not None:
                 w = 1.0 / np.broadcast_to(np.asarray(o.sigma_pred, float), (skel.n_dof,))
                 parts.append(("prior", (theta[f] - o.theta_pred) * w, np.diag(w),
                               np.zeros((skel.n_dof, 3)), np.zeros((skel.n_dof, skel.n_groups)),
+                              np.zeros((skel.n_dof, radii.size)),
                               np.zeros((skel.n_dof, radii.size))))
             if cfg.use_limits:
                 r, d = limit_residuals(skel, theta[f][None], cfg.sigma_limits)
                 parts.append(("limit", r[0], np.diag(d[0]), np.zeros((skel.n_dof, 3)),
                               np.zeros((skel.n_dof, skel.n_groups)),
+                              np.zeros((skel.n_dof, radii.size)),
                               np.zeros((skel.n_dof, radii.size))))
             rows.append(parts)
         return rows
@@ -142,31 +185,34 @@ def _huber_weights(r: np.ndarray, k: float) -> np.ndarray:
     return np.where(a <= k, 1.0, np.sqrt(k / np.maximum(a, 1e-300)))
 
 
-def _solve(prob: _Problem, theta, root, s, radii, free: str, max_nfev: int):
+def _solve(prob: _Problem, theta, root, s, radii, centers, free: str, max_nfev: int):
     """Solve for the blocks in ``free`` ("pose", "shape" or "all"); returns updated
-    (theta, root, s, radii, least_squares result, final residual parts)."""
+    (theta, root, s, radii, centers, LM result)."""
     nf, n, G, M3 = len(prob.obs), prob.skel.n_dof, prob.skel.n_groups, radii.size
     cfg = prob.cfg
     pose_free = free in ("pose", "all")
     shape_free = free in ("shape", "all")
+    C3 = M3 if (shape_free and cfg.free_centers) else 0
+    m_pose = nf * (n + 3) if pose_free else 0
 
     def unpack(x):
-        th, rt, ss, rd = theta, root, s, radii
-        i = 0
+        th, rt, ss, rd, ce = theta, root, s, radii, centers
         if pose_free:
             th = x[:nf * n].reshape(nf, n)
             rt = x[nf * n:nf * (n + 3)].reshape(nf, 3)
-            i = nf * (n + 3)
         if shape_free:
+            i = m_pose
             ss = x[i:i + G]
             rd = x[i + G:i + G + M3].reshape(radii.shape)
-        return th, rt, ss, rd
+            if C3:
+                ce = x[i + G + M3:i + G + M3 + C3].reshape(centers.shape)
+        return th, rt, ss, rd, ce
 
     x0 = []
     if pose_free:
         x0 += [theta.ravel(), root.ravel()]
     if shape_free:
-        x0 += [s, radii.ravel()]
+        x0 += [s, radii.ravel()] + ([centers.ravel()] if C3 else [])
     x0 = np.concatenate(x0)
     cache = {}
 
@@ -174,33 +220,39 @@ def _solve(prob: _Problem, theta, root, s, radii, free: str, max_nfev: int):
         key = x.tobytes()
         if key in cache:
             return cache[key]
-        th, rt, ss, rd = unpack(x)
-        rows = prob.blocks(th, rt, ss, rd)
+        th, rt, ss, rd, ce = unpack(x)
+        rows = prob.blocks(th, rt, ss, rd, ce)
         res, jac = [], []
-        m_pose = nf * (n + 3)
         for f, parts in enumerate(rows):
-            for kind, r, Jt, Jr, Js, Jrad in parts:
+            for kind, r, Jt, Jr, Js, Jrad, Jc in parts:
                 J = np.zeros((len(r), len(x)))
-                i = 0
                 if pose_free:
                     J[:, f * n:(f + 1) * n] = Jt
                     J[:, nf * n + 3 * f:nf * n + 3 * f + 3] = Jr
-                    i = m_pose
                 if shape_free:
+                    i = m_pose
                     J[:, i:i + G] = Js
                     J[:, i + G:i + G + M3] = Jrad
+                    if C3:
+                        J[:, i + G + M3:] = Jc
                 if kind == "point" and cfg.robust_scale:
                     wgt = _huber_weights(r, cfg.robust_scale)
                     r, J = r * wgt, J * wgt[:, None]
                 res.append(r)
                 jac.append(J)
         if shape_free and cfg.shape_prior:
-            i = m_pose if pose_free else 0
+            i = m_pose
             w = 1.0 / cfg.sigma_radius
             res.append((rd.ravel() - prob.radii0.ravel()) * w)
             J = np.zeros((M3, len(x)))
-            J[:, i + G:] = np.eye(M3) * w
+            J[:, i + G:i + G + M3] = np.eye(M3) * w
             jac.append(J)
+            if C3:
+                w = 1.0 / cfg.sigma_center
+                res.append((ce.ravel() - prob.centers0.ravel()) * w)
+                J = np.zeros((C3, len(x)))
+                J[:, i + G + M3:] = np.eye(C3) * w
+                jac.append(J)
         out = (np.concatenate(res), np.concatenate(jac, axis=0))
         cache.clear()
         cache[key] = out
@@ -208,25 +260,28 @@ def _solve(prob: _Problem, theta, root, s, radii, free: str, max_nfev: int):
 
     lo = np.full(len(x0), -np.inf)
     if shape_free:
-        i = nf * (n + 3) if pose_free else 0
-        lo[i:i + G] = 0.2
-        lo[i + G:] = 1e-3
+        lo[m_pose:m_pose + G] = 0.2
+        lo[m_pose + G:m_pose + G + M3] = 1e-3
     x0 = np.maximum(x0, lo)
     sol = _levenberg_marquardt(system, x0, lo, max_nfev, cfg.tol)
-    th, rt, ss, rd = unpack(sol.x)
-    return th, rt, ss, rd, sol
+    th, rt, ss, rd, ce = unpack(sol.x)
+    return th, rt, ss, rd, ce, sol
 
 
 def fit(skel: Skeleton, balls: Metaballs, obs: Observations | list[Observations],
         theta0: np.ndarray, root0: np.ndarray, s0: np.ndarray,
         radii0: np.ndarray | None = None, solve: str = "alternate",
-        settings: FitSettings | None = None) -> FitResult | list[FitResult]:
+        settings: FitSettings | None = None,
+        centers0: np.ndarray | None = None) -> FitResult | list[FitResult]:
     """Fit pose and/or shape to one frame's (or several frames') observations.
 
     Parameters
     ----------
     obs : Observations, or a list (one per frame) sharing the shape
     theta0 : (n,) or (F, n); root0 : (3,) or (F, 3); s0 : (G,); radii0 : (M, 3)
+    centers0 : (M, 3) metaball centres in their bones' frames, metres before scaling
+        (default ``balls.center0``); free in the shape solve when
+        ``settings.free_centers``
     solve : ``"pose"`` (shape fixed), ``"shape"`` (pose fixed), ``"alternate"``
         (shape and pose in turn, ``settings.rounds`` times, then a joint polish when
         ``settings.polish``) or ``"all"`` (everything at once)
@@ -243,23 +298,26 @@ def fit(skel: Skeleton, balls: Metaballs, obs: Observations | list[Observations]
     root = np.array(root0, float).reshape(nf, 3)
     s = np.array(s0, float)
     radii = np.array(balls.radii if radii0 is None else radii0, float)
-    prob = _Problem(skel, balls, obs_l, cfg, radii.copy())
+    centers = np.array(balls.center0 if centers0 is None else centers0, float)
+    prob = _Problem(skel, balls, obs_l, cfg, radii.copy(), centers.copy())
     steps = {"pose": ["pose"], "shape": ["shape"], "all": ["all"],
              "alternate": ["pose", "shape"] * cfg.rounds + (["all"] if cfg.polish else [])}
     if solve not in steps:
         raise ValueError(f"unknown solve mode {solve!r}")
     sol = None
     for step in steps[solve]:
-        theta, root, s, radii, sol = _solve(prob, theta, root, s, radii, step, cfg.max_nfev)
-    results = _report(prob, theta, root, s, radii, sol)
+        theta, root, s, radii, centers, sol = _solve(prob, theta, root, s, radii, centers,
+                                                     step, cfg.max_nfev)
+    results = _report(prob, theta, root, s, radii, centers, sol)
     return results[0] if single else results
 
 
-def _report(prob: _Problem, theta, root, s, radii, sol) -> list[FitResult]:
+def _report(prob: _Problem, theta, root, s, radii, centers, sol) -> list[FitResult]:
     """Per-frame quality: attractor RMSE, σ of the angles (pose-only normal matrix)."""
     skel = prob.skel
     out = []
-    rows = prob.blocks(theta, root, s, radii)
+    rows = prob.blocks(theta, root, s, radii, centers)
+    balls = Metaballs(prob.balls.bone, centers, prob.balls.group, prob.balls.rot, radii)
     for f, parts in enumerate(rows):
         r_pt = np.concatenate([p[1] for p in parts if p[0] == "point"] or [np.zeros(0)])
         sig_f = prob.obs[f].sigma_field
@@ -269,7 +327,7 @@ def _report(prob: _Problem, theta, root, s, radii, sol) -> list[FitResult]:
         o = prob.obs[f]
         if len(o.xyz):
             pose = forward(skel, theta[f][None], root[f][None], s)
-            Rw, cw = world_frames(skel, pose, prob.balls, s)
+            Rw, cw = world_frames(skel, pose, balls, s)
             F, g, _, _ = mb_field(o.xyz, Rw[0], cw[0], radii, prob.members[f])
             dist = (F - THRESHOLD) / np.maximum(np.linalg.norm(g, axis=-1), 1e-9)
             rmse_m = float(np.sqrt(np.mean(dist**2)))
@@ -286,7 +344,8 @@ def _report(prob: _Problem, theta, root, s, radii, sol) -> list[FitResult]:
         finite = bool(np.all(np.isfinite(theta[f])) and np.all(np.isfinite(root[f])))
         ok = bool(sol is not None and sol.status > 0 and finite)
         out.append(FitResult(theta=theta[f].copy(), root_xyz=root[f].copy(), s=s.copy(),
-                             radii=radii.copy(), rmse_field=rmse_field, rmse_m=rmse_m,
+                             radii=radii.copy(), centers=centers.copy(),
+                             rmse_field=rmse_field, rmse_m=rmse_m,
                              theta_sigma=sig, converged=ok, diverged=not finite,
                              message="" if sol is None else sol.message,
                              nfev=0 if sol is None else int(sol.nfev)))

@@ -67,3 +67,30 @@ def test_pose_only_with_outliers_and_joint_observations(truth, rng):
     err = np.linalg.norm(sk.joint_positions(skel, res.theta, res.root_xyz, s) - x_j, axis=-1)
     assert err.max() < 0.01  # robust: outliers move no joint by a centimetre
     assert not res.diverged and np.all(np.isfinite(res.theta_sigma))
+
+
+@pytest.mark.parametrize("members", ["part", "neighbours", "body"])
+def test_centre_and_scale_jacobians_match_finite_differences(rng, members):
+    from core.fitting import _Problem
+
+    skel = sk.make_skeleton()
+    balls = mb.make_metaballs(skel)
+    th = rng.normal(0, 0.2, skel.n_dof)
+    rt, s = np.array([0.0, 0.0, 1.0]), 1 + 0.05 * rng.normal(size=skel.n_groups)
+    Rw, cw = mb.world_frames(skel, sk.forward(skel, th[None], rt[None], s), balls, s)
+    obs = Observations(xyz=cw[0] + rng.normal(0, 0.04, cw[0].shape), part=balls.bone.copy(),
+                       sigma_field=1.0)
+    c = balls.center0 + 0.01
+    prob = _Problem(skel, balls, [obs], FitSettings(members=members), balls.radii, c)
+
+    def res(ss, cc):
+        return prob.blocks(th[None], rt[None], ss, balls.radii, cc)[0][0]
+
+    r0, Js, Jc = res(s, c)[1], res(s, c)[4], res(s, c)[6]
+    e = 1e-6
+    num_c = np.stack([(res(s, c + e * np.eye(c.size)[k].reshape(c.shape))[1] - r0) / e
+                      for k in range(c.size)], axis=1)
+    num_s = np.stack([(res(s + e * np.eye(len(s))[g], c)[1] - r0) / e
+                      for g in range(len(s))], axis=1)
+    assert np.abs(num_c - Jc).max() < 1e-4 * np.abs(Jc).max()
+    assert np.abs(num_s - Js).max() < 1e-4 * np.abs(Js).max()

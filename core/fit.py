@@ -1,0 +1,487 @@
+"""Fitting across frames and the scene-level pipeline (SPEC stage 8, issue 5 items 6–7).
+
+:func:`fit_sequence` works on plain arrays: per frame a set of 3-D observations
+(:class:`FramePoints`: ``xyz`` (N, 3) world metres, ``sigma`` (N,) metres, optional
+trajectory ``ids``) from any source — the tracker's ``tracks.npz``, or, for
+development, truth-derived points (:mod:`core.truth_points`).  Starting from the
+clicked frame's initial posture (:mod:`core.fit_init`):
+
+1. **shape** — the first ``shape_frames`` frames are fitted pose-only with the template
+   shape, then the shape (radii, bone scales) and their poses are solved together by
+   alternating shape and pose (:func:`core.fitting.fit`); the shape is fixed afterwards;
+2. **motion** — every other frame is *predicted* (the extended Kalman filter of
+   :mod:`core.ekf` over ``[θ, root]``, or constant velocity), its points are
+   *segmented* to body parts at the predicted pose (:mod:`core.segment`), the pose is
+   refined by weighted least squares with the prediction as a soft prior, the points
+   are segmented again at the refined pose and the pose refined once more;
+3. **quality** — per frame the RMS point-to-surface distance of the inlier points
+   (metres), σ of every joint angle (normal matrix), converged and diverged flags.
+   A frame with fewer than ``min_points`` assigned points, a non-finite solution, an
+   RMS above ``max_rmse_m`` or too few inliers is *diverged*: its pose is the
+   prediction (finite), flagged, and not fed to the filter.
+
+Frames before the clicked frame are processed backwards from it the same way.
+:func:`fit_scene` runs what a scene needs (calibration from the wand when
+``calibration.toml`` is missing, the initialisation from ``clicks.json``, the
+observations, the fit) and returns a :class:`core.state.FitState`.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .ekf import EKF
+from .errors import InputError
+from .fit_init import Initialisation
+from .fitting import FitSettings, Observations, fit, part_members
+from .metaballs import THRESHOLD, Metaballs, world_frames
+from .metaballs import field as mb_field
+from .progress import Progress
+from .segment import carry_labels, no_labels, segment_points
+from .skeleton import Skeleton, forward
+from .state import FitState, Quality
+
+
+@dataclass
+class FramePoints:
+    """One frame's 3-D observations.
+
+    Attributes
+    ----------
+    xyz : (N, 3) world points, metres
+    sigma : (N,) a-priori σ of each point, metres
+    ids : (N,) int trajectory ids, or None
+    """
+
+    xyz: np.ndarray
+    sigma: np.ndarray
+    ids: np.ndarray | None = None
+
+    def __post_init__(self):
+        self.xyz = np.asarray(self.xyz, float).reshape(-1, 3)
+        self.sigma = np.broadcast_to(np.asarray(self.sigma, float), (len(self.xyz),)).copy()
+        good = np.all(np.isfinite(self.xyz), axis=1) & np.isfinite(self.sigma)
+        good &= self.sigma > 0
+        if not good.all():
+            self.xyz, self.sigma = self.xyz[good], self.sigma[good]
+            if self.ids is not None:
+                self.ids = np.asarray(self.ids)[good]
+
+
+@dataclass
+class SequenceSettings:
+    """Settings of :func:`fit_sequence` (lengths in metres, angles in radians)."""
+
+    shape_frames: int = 1
+    predictor: str = "ekf"  # or "constant_velocity"
+    damping: float = 0.8  # rate decay per frame of the prediction
+    sigma_pred: float = 0.15  # floor of the prior σ on each predicted angle
+    sigma_pred_max: float = 0.6
+    accel_sigma: float = 0.05  # EKF process noise, rad (or m) per frame²
+    segment_max_dist: float = 0.08
+    min_points: int = 40
+    max_rmse_m: float = 0.025
+    min_inliers: float = 0.5
+    inlier_m: float = 0.02
+    resegment: bool = True
+    max_nfev: int = 30
+    max_nfev_shape: int = 40
+    fit: FitSettings = field(default_factory=lambda: FitSettings(members="neighbours"))
+
+
+@dataclass
+class SequenceResult:
+    """Output of :func:`fit_sequence`: the fitted state and per-frame diagnostics."""
+
+    state: FitState
+    n_points: np.ndarray  # (F,) points assigned to a part
+    inlier_share: np.ndarray  # (F,)
+    messages: list
+    seconds: float
+
+
+def _field_sigma(sigma_m: np.ndarray) -> float:
+    """A-priori σ of the field residual from point σ in metres (|∇F| ≈ 12 /m at the
+    surface of a limb-sized metaball)."""
+    return float(max(12.0 * np.median(sigma_m) if len(sigma_m) else 0.02, 0.005))
+
+
+def surface_residuals(skel: Skeleton, balls: Metaballs, theta, root, s, radii,
+                      xyz: np.ndarray, part: np.ndarray, members: str = "part") -> np.ndarray:
+    """First-order distance (N,) metres of each point to its part's surface
+    (membership as in :func:`core.fitting.part_members`)."""
+    pose = forward(skel, np.asarray(theta)[None], np.asarray(root)[None], s)
+    Rw, cw = world_frames(skel, pose, balls, s)
+    member = part_members(skel, balls, part, members)
+    F, g, _, _ = mb_field(xyz, Rw[0], cw[0], radii, member)
+    return (F - THRESHOLD) / np.maximum(np.linalg.norm(g, axis=-1), 1e-9)
+
+
+class _Predictor:
+    """Prediction of ``q = [θ, root]`` from the fitted frames so far."""
+
+    def __init__(self, q0: np.ndarray, cfg: SequenceSettings, n_theta: int):
+        self.cfg, self.n = cfg, n_theta
+        self.hist: list[np.ndarray] = [q0.copy()]
+        self.ekf = None
+        if cfg.predictor == "ekf":
+            sig = np.full(q0.size, 0.05)
+            self.ekf = EKF.start(q0, sig, 0.05, cfg.accel_sigma, damping=cfg.damping)
+        elif cfg.predictor != "constant_velocity":
+            raise ValueError(f"unknown predictor {cfg.predictor!r}")
+
+    def predict(self) -> tuple[np.ndarray, np.ndarray]:
+        """Predicted q (n+3,) and the prior σ of the angles (n,)."""
+        cfg = self.cfg
+        if self.ekf is not None:
+            self.ekf.predict()
+            q = self.ekf.q.copy()
+            sig = np.clip(self.ekf.q_sigma[:self.n], cfg.sigma_pred, cfg.sigma_pred_max)
+            return q, sig
+        h = self.hist
+        q = h[-1] + (cfg.damping * (h[-1] - h[-2]) if len(h) > 1 else 0.0)
+        return q, np.full(self.n, cfg.sigma_pred)
+
+    def accept(self, q: np.ndarray, q_sigma: np.ndarray | None) -> None:
+        self.hist.append(q.copy())
+        if self.ekf is not None:
+            sig = np.full(q.size, 0.01) if q_sigma is None else np.maximum(q_sigma, 0.005)
+            self.ekf.update(q, lambda x: x, np.eye(q.size), sig**2)
+
+    def skip(self) -> None:
+        """A diverged frame: the prediction stands in for it."""
+        if self.ekf is None:
+            h = self.hist
+            self.hist.append(h[-1] + (self.cfg.damping * (h[-1] - h[-2]) if len(h) > 1 else 0))
+
+
+def _observations(pts: FramePoints, part: np.ndarray, q_pred, sig_pred, n, joints=None):
+    use = part >= 0
+    o = Observations(xyz=pts.xyz[use], part=part[use], sigma_field=_field_sigma(pts.sigma[use]),
+                     theta_pred=None if q_pred is None else q_pred[:n],
+                     sigma_pred=sig_pred)
+    if joints is not None:
+        o.joint_idx, o.joint_xyz, o.sigma_joint = joints
+    return o
+
+
+def fit_sequence(frames: list[FramePoints], init: Initialisation,
+                 settings: SequenceSettings | None = None, fps: float = 25.0,
+                 source_scene: str = "", metaball_model: str = "simplified",
+                 progress: Progress | None = None) -> SequenceResult:
+    """Fit shape and motion to the observations of every frame.
+
+    Parameters
+    ----------
+    frames : F per-frame observations (any may be empty)
+    init : the initial body and posture of frame ``init.frame``
+    settings : SequenceSettings
+
+    Returns
+    -------
+    SequenceResult (its ``state`` holds finite numbers for every frame).
+    """
+    t_start = time.perf_counter()
+    cfg = settings or SequenceSettings()
+    nf = len(frames)
+    if nf == 0:
+        raise ValueError("no frames to fit")
+    skel, balls = init.skeleton, init.metaballs.copy()
+    n = skel.n_dof
+    f0 = min(max(init.frame, 0), nf - 1)
+    s, radii = init.s.copy(), balls.radii.copy()
+    theta = np.zeros((nf, n))
+    root = np.zeros((nf, 3))
+    q_sig = np.full((nf, n), np.nan)
+    rmse = np.full(nf, np.nan)
+    conv = np.zeros(nf, bool)
+    div = np.zeros(nf, bool)
+    n_pts = np.zeros(nf, int)
+    inl = np.zeros(nf)
+    msgs: list[str] = []
+    ci = init.clicks
+    click_obs = (np.array([skel.joint_index(j) for j in ci.names]), ci.xyz, 0.01)
+    pose_cfg = FitSettings(**{**cfg.fit.__dict__, "max_nfev": cfg.max_nfev})
+    labels = no_labels()
+
+    def one_frame(f, q_pred, sig_pred, joints=None):
+        """Pose-only fit of frame f from the prediction; returns (q, σ, ok, info)."""
+        nonlocal labels
+        pts = frames[f]
+        th_p, rt_p = q_pred[:n], q_pred[n:]
+        part, _ = segment_points(pts.xyz, skel, balls, th_p, rt_p, s, radii,
+                                 cfg.segment_max_dist)
+        part, labels = carry_labels(part, pts.ids, labels)
+        if (part >= 0).sum() < cfg.min_points:
+            return None, None, False, f"frame {f}: only {(part >= 0).sum()} usable points"
+        th, rt = th_p, rt_p
+        for it in range(2 if cfg.resegment else 1):
+            if it:
+                part, _ = segment_points(pts.xyz, skel, balls, th, rt, s, radii,
+                                         cfg.segment_max_dist)
+                if (part >= 0).sum() < cfg.min_points:
+                    break
+            o = _observations(pts, part, q_pred, sig_pred, n, joints)
+            r = fit(skel, balls, o, th, rt, s, radii, solve="pose", settings=pose_cfg)
+            th, rt = r.theta, r.root_xyz
+        return np.concatenate([th, rt]), r, True, part
+
+    def judge(f, res, info):
+        """Quality of a fitted frame; returns (ok, σ of q or None)."""
+        if not res[2]:
+            msgs.append(str(info) + ": marked diverged")
+            return False
+        q, r, _, part = res
+        use = part >= 0
+        d = surface_residuals(skel, balls, q[:n], q[n:], s, radii, frames[f].xyz[use],
+                              part[use], cfg.fit.members)
+        inlier = np.abs(d) < cfg.inlier_m
+        n_pts[f] = int(use.sum())
+        inl[f] = float(inlier.mean())
+        rm = float(np.sqrt(np.mean(d[inlier] ** 2))) if inlier.any() else np.inf
+        rmse[f] = rm
+        q_sig[f] = r.theta_sigma
+        bad = []
+        if not np.all(np.isfinite(q)):
+            bad.append("non-finite solution")
+        if rm > cfg.max_rmse_m:
+            bad.append(f"surface RMS {rm * 1000:.1f} mm")
+        if inl[f] < cfg.min_inliers:
+            bad.append(f"only {100 * inl[f]:.0f} % inlier points")
+        if bad:
+            msgs.append(f"frame {f}: " + ", ".join(bad) + ": marked diverged")
+            return False
+        conv[f] = bool(r.converged)
+        return True
+
+    def store(f, q, ok):
+        theta[f], root[f] = q[:n], q[n:]
+        div[f] = not ok
+
+    # 1) shape: at the clicked frame the clicks fix the pose; later shape frames are
+    #    pose-fitted with the current shape, then the shape is re-solved over all of
+    #    them with their poses held (shape-only solves avoid the shape/pose trade-off)
+    shape_cfg = FitSettings(**{**cfg.fit.__dict__, "max_nfev": cfg.max_nfev_shape})
+    shape_range = list(range(f0, min(nf, f0 + max(cfg.shape_frames, 1))))
+    store(f0, np.concatenate([init.theta, init.root_xyz]), True)
+    shaped = []
+    for k, f in enumerate(shape_range):
+        if k:
+            res = one_frame(f, np.concatenate([theta[f - 1], root[f - 1]]),
+                            np.full(n, cfg.sigma_pred_max))
+            if not (res[2] and judge(f, res, res[3])):
+                store(f, np.concatenate([theta[f - 1], root[f - 1]]), False)
+                continue
+            store(f, res[0], True)
+        for rnd in range(2):  # segment, solve the shape, segment again with it
+            obs_s, keep = [], []
+            for g in (shaped + [f]) if rnd == 0 else shaped:
+                part, _d = segment_points(frames[g].xyz, skel, balls, theta[g], root[g], s,
+                                          radii, cfg.segment_max_dist)
+                if (part >= 0).sum() >= cfg.min_points:
+                    obs_s.append(_observations(frames[g], part, None, cfg.sigma_pred, n))
+                    keep.append(g)
+            if not obs_s:
+                break
+            rs = fit(skel, balls, obs_s, theta[keep], root[keep], s, radii, solve="shape",
+                     settings=shape_cfg)
+            s, radii = rs[0].s.copy(), rs[0].radii.copy()
+            shaped = keep
+        if progress is not None:
+            progress.update(k + 1, nf + len(shape_range), f"shape: frame {f}")
+    if not shaped:
+        msgs.append("no usable points in the shape frames: the template shape is kept")
+    for f in shape_range:  # the poses with the final shape
+        if div[f]:
+            continue
+        res = one_frame(f, np.concatenate([theta[f], root[f]]), np.full(n, cfg.sigma_pred_max),
+                        click_obs if f == f0 else None)
+        ok = res[2] and judge(f, res, res[3])
+        if ok:
+            store(f, res[0], True)
+        elif f != f0:
+            store(f, np.concatenate([theta[f], root[f]]), False)
+    # 2) motion forwards and backwards from the clicked frame ----------------------
+    done = len(shape_range)
+    for direction, order in ((1, range(shape_range[-1] + 1, nf)), (-1, range(f0 - 1, -1, -1))):
+        seq = shape_range if direction == 1 else [f0]
+        pred = _Predictor(np.concatenate([theta[seq[0]], root[seq[0]]]), cfg, n)
+        for f in seq[1:]:
+            q = np.concatenate([theta[f], root[f]])
+            pred.predict()
+            if not div[f]:
+                pred.accept(q, None)
+            else:
+                pred.skip()
+        for f in order:
+            q_pred, sig_pred = pred.predict()
+            res = one_frame(f, q_pred, sig_pred)
+            ok = judge(f, res, res[3] if not res[2] else None)
+            if ok:
+                sig = np.concatenate([q_sig[f], np.full(3, 0.005)])
+                pred.accept(res[0], np.where(np.isfinite(sig), sig, 0.05))
+                store(f, res[0], True)
+            else:
+                pred.skip()
+                store(f, q_pred, False)
+            done += 1
+            if progress is not None:
+                progress.update(done, nf + len(shape_range), f"frame {f}")
+    balls_out = balls.copy(radii=radii)
+    q = Quality(rmse_m=rmse, theta_sigma=q_sig, converged=conv & ~div, diverged=div,
+                cameras=[{} for _ in range(nf)])
+    state = FitState(skeleton=skel, s=s, metaballs=balls_out, root_xyz=root, theta=theta,
+                     quality=q, fps=fps, source_scene=source_scene,
+                     metaball_model=metaball_model)
+    return SequenceResult(state=state, n_points=n_pts, inlier_share=inl, messages=msgs,
+                          seconds=time.perf_counter() - t_start)
+
+
+# -- observation sources ------------------------------------------------------------------
+def observations_from_tracks(path, n_frames: int) -> list[FramePoints]:
+    """Per-frame observations from a tracker's ``tracks.npz``.
+
+    Reads ``xyz`` (F, P, 3) metres with NaN where a trajectory is not measured, and
+    optionally ``sigma`` (F, P) metres (default 3 mm); the trajectory id is the index P.
+    """
+    from pathlib import Path
+
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            data = {k: z[k] for k in z.files}
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{path}: cannot be read as .npz ({exc})") from exc
+    if "xyz" not in data:
+        raise InputError(f"{path}: is missing the array 'xyz' (F, P, 3)")
+    xyz = np.asarray(data["xyz"], float)
+    if xyz.ndim != 3 or xyz.shape[2] != 3 or xyz.shape[0] != n_frames:
+        raise InputError(f"{path}: 'xyz' has shape {list(xyz.shape)}, expected "
+                         f"({n_frames}, P, 3)")
+    sigma = np.asarray(data.get("sigma", np.full(xyz.shape[:2], 0.003)), float)
+    if sigma.shape != xyz.shape[:2]:
+        sigma = np.full(xyz.shape[:2], 0.003)
+    ids = np.arange(xyz.shape[1])
+    out = []
+    for f in range(n_frames):
+        ok = np.all(np.isfinite(xyz[f]), axis=1) & np.isfinite(sigma[f]) & (sigma[f] > 0)
+        out.append(FramePoints(xyz=xyz[f, ok], sigma=sigma[f, ok], ids=ids[ok]))
+    return out
+
+
+@dataclass
+class SceneFit:
+    """Result of :func:`run_scene`: the state, the messages, timings (seconds)."""
+
+    state: FitState
+    messages: list
+    timings: dict
+    source: str
+    n_points: np.ndarray
+
+
+def run_scene(scene, observations: str = "auto", model: str = "complete",
+              settings: SequenceSettings | None = None, progress: Progress | None = None,
+              n_points: int = 3000, seed: int = 0, frames: int | None = None) -> SceneFit:
+    """The whole pipeline on a loaded :class:`core.scene.Scene`.
+
+    Parameters
+    ----------
+    observations : ``"tracks"`` (``SCENE/tracks.npz``, tracked first when the tracker
+        is available and the file is missing), ``"truth"`` (truth-derived points, for
+        development; needs ``truth.npz``) or ``"auto"`` (tracks when possible, else
+        truth-derived with a message saying so)
+    model : metaball model, ``"simplified"`` or ``"complete"``
+    frames : fit only the first ``frames`` frames (default all)
+    """
+    from .fit_init import initialise
+
+    timings, msgs = {}, []
+    t0 = time.perf_counter()
+    if not scene.calibration_path.is_file():
+        if not scene.has_wand:
+            raise InputError(f"{scene.calibration_path}: not found and the scene has no "
+                             "wand/ sequence to calibrate from")
+        from .calibrate import calibrate_scene
+        from .calibration_io import write_calibration
+
+        rep = calibrate_scene(scene, progress=progress)
+        write_calibration(scene.calibration_path, rep.cameras, rep.metadata())
+        msgs.append(f"calibrated from the wand: {scene.calibration_path}")
+        timings["calibration"] = time.perf_counter() - t0
+    cameras = scene.calibration()
+    nf = scene.n_frames if frames is None else min(int(frames), scene.n_frames)
+    t1 = time.perf_counter()
+    source = _choose_source(scene, observations)
+    if source == "tracks":
+        tracks = scene.root / "tracks.npz"
+        if not tracks.is_file():
+            _run_tracker(scene, tracks, progress)
+            timings["tracking"] = time.perf_counter() - t1
+        obs = observations_from_tracks(tracks, scene.n_frames)[:nf]
+    else:
+        from .truth_points import truth_observations
+
+        if observations == "auto":
+            msgs.append("no tracker output: using truth-derived observations (development)")
+        obs = truth_observations(scene.truth, cameras, n_points=n_points, seed=seed,
+                                 frames=range(nf))
+        timings["observations"] = time.perf_counter() - t1
+    t2 = time.perf_counter()
+    init = initialise(scene.clicks(), cameras, model=model,
+                      path=str(scene.root / "clicks.json"))
+    msgs += init.clicks.messages()
+    if init.frame >= nf:
+        raise InputError(f"{scene.root / 'clicks.json'}: clicked frame {init.frame} is "
+                         f"outside the {nf} fitted frames")
+    res = fit_sequence(obs, init, settings, fps=scene.fps, source_scene=str(scene.root),
+                       metaball_model=model, progress=progress)
+    timings["fit"] = time.perf_counter() - t2
+    timings["total"] = time.perf_counter() - t0
+    return SceneFit(state=res.state, messages=msgs + res.messages, timings=timings,
+                    source=source, n_points=res.n_points)
+
+
+def fit_scene(scene, progress: Progress | None = None, **kwargs) -> FitState:
+    """The fitted state of a scene (the Blender add-on's entry point); see
+    :func:`run_scene` for the keyword arguments."""
+    return run_scene(scene, progress=progress, **kwargs).state
+
+
+def _tracker_available() -> bool:
+    import importlib.util
+
+    return (importlib.util.find_spec("core.tracking") is not None
+            and importlib.util.find_spec("core.track_cli") is not None)
+
+
+def _choose_source(scene, observations: str) -> str:
+    if observations not in ("auto", "tracks", "truth"):
+        raise ValueError(f"unknown observation source {observations!r}")
+    if observations == "truth":
+        if not scene.has_truth:
+            raise InputError(f"{scene.root / 'truth.npz'}: truth-derived observations need "
+                             "the scene's truth")
+        return "truth"
+    have = (scene.root / "tracks.npz").is_file() or _tracker_available()
+    if observations == "tracks" or have:
+        if not have:
+            raise InputError(f"{scene.root / 'tracks.npz'}: not found and the tracker "
+                             "(core.tracking) is not available")
+        return "tracks"
+    if not scene.has_truth:
+        raise InputError(f"{scene.root}: has no tracks.npz, the tracker is not available "
+                         "and there is no truth.npz to derive observations from")
+    return "truth"
+
+
+def _run_tracker(scene, out, progress) -> None:
+    """Run ``python -m core track SCENE -o tracks.npz`` in-process."""
+    from .cli import main
+
+    rc = main(["track", str(scene.root), "-o", str(out)])
+    if rc != 0 or not out.is_file():
+        raise InputError(f"{scene.root}: tracking failed (exit status {rc})")

@@ -1,0 +1,88 @@
+"""``python -m core fit SCENE -o fit.json``: the whole pipeline, written as a fitted state.
+
+Runs what the scene needs: calibration from ``wand/`` when ``calibration.toml`` is
+missing, tracking when ``tracks.npz`` is missing and the tracker is available, the
+initialisation from ``clicks.json`` and the fit (:func:`core.fit.run_scene`).
+``--observations truth`` fits truth-derived surface points instead of tracks (a
+development stand-in, see :mod:`core.truth_points`; the output says so).  Prints the
+per-frame quality summary, the messages (dropped clicks, diverged frames) and the
+timings; diverged frames are flagged in the file, never written as garbage.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("scene", type=Path, help="scene folder")
+    parser.add_argument("-o", "--output", type=Path, default=None,
+                        help="fitted-state file (default SCENE/fit.json)")
+    parser.add_argument("--observations", choices=("auto", "tracks", "truth"), default="auto",
+                        help="3-D observations: tracks.npz, truth-derived points (development),"
+                             " or auto (tracks when available)")
+    parser.add_argument("--model", choices=("simplified", "complete"), default="complete",
+                        help="metaball model")
+    parser.add_argument("--frames", type=int, default=None, help="fit only the first N frames")
+    parser.add_argument("--points", type=int, default=3000,
+                        help="candidate truth-derived points per frame")
+    parser.add_argument("--predictor", choices=("ekf", "constant_velocity"), default="ekf")
+    parser.add_argument("--seed", type=int, default=0)
+
+
+def run(args: argparse.Namespace) -> int:
+    from .errors import InputError
+    from .fit import SequenceSettings, run_scene
+    from .progress import Progress
+    from .scene import load_scene
+    from .state import write_state
+
+    if args.frames is not None and args.frames < 1:
+        raise InputError("--frames must be at least 1")
+    scene = load_scene(args.scene, check_images=False)
+    out = args.output if args.output is not None else scene.root / "fit.json"
+    res = run_scene(scene, observations=args.observations, model=args.model,
+                    settings=SequenceSettings(predictor=args.predictor),
+                    progress=Progress(), n_points=args.points, seed=args.seed,
+                    frames=args.frames)
+    st = res.state
+    if st.n_frames < scene.n_frames:  # pad unfitted frames: hold the last pose, flagged
+        st = _pad(st, scene.n_frames)
+    write_state(out, st)
+    q = st.quality
+    label = "truth-derived observations (development stand-in)" if res.source == "truth" \
+        else "tracks"
+    print(f"fitted {res.state.n_frames} of {scene.n_frames} frames from {label}")
+    for m in res.messages:
+        print(f"  note: {m}")
+    rm = q.rmse_m[np.isfinite(q.rmse_m)]
+    print(f"points per frame: median {int(np.median(res.n_points))}; surface RMS median "
+          f"{1000 * np.median(rm) if len(rm) else float('nan'):.2f} mm; diverged frames "
+          f"{int(q.diverged.sum())}")
+    tm = res.timings
+    print("seconds: " + ", ".join(f"{k} {v:.1f}" for k, v in tm.items())
+          + f"; fit {tm['fit'] / res.state.n_frames:.2f} s/frame")
+    print(f"wrote {out}")
+    return 0
+
+
+def _pad(state, n_frames: int):
+    from .state import FitState, Quality
+
+    k = state.n_frames
+    extra = n_frames - k
+    q = state.quality
+    rep = lambda a: np.concatenate([a, np.repeat(a[-1:], extra, axis=0)])  # noqa: E731
+    qq = Quality(rmse_m=np.concatenate([q.rmse_m, np.full(extra, np.nan)]),
+                 theta_sigma=np.concatenate([q.theta_sigma,
+                                             np.full((extra, q.theta_sigma.shape[1]), np.nan)]),
+                 converged=np.concatenate([q.converged, np.zeros(extra, bool)]),
+                 diverged=np.concatenate([q.diverged, np.ones(extra, bool)]),
+                 cameras=list(q.cameras) + [{} for _ in range(extra)])
+    return FitState(skeleton=state.skeleton, s=state.s, metaballs=state.metaballs,
+                    root_xyz=rep(state.root_xyz), theta=rep(state.theta), quality=qq,
+                    fps=state.fps, source_scene=state.source_scene,
+                    metaball_model=state.metaball_model)

@@ -1,0 +1,65 @@
+"""Initialisation from key-joint clicks: posture, scales, gross click errors, bad input."""
+
+import numpy as np
+import pytest
+
+from core import skeleton as sk
+from core.errors import InputError
+from core.fit_init import REQUIRED_JOINTS, initialise, triangulate_clicks
+from core.landmarks import CLICK_JOINTS
+from tests.core._bodyscene import cameras, clicks_of
+
+
+@pytest.fixture
+def subject(rng):
+    skel = sk.make_skeleton()
+    theta = rng.normal(0, 0.1, skel.n_dof)
+    theta[skel.dof_index("pelvis_z")] = 0.6  # turned away from the cameras' axis
+    theta[skel.dof_index("l_knee_x")] = 0.4
+    theta[skel.dof_index("r_elbow_x")] = -0.7
+    s = 1 + 0.05 * rng.normal(size=skel.n_groups)
+    return skel, theta, np.array([0.1, 0.2, 1.0]), s
+
+
+def test_clicked_joints_set_posture_and_scales(subject):
+    skel, theta, root, s = subject
+    cams = cameras()
+    ini = initialise(clicks_of(skel, theta, root, s, cams, CLICK_JOINTS), cams)
+    x_true = sk.joint_positions(skel, theta, root, s)
+    x_fit = sk.joint_positions(ini.skeleton, ini.theta, ini.root_xyz, ini.s)
+    idx = [skel.joint_index(j) for j in REQUIRED_JOINTS]
+    assert np.linalg.norm(x_fit[idx] - x_true[idx], axis=1).max() < 0.01
+    assert ini.joint_rmse_m < 0.005
+    g = ini.skeleton.group_names.index("thigh")
+    assert abs(ini.s[g] - s[g]) < 0.02
+    assert ini.clicks.dropped == []
+
+
+def test_a_gross_click_error_is_dropped_and_reported(subject):
+    skel, theta, root, s = subject
+    cams = cameras()
+    clicks = clicks_of(skel, theta, root, s, cams, CLICK_JOINTS)
+    clicks["joints"]["l_elbow"]["cam02"] = clicks["joints"]["l_elbow"]["cam02"] + [40.0, -25.0]
+    cp = triangulate_clicks(clicks, cams)
+    assert [(d[0], d[1]) for d in cp.dropped] == [("l_elbow", "cam02")]
+    assert "l_elbow" in cp.messages()[0] and "cam02" in cp.messages()[0]
+    x_true = sk.joint_positions(skel, theta, root, s)[skel.joint_index("l_elbow")]
+    assert np.linalg.norm(cp.xyz[cp.names.index("l_elbow")] - x_true) < 1e-3
+
+
+def test_missing_or_contradictory_clicks_are_refused(subject):
+    skel, theta, root, s = subject
+    cams = cameras()
+    clicks = clicks_of(skel, theta, root, s, cams, CLICK_JOINTS)
+    del clicks["joints"]["r_knee"]
+    with pytest.raises(InputError, match=r"is missing the required joints \['r_knee'\]"):
+        triangulate_clicks(clicks, cams)
+    two = cams[:2]
+    clicks = clicks_of(skel, theta, root, s, two, CLICK_JOINTS)
+    clicks["joints"]["head"]["cam02"] = clicks["joints"]["head"]["cam02"] + [0.0, 60.0]
+    with pytest.raises(InputError, match="clicks of 'head' contradict each other"):
+        triangulate_clicks(clicks, two)
+    clicks = clicks_of(skel, theta, root, s, cams, CLICK_JOINTS)
+    clicks["joints"]["neck"] = {"cam01": clicks["joints"]["neck"]["cam01"]}
+    with pytest.raises(InputError, match="fewer than two cameras"):
+        triangulate_clicks(clicks, cams)

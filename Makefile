@@ -36,3 +36,21 @@ clean:
 .PHONY: extension
 extension: $(STAMP)
 	$(PY) -m addon.packaging
+
+# The bpy-free tests once more under numpy 2 (Blender 5.1+ ships numpy 2 with Python 3.13),
+# in a second environment without bpy; plus ruff's numpy-2 rule on core and addon.
+NP2_VENV := .venv-np2
+NP2_STAMP := $(NP2_VENV)/.installed
+# Python 3.13 where there is one (pyenv's shim or its install), else $(PYTHON).
+NP2_PYTHON ?= $(firstword $(foreach p,python3.13 $(wildcard $(HOME)/.pyenv/versions/3.13*/bin/python3.13) $(PYTHON),$(shell $(p) -c 'print("$(p)")' 2>/dev/null)))
+.PHONY: test-numpy2
+$(NP2_STAMP): requirements-numpy2.txt
+	@test -x $(NP2_VENV)/bin/python || $(NP2_PYTHON) -m venv $(NP2_VENV)
+	$(NP2_VENV)/bin/python -m pip install --quiet -r requirements-numpy2.txt
+	@touch $(NP2_STAMP)
+
+test-numpy2: $(NP2_STAMP)
+	$(NP2_VENV)/bin/python -m ruff check --select NPY201 core addon
+	$(NP2_VENV)/bin/python -c 'import numpy, sys; print("numpy", numpy.__version__, "python", sys.version.split()[0]); sys.exit(int(numpy.__version__.split(".")[0]) < 2)'
+	$(NP2_VENV)/bin/python -m pytest -p no:cacheprovider -m "not blender" --ignore=tests/addon
+

@@ -54,3 +54,15 @@ test-numpy2: $(NP2_STAMP)
 	$(NP2_VENV)/bin/python -c 'import numpy, sys; print("numpy", numpy.__version__, "python", sys.version.split()[0]); sys.exit(int(numpy.__version__.split(".")[0]) < 2)'
 	$(NP2_VENV)/bin/python -m pytest -p no:cacheprovider -m "not blender" --ignore=tests/addon
 
+# The add-on suite against Blender 4.2 LTS: the bpy 4.2.x module (Python 3.11, numpy 1.26).
+BL42_VENV := .venv-bl42
+BL42_STAMP := $(BL42_VENV)/.installed
+.PHONY: test-blender42
+$(BL42_STAMP): requirements-blender42.txt
+	@test -x $(BL42_VENV)/bin/python || $(PYTHON) -m venv $(BL42_VENV)
+	$(BL42_VENV)/bin/python -m pip install --quiet -r requirements-blender42.txt
+	@touch $(BL42_STAMP)
+
+test-blender42: $(BL42_STAMP)
+	$(BL42_VENV)/bin/python -c 'import bpy, sys; print("bpy", bpy.app.version_string); sys.exit(bpy.app.version[:2] != (4, 2))'
+	$(BL42_VENV)/bin/python -m pytest -p no:cacheprovider -m blender tests/addon

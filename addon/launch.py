@@ -13,6 +13,7 @@ imported from the checkout instead of an installed extension.  Exit status: 0 su
 
 from __future__ import annotations
 
+import os
 import sys
 
 
@@ -24,5 +25,17 @@ def main(argv: list[str] | None = None) -> int:
     return cli_main(sys.argv[1:] if argv is None else argv)
 
 
+def _exit(code: int) -> None:
+    """Exit with ``code``; the bpy 4.2 module crashes (SIGSEGV) at interpreter exit once
+    Rigify has been enabled, so there the process leaves without finalising Python."""
+    import bpy
+
+    if bpy.app.version < (4, 3, 0):
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    sys.exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    _exit(main())

@@ -134,8 +134,13 @@ def load_character(path):
         raise _core.errors.InputError(f"{path}: character file not found")
     if path.suffix.lower() != ".blend":
         raise _core.errors.InputError(f"{path}: a character must be a .blend file")
-    with bpy.data.libraries.load(str(path), link=False) as (src, dst):
-        dst.objects = list(src.objects)
+    try:
+        with bpy.data.libraries.load(str(path), link=False) as (src, dst):
+            dst.objects = list(src.objects)
+    except OSError as exc:  # e.g. a Blender 5.0 file opened by Blender 4.2
+        raise _core.errors.InputError(
+            f"{path}: Blender {bpy.app.version_string} cannot read it (saved by a newer "
+            f"Blender, or not a .blend file)") from exc
     objs = [o for o in dst.objects if o is not None]
     arms = [o for o in objs if o.type == "ARMATURE"]
     if not arms:

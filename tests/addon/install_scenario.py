@@ -9,6 +9,7 @@ the last line of stdout: what was registered after each step.
 from __future__ import annotations
 
 import json
+import os
 import sys
 
 import bpy
@@ -47,3 +48,6 @@ def main(zip_path: str) -> None:
 
 if __name__ == "__main__":
     main(sys.argv[1])
+    if bpy.app.version < (4, 3, 0):  # bpy 4.2 crashes at exit once Rigify was enabled
+        sys.stdout.flush()
+        os._exit(0)

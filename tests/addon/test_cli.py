@@ -64,9 +64,9 @@ def test_fit_with_state_and_cameras(tmp_path, bpy_module):
     assert "scene01" in c["actions"]
 
 
-def test_retarget_onto_character(tmp_path, shared_data, bpy_module):
+def test_retarget_onto_character(tmp_path, makehuman):
     write_state(tmp_path / "fit.json", synthetic_state(5))
-    char = shared_data / "characters" / "makehuman_cmu_mb.blend"
+    char = makehuman
     proc = launch("retarget", tmp_path / "fit.json", "--target", char, "--out",
                   tmp_path / "take.blend", "--export", "fbx")
     assert proc.returncode == 0, proc.stdout + proc.stderr

@@ -80,12 +80,12 @@ def test_onto_rigify_metarig_with_other_rolls_and_mixamo_names(body):
     assert err3.max() < 0.5, err3.max()
 
 
-def test_onto_makehuman_keeps_its_actions(body, shared_data):
+def test_onto_makehuman_keeps_its_actions(body, makehuman):
     from addon import action_api, pipeline
     from addon import retarget as rt
 
     bpy, state, arm = body
-    char = pipeline.load_character(shared_data / "characters" / "makehuman_cmu_mb.blend")
+    char = pipeline.load_character(makehuman)
     own = action_api.assign_new_action(char, "users_idle")
     fc = action_api.new_fcurve(char, own, 'pose.bones["Hips"].location', 2, "Hips")
     action_api.write_keys(fc, np.array([1.0, 5.0]), np.array([0.0, 0.1]))

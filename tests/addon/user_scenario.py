@@ -9,6 +9,7 @@ panel's contents (what ``draw`` puts in the sidebar region).  Prints one JSON li
 from __future__ import annotations
 
 import json
+import os
 import sys
 
 import bpy
@@ -85,3 +86,6 @@ def main(zip_path, scene_dir, out_dir):
 
 if __name__ == "__main__":
     main(*sys.argv[1:4])
+    if bpy.app.version < (4, 3, 0):  # bpy 4.2 crashes at exit once Rigify was enabled
+        sys.stdout.flush()
+        os._exit(0)

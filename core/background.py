@@ -9,9 +9,12 @@ a while in one place does not burn into the background.
 A pixel is foreground when its colour differs from the background by more than
 ``threshold`` noise levels *and* the difference is not a shadow: a cast shadow
 darkens the background colour (brightness ratio ``alpha`` in ``shadow_range``) without
-changing its chromaticity (Horprasert et al.'s brightness / chromaticity distortion).
-The mask is then cleaned by a morphological opening and closing, holes are filled,
-and connected components smaller than ``min_area_frac`` of the largest are dropped.
+changing its chromaticity (Horprasert et al.'s brightness / chromaticity distortion)
+and, unlike dark texture on the person, dims it smoothly (the brightness ratio is
+locally uniform).
+The mask is then cleaned by a morphological opening and closing, small holes are
+filled (large ones are gaps between limbs), and connected components smaller than
+``min_area_frac`` of the largest are dropped.
 
 Images are ``(H, W, 3)`` uint8 RGB (or grey ``(H, W)``), pixel coordinates as in
 :mod:`core.camera`.
@@ -76,8 +79,8 @@ class BackgroundModel:
 
     def foreground(self, image: np.ndarray, threshold: float = 5.0,
                    shadow_range: tuple[float, float] = (0.45, 0.95),
-                   shadow_chroma: float = 4.0, min_area_frac: float = 0.1,
-                   clean_px: int = 2) -> np.ndarray:
+                   shadow_chroma: float = 4.0, shadow_texture: float = 0.04,
+                   min_area_frac: float = 0.1, clean_px: int = 1) -> np.ndarray:
         """Foreground mask of one image, ``(H, W)`` bool (see the module docstring)."""
         if image.shape[:2] != self.shape:
             raise InputError(
@@ -87,6 +90,13 @@ class BackgroundModel:
         dist, chroma, alpha = self.difference(image)
         fg = dist > threshold
         shadow = (alpha > shadow_range[0]) & (alpha < shadow_range[1]) & (chroma < shadow_chroma)
+        # A cast shadow dims the background smoothly; dark texture on the person (which
+        # also looks like "darker background" on a grey backdrop) makes alpha vary
+        # from pixel to pixel.  Keep as shadow only where alpha is locally uniform.
+        a = np.where(np.isfinite(alpha), alpha, 0.0).astype(np.float32)
+        mean = cv2.blur(a, (5, 5))
+        var = np.maximum(cv2.blur(a * a, (5, 5)) - mean * mean, 0.0)
+        shadow &= np.sqrt(var) < shadow_texture
         fg &= ~shadow
         fg &= self.known
         return clean_mask(fg, clean_px=clean_px, min_area_frac=min_area_frac)
@@ -98,8 +108,14 @@ def _as_rgb(image: np.ndarray) -> np.ndarray:
     return image
 
 
-def clean_mask(mask: np.ndarray, clean_px: int = 2, min_area_frac: float = 0.1) -> np.ndarray:
-    """Open, close, fill holes and drop small components of a boolean mask (H, W)."""
+def clean_mask(mask: np.ndarray, clean_px: int = 1, min_area_frac: float = 0.1,
+               max_hole_frac: float = 0.005) -> np.ndarray:
+    """Open, close, fill small holes and drop small components of a boolean mask (H, W).
+
+    Holes smaller than ``max_hole_frac`` of their component's area are texture that
+    matched the background and are filled; larger ones are real gaps (between the legs,
+    between an arm and the torso) and stay.
+    """
     m = mask.astype(np.uint8)
     if clean_px > 0:
         k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * clean_px + 1, 2 * clean_px + 1))
@@ -112,11 +128,15 @@ def clean_mask(mask: np.ndarray, clean_px: int = 2, min_area_frac: float = 0.1) 
     keep = np.zeros(n, bool)
     keep[1:] = areas >= min_area_frac * areas.max()
     m = keep[labels].astype(np.uint8)
-    # fill holes: background regions not connected to the border
-    contours, _ = cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    filled = np.zeros_like(m)
-    cv2.drawContours(filled, contours, -1, 1, thickness=cv2.FILLED)
-    return filled.astype(bool)
+    contours, hierarchy = cv2.findContours(m, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
+    if hierarchy is not None:
+        for i, c in enumerate(contours):
+            parent = hierarchy[0][i][3]
+            if parent < 0:
+                continue
+            if cv2.contourArea(c) < max_hole_frac * cv2.contourArea(contours[parent]):
+                cv2.drawContours(m, contours, i, 1, thickness=cv2.FILLED)
+    return m.astype(bool)
 
 
 def fit_background(frames: np.ndarray, empty: np.ndarray | None = None, iterations: int = 2,

@@ -1,0 +1,123 @@
+"""Silhouette benchmark: ``python -m bench.silhouettes [--scene DIR] [--out DIR]``.
+
+1. Studio scene (default ``sample_scenes/walk_line3``): every camera's background is
+   estimated from the take itself (robust temporal median, no empty plate), the
+   foreground of every frame is compared with the truth masks (IoU), and the occluding
+   contours are compared with the truth masks' outlines (median distance, px).
+   Side by side: OpenCV's MOG2 background subtractor run over the same frames.
+2. Real video (``../shared/data/video/pose2sim_single``, 4 cameras, clutter, people in
+   the background, shadows): masks and contours of every camera at quarter resolution,
+   written as a PNG overlay (three frames per camera); no truth exists, so the figure is
+   the picture plus timing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+from scipy.spatial import cKDTree
+
+from core.background import fit_background
+from core.contours import draw_contours, occluding_contours
+from core.scene import load_scene
+
+REPO = Path(__file__).resolve().parents[1]
+VIDEO = REPO.parent / "shared" / "data" / "video" / "pose2sim_single" / "videos"
+
+
+def _iou(a, b):
+    return float((a & b).sum() / max(1, (a | b).sum()))
+
+
+def _contour_distance(pred_mask, true_mask):
+    """Median distance (px) from predicted contour points to the true mask's contour."""
+    cons = occluding_contours(pred_mask, spacing=1.0)
+    true = occluding_contours(true_mask, spacing=0.5)
+    if not cons or not true:
+        return float("nan")
+    d, _ = cKDTree(np.vstack([c.uv for c in true])).query(np.vstack([c.uv for c in cons]))
+    return float(np.median(d))
+
+
+def studio(scene_dir: Path) -> None:
+    scene = load_scene(scene_dir)
+    truth = scene.truth_masks()
+    print(f"\n1. Studio scene {scene.name}: {len(scene.cameras)} cameras, {scene.n_frames} frames, "
+          f"{scene.image_size[0]}x{scene.image_size[1]}")
+    print(f"{'camera':8s} {'ours IoU mean/min':>18s} {'contour px':>11s} {'ms/frame':>9s}   "
+          f"{'MOG2 IoU mean/min':>18s} {'ms/frame':>9s}")
+    for c, cam in enumerate(scene.cameras):
+        frames = np.array([scene.image(cam, i, color=True) for i in range(scene.n_frames)])
+        t0 = time.perf_counter()
+        model = fit_background(frames)
+        masks = [model.foreground(f) for f in frames]
+        ours_ms = 1e3 * (time.perf_counter() - t0) / len(frames)
+        ious = [_iou(m, truth[c, i]) for i, m in enumerate(masks)]
+        cdist = np.nanmedian([_contour_distance(m, truth[c, i]) for i, m in enumerate(masks)])
+        # peer: OpenCV MOG2, two passes over the take (the first one learns)
+        mog = cv2.createBackgroundSubtractorMOG2(history=len(frames), detectShadows=True)
+        t0 = time.perf_counter()
+        for f in frames:
+            mog.apply(f)
+        mog_masks = [mog.apply(f, learningRate=0) == 255 for f in frames]
+        mog_ms = 1e3 * (time.perf_counter() - t0) / (2 * len(frames))
+        mog_ious = [_iou(m, truth[c, i]) for i, m in enumerate(mog_masks)]
+        print(f"{cam:8s} {np.mean(ious):8.3f} / {np.min(ious):.3f} {cdist:11.2f} {ours_ms:9.1f}   "
+              f"{np.mean(mog_ious):8.3f} / {np.min(mog_ious):.3f} {mog_ms:9.1f}")
+
+
+def real_video(out: Path, scale: float = 0.25) -> None:
+    if not VIDEO.is_dir():
+        print(f"\n2. Real video: skipped ({VIDEO} not found)")
+        return
+    print(f"\n2. Real video pose2sim_single at {scale:g}x: masks and contours per camera")
+    rows = []
+    for path in sorted(VIDEO.glob("cam*.mp4")):
+        cap = cv2.VideoCapture(str(path))
+        frames = []
+        while True:
+            ok, img = cap.read()
+            if not ok:
+                break
+            small = cv2.resize(img, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+            frames.append(cv2.cvtColor(small, cv2.COLOR_BGR2RGB))
+        cap.release()
+        frames = np.array(frames)
+        t0 = time.perf_counter()
+        model = fit_background(frames)
+        t_bg = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        masks = [model.foreground(f, threshold=6.0) for f in frames]
+        t_fg = 1e3 * (time.perf_counter() - t0) / len(frames)
+        area = np.mean([m.mean() for m in masks])
+        tiles = []
+        for i in (0, len(frames) // 2, len(frames) - 1):
+            tiles.append(draw_contours(frames[i], occluding_contours(masks[i])))
+        rows.append(cv2.resize(np.hstack(tiles), (3 * 270, 480)))
+        print(f"  {path.stem}: {frames.shape[0]} frames {frames.shape[2]}x{frames.shape[1]}, "
+              f"background {t_bg:.1f} s, foreground {t_fg:.1f} ms/frame, "
+              f"mean foreground {100 * area:.1f} % of the image")
+    out.mkdir(parents=True, exist_ok=True)
+    png = out / "silhouettes_pose2sim.png"
+    grid = np.vstack([np.hstack(rows[:2]), np.hstack(rows[2:4])]) if len(rows) == 4 else \
+        np.vstack(rows)
+    cv2.imwrite(str(png), cv2.cvtColor(grid, cv2.COLOR_RGB2BGR))
+    print(f"  wrote {png}")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scene", type=Path, default=REPO / "sample_scenes" / "walk_line3")
+    ap.add_argument("--out", type=Path, default=REPO / "out" / "bench")
+    args = ap.parse_args(argv)
+    studio(args.scene)
+    real_video(args.out)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,13 +1,18 @@
-"""Calibration benchmark: ``python -m bench.calibration [--scene DIR ...] [--quick]``.
+"""Calibration benchmark: ``python -m bench.calibration [--scene DIR ...]``.
 
-1. Rendered wand sequences (default ``sample_scenes/walk_line3``; more with ``--scene``,
-   e.g. a ring4 or interlaced render of ``python -m sample_scenes.studio --wand-only``):
-   calibrated from nothing but the images and L, compared with the scene's true
-   ``calibration.toml`` after a similarity alignment (the adjustment's datum is camera 1
-   fixed, scale from L): reprojection RMSE, camera-centre errors, focal errors, pixel
-   aspect, RMS bar-length residual of independently intersected bars.  Then the same
-   with 5 % of the target detections replaced by wrong blobs (random image points):
-   the same figures and how many wrong blobs were flagged.
+1. Rendered wand sequences: ``sample_scenes/walk_line3`` (committed) and two wand-only
+   renders of the studio cached under ``out/bench_calibration/`` (rendered on the first
+   run when missing, about 7 min for ring4 and 5 min for interlaced line3 on two
+   shared cores): ``--rig ring4 --wand-only`` and ``--rig line3 --interlace
+   --wand-only`` (single odd fields, pixel aspect 2).  Each is calibrated from nothing
+   but the images and L and compared with the scene's true ``calibration.toml`` after a
+   similarity alignment (the adjustment's datum is camera 1 fixed, scale from L):
+   reprojection RMSE, camera-centre errors, focal errors, pixel aspect, RMS bar-length
+   residual of independently intersected bars.  Then the same with 5 % of the target
+   detections replaced by wrong blobs (random image points), with the precision and
+   recall of the bad-blob flags against the truth (an observation is truly bad when it
+   is not within 1.5 px of its target's true projection: a wrong blob, or a good blob
+   under the other target's label).
 2. Synthetic single-field rig (projected points, pixel aspect 2): the recovered aspect.
 3. Checkerboard intrinsics (``cv2.calibrateCamera``) of the shared Pose2Sim images
    beside the Qualisys values of ``Calib.qca.txt``.
@@ -16,19 +21,24 @@
 from __future__ import annotations
 
 import argparse
+import subprocess
 import sys
+import time
 import tomllib
 from pathlib import Path
 
 import numpy as np
 
-from core.calibrate import calibrate_detections, compare_to_reference
+from core.calibrate import _WandImages, calibrate_detections, compare_to_reference
 from core.calibration_io import read_calibration
 from core.formats import checkerboard_intrinsics, read_qca
-from core.scene import load_scene
+from core.scene import load_wand
 from core.wand import detect_sequence
 
 REPO = Path(__file__).resolve().parents[1]
+CACHE = REPO / "out" / "bench_calibration"
+RENDERS = {"ring4_wand": ["--rig", "ring4", "--wand-only"],
+           "line3_interlaced_wand": ["--rig", "line3", "--interlace", "--wand-only"]}
 SHARED = REPO.parent / "shared" / "data" / "video" / "pose2sim_single"
 
 
@@ -42,32 +52,68 @@ def _row(label, rep, truth):
     return cmp
 
 
-def bench_scene(root: Path, frac: float = 0.05, seed: int = 0) -> None:
-    from core.calibrate import _WandImages
-    from core.calibrate_cli import _has_images, _wand_only_scene
+def _truly_bad(uv, truth, wand_xyz):
+    """(F, C, 2) observations not within 1.5 px of their target's true projection."""
+    F = uv.shape[0]
+    proj = np.stack([c.project(wand_xyz.reshape(-1, 3)).reshape(F, 2, 2) for c in truth], 1)
+    d = np.linalg.norm(uv[:, :, :, None, :] - proj[:, :, None, :, :], axis=-1)
+    m = np.where(d.min(-1) < 1.5, d.argmin(-1), -1)                 # matched true target
+    same = (m[..., 0] == 0).sum(1) >= (m[..., 0] == 1).sum(1)       # label map per location
+    expect = np.where(same[:, None, None], np.arange(2), 1 - np.arange(2))
+    return np.all(np.isfinite(uv), -1) & (m != expect)
 
-    scene = load_scene(root, check_images=False) if _has_images(root) else _wand_only_scene(root)
+
+def bench_scene(root: Path, frac: float = 0.05, seed: int = 0) -> None:
+    scene = load_wand(root)
     truth = read_calibration(root / "calibration.toml")
+    t0 = time.perf_counter()
     det = detect_sequence(_WandImages(scene))
+    t_det = time.perf_counter() - t0
     sizes = [scene.camera_size(c) for c in scene.cameras]
     aspect = 1.0 if scene.field == "none" else 2.0
     free = ("f", "cx", "cy", "k1", "k2") + (("aspect",) if aspect != 1.0 else ())
     L = scene.wand_length()
-    print(f"\n{root.name}: {len(scene.cameras)} cameras, {det.summary()}")
+    print(f"\n{root.name} (field {scene.field}): {len(scene.cameras)} cameras, "
+          f"{det.summary()}; detection {t_det:.0f} s")
+    t0 = time.perf_counter()
     rep = calibrate_detections(det.uv, sizes, scene.cameras, L, free=free, aspect=aspect,
                                detections=det)
-    _row("images + L", rep, truth)
+    _row(f"images + L ({time.perf_counter() - t0:.0f} s)", rep, truth)
     rng = np.random.default_rng(seed)
     uv = det.uv.copy()
     seen = np.argwhere(np.all(np.isfinite(uv), axis=-1))
     pick = seen[rng.choice(len(seen), int(round(frac * len(seen))), replace=False)]
     w, h = sizes[0]
     uv[tuple(pick.T)] = rng.uniform([0, 0], [w - 1, h - 1], size=(len(pick), 2))
+    t0 = time.perf_counter()
     rep2 = calibrate_detections(uv, sizes, scene.cameras, L, free=free, aspect=aspect)
-    _row(f"+ {100 * frac:.0f} % wrong blobs", rep2, truth)
-    flagged = rep2.bundle.outliers[tuple(pick.T)].sum()
-    print(f"{'':34s} wrong blobs flagged: {flagged}/{len(pick)}; observations flagged in "
-          f"all: {int(rep2.bundle.outliers.sum())} of {len(seen)}")
+    _row(f"+ {100 * frac:.0f} % wrong blobs ({time.perf_counter() - t0:.0f} s)", rep2, truth)
+    fl = rep2.bundle.outliers
+    line = (f"{'':34s} {len(pick)} wrong blobs; flagged {int(fl.sum())} of {len(seen)} "
+            f"observations; locations used {int(rep2.bundle.used.sum())}/{len(uv)}; "
+            f"labels repaired in {int(rep2.bundle.swapped.sum())} images")
+    wt = root / "wand_truth.npz"
+    if wt.is_file():
+        with np.load(wt) as z:
+            bad = _truly_bad(rep2.uv, truth, z["xyz"])
+        tp = int((fl & bad).sum())
+        line += (f"\n{'':34s} flags vs truth: {int(bad.sum())} truly bad, precision "
+                 f"{tp / max(int(fl.sum()), 1):.3f}, recall {tp / max(int(bad.sum()), 1):.3f}")
+    print(line)
+
+
+def _render(name: str) -> Path:
+    """The cached studio render ``out/bench_calibration/<name>`` (rendered if missing)."""
+    out = CACHE / name
+    if (out / "wand").is_dir() and (out / "calibration.toml").is_file():
+        return out
+    CACHE.mkdir(parents=True, exist_ok=True)
+    print(f"\nrendering {name} with the studio (minutes) ...", flush=True)
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "sample_scenes.studio", *RENDERS[name],
+                    "--out", str(out)], cwd=REPO, check=True, stdout=subprocess.DEVNULL)
+    print(f"rendered {name} in {time.perf_counter() - t0:.0f} s")
+    return out
 
 
 def bench_interlaced() -> None:
@@ -117,8 +163,15 @@ def main(argv=None) -> int:
     p.add_argument("--scene", type=Path, action="append", default=None,
                    help="rendered scene folder(s) with wand/ and a true calibration.toml")
     p.add_argument("--skip-checkerboard", action="store_true")
+    p.add_argument("--no-render", action="store_true",
+                   help="only the committed walk_line3 (no studio renders)")
     args = p.parse_args(argv)
-    scenes = args.scene or [REPO / "sample_scenes" / "walk_line3"]
+    if args.scene:
+        scenes = args.scene
+    else:
+        scenes = [REPO / "sample_scenes" / "walk_line3"]
+        if not args.no_render:
+            scenes += [_render(n) for n in RENDERS]
     for s in scenes:
         if (s / "wand").is_dir() and (s / "calibration.toml").is_file():
             bench_scene(s)

@@ -117,6 +117,17 @@ def retarget(source, target, take: str, frames=None, source_preset=None, target_
     hips_s = src_pose[:, src_names.index(src_map.bones["pelvis"]), :3, 3]
     hips_t = rt.scale_root_path(hips_s, k, o_s, o_t)
 
+    if tgt_map.controls:  # constraint-driven rig (generated Rigify): key its controls
+        from . import retarget_driven
+
+        action = retarget_driven.key_controls(
+            target, tgt_map, canon, ti, R_t, hips_t, fr, take)
+        action["somacap_leg_scale"] = float(k)
+        return RetargetResult(
+            action=action, pairs={src_map.bones[c]: tgt_map.bones[c] for c in canon},
+            unmapped_source=src_map.unmapped, unmapped_target=tgt_map.unmapped,
+            scale=float(k), frames=(int(fr[0]), int(fr[-1])))
+
     # World -> target armature space.
     M_obj = np.array(target.matrix_world)
     inv_obj = np.linalg.inv(M_obj)

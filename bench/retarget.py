@@ -8,7 +8,10 @@ exists), or the CMU walk ``02_01.bvh`` imported by Blender's own BVH importer
 (``--source bvh``, T-pose rest with splayed thighs).  Targets:
 
 a. the shared MakeHuman character (A-pose rest, CMU-like names),
-b. Rigify's human meta-rig (Rigify names, its own rest pose and rolls),
+b. a Rigify human rig *generated* from the meta-rig (face included): its DEF bones
+   follow constraints, so the FK controls are keyed (IK/FK switches to FK) and the DEF
+   bones' directions are measured,
+b'. Rigify's human meta-rig itself (Rigify names, its own rest pose and rolls),
 c. the meta-rig renamed to Mixamo names (``mixamorig:`` prefix) with every bone roll
    changed by a random angle up to ±90°.
 
@@ -70,6 +73,7 @@ def main(argv=None) -> int:
     from tests.addon.rig_checks import (
         copy_rig,
         direction_errors_deg,
+        generate_rigify_human,
         rename_and_reroll,
         rig_height,
         root_path_error,
@@ -91,10 +95,14 @@ def main(argv=None) -> int:
     if (SHARED / "characters" / "makehuman_cmu_mb.blend").is_file():
         targets["a. MakeHuman (A-pose)"] = pipeline.load_character(
             SHARED / "characters" / "makehuman_cmu_mb.blend")
+    t0 = time.perf_counter()
+    gen = generate_rigify_human("rigify_generated", location=(4.5, 0.0, 0.0), face=True)
+    t_gen = time.perf_counter() - t0
+    targets["b. Rigify generated (FK ctrl)"] = gen
     bpy.ops.object.armature_human_metarig_add()
     meta = bpy.context.active_object
     meta.location = (1.5, 0.0, 0.0)
-    targets["b. Rigify human meta-rig"] = meta
+    targets["b'. Rigify human meta-rig"] = meta
     mix = copy_rig(meta, "mixamo_rig")
     mix.location = (3.0, 0.0, 0.0)
     rename_and_reroll(mix, {SCHEMES["rigify_metarig"][c]: "mixamorig:" + SCHEMES["mixamo"][c]
@@ -102,6 +110,8 @@ def main(argv=None) -> int:
     targets["c. Mixamo names, rolls ±90°"] = mix
 
     print(f"source: {label}")
+    print(f"Rigify rig generated from the human meta-rig in {t_gen:.1f} s "
+          f"({len(gen.data.bones)} bones; the DEF bones are measured, the FK controls keyed)")
     head = (f"{'target':30s} {'mapped':>6s} {'dir max°':>9s} {'dir mean°':>9s} "
             f"{'A→B→A max°':>11s} {'root max %h':>11s} {'scale':>6s} {'s':>5s}")
     print(head)

@@ -99,9 +99,9 @@ def _rigify(prefix: str, fk: bool = False) -> dict[str, str]:
         "thigh": f"{prefix}thigh{limb}{{S}}", "shin": f"{prefix}shin{limb}{{S}}",
         "foot": f"{prefix}foot{limb}{{S}}", "toe": f"{prefix}toe{limb}{{S}}",
     }
-    if fk:  # Rigify's torso controls
-        names.update({"pelvis": "hips", "spine": "tweak_spine.001", "chest": "chest",
-                      "upper_chest": "tweak_spine.003", "neck": "neck", "head": "head",
+    if fk:  # Rigify's FK spine chain (drives DEF-spine … DEF-spine.003 rigidly), neck, head
+        names.update({"pelvis": "spine_fk", "spine": "spine_fk.001", "chest": "spine_fk.002",
+                      "upper_chest": "spine_fk.003", "neck": "neck", "head": "head",
                       "clavicle": "shoulder{S}", "toe": "toe_fk{S}"})
     return _sided(names, lambda s: ".L" if s == "l" else ".R")
 
@@ -170,6 +170,21 @@ SCHEMES: dict[str, dict[str, str]] = {
         "toe": "J_Bip_{S}_ToeBase"}, lambda s: s.upper()),
 }
 
+#: Rigs whose deform bones are driven by constraints from animator controls (a generated
+#: Rigify rig): scheme of the deform bones -> how to animate them.  ``controls`` maps a
+#: canonical bone to the control that is keyed (its deform bone follows it rigidly, with
+#: the limbs' IK/FK switches set to FK), ``root`` is the control whose location carries
+#: the root motion, ``switches`` the custom properties set (and keyed) for FK.
+CONTROL_SCHEMES: dict[str, dict] = {
+    scheme: {
+        "controls": SCHEMES["rigify_fk"],
+        "root": "torso",
+        "switches": {f'pose.bones["{b}{s}"]["IK_FK"]': 1.0
+                     for b in ("upper_arm_parent", "thigh_parent") for s in (".L", ".R")},
+    }
+    for scheme in ("rigify_def", "rigify_org")
+}
+
 _NAMESPACE = re.compile(r"^[^:]*:")
 
 
@@ -192,12 +207,23 @@ class BoneMapping:
         The rig's bones that map to no canonical bone, in the rig's order.
     missing : list of str
         Canonical bones the rig lacks.
+    controls : dict
+        For constraint-driven rigs (see :data:`CONTROL_SCHEMES`): canonical bone -> the
+        control bone to key instead of ``bones[canonical]`` (which is still the bone
+        whose world direction is matched).  Empty for plain rigs.
+    root_control : str or None
+        The control that carries the root motion (its location is keyed).
+    switches : dict
+        ``data_path -> value`` of custom properties to set and key (IK/FK switches).
     """
 
     bones: dict[str, str]
     scheme: str
     unmapped: list[str] = field(default_factory=list)
     missing: list[str] = field(default_factory=list)
+    controls: dict[str, str] = field(default_factory=dict)
+    root_control: str | None = None
+    switches: dict[str, float] = field(default_factory=dict)
 
     @property
     def is_humanoid(self) -> bool:
@@ -235,12 +261,28 @@ def map_bones(names: Iterable[str], scheme: str | None = None) -> BoneMapping:
         if len(bones) > len(best_bones):
             best, best_bones = sch, bones
     used = set(best_bones.values())
-    return BoneMapping(
+    return _with_controls(BoneMapping(
         bones=best_bones,
         scheme=best,
         unmapped=[n for n in names if n not in used],
         missing=[c for c in CANONICAL_BONES if c not in best_bones],
-    )
+    ), keyed)
+
+
+def _with_controls(mapping: BoneMapping, keyed: dict[str, str]) -> BoneMapping:
+    """Attach the controls of :data:`CONTROL_SCHEMES` when the rig has all of them
+    for its mapped bones (and the root control); otherwise the bones are keyed."""
+    plan = CONTROL_SCHEMES.get(mapping.scheme)
+    if plan is None:
+        return mapping
+    wanted = {c: plan["controls"][c] for c in mapping.bones if c in plan["controls"]}
+    names = [*wanted.values(), plan["root"]]
+    if len(wanted) < len(mapping.bones) or not all(normalise(n) in keyed for n in names):
+        return mapping
+    mapping.controls = {c: keyed[normalise(n)] for c, n in wanted.items()}
+    mapping.root_control = keyed[normalise(plan["root"])]
+    mapping.switches = dict(plan["switches"])
+    return mapping
 
 
 def pair_bones(source: BoneMapping, target: BoneMapping) -> dict[str, str]:
@@ -281,7 +323,8 @@ def load_preset(path: str | Path, names: Iterable[str] | None = None) -> BoneMap
         if absent:
             raise InputError(f"{path}: the rig has no bones named {absent}")
     used = set(bones.values())
-    return BoneMapping(
+    mapping = BoneMapping(
         bones=dict(bones), scheme=str(data.get("scheme", "custom")),
         unmapped=[n for n in (names or []) if n not in used],
         missing=[c for c in CANONICAL_BONES if c not in bones])
+    return _with_controls(mapping, {normalise(n): n for n in names or []})

@@ -149,3 +149,24 @@ def test_somacap_armature_names():
     assert m.scheme == "somacap" and m.is_humanoid
     assert m.bones["l_upper_arm"] == "l_shoulder" and m.bones["r_thigh"] == "r_hip"
     assert m.unmapped == []
+
+
+def test_generated_rigify_rig_keys_fk_controls():
+    """DEF bones are matched, the FK controls (and torso) keyed, switches set to FK;
+    without the controls (a DEF-only export) the DEF bones themselves are keyed."""
+    from core.bone_mapping import CONTROL_SCHEMES
+
+    defs = list(SCHEMES["rigify_def"].values())
+    ctrls = list(SCHEMES["rigify_fk"].values()) + ["torso", "MCH-spine", "ORG-spine"]
+    m = map_bones(defs + ctrls)
+    assert m.scheme == "rigify_def" and m.bones["l_shin"] == "DEF-shin.L"
+    assert m.controls["l_shin"] == "shin_fk.L" and m.controls["pelvis"] == "spine_fk"
+    assert set(m.controls) == set(m.bones) and m.root_control == "torso"
+    assert m.switches == CONTROL_SCHEMES["rigify_def"]["switches"]
+    assert m.switches['pose.bones["thigh_parent.R"]["IK_FK"]'] == 1.0
+    plain = map_bones(defs)
+    assert plain.scheme == "rigify_def" and not plain.controls and plain.root_control is None
+    no_torso = map_bones(defs + ctrls[:-3])
+    assert not no_torso.controls
+    meta = map_bones(SCHEMES["rigify_metarig"].values())
+    assert meta.scheme == "rigify_metarig" and not meta.controls

@@ -47,6 +47,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--out", type=Path, required=True)
     b.add_argument("--target", type=Path)
     for sp in (f, r, b):
+        sp.add_argument("--foot-lock", action="store_true",
+                        help="pin the target's feet while in contact (with --target)")
         sp.add_argument("--export", choices=("bvh", "fbx"), action="append", default=[],
                         help="also export the motion next to the .blend (repeatable)")
     return p
@@ -67,7 +69,7 @@ def _save(out: Path):
     return out
 
 
-def _take(state, take, target, out, exports, cameras_from=None):
+def _take(state, take, target, out, exports, cameras_from=None, foot_lock=False):
     """Build one take into a fresh file and save it; returns a one-line summary."""
     from . import pipeline, retarget
 
@@ -78,7 +80,7 @@ def _take(state, take, target, out, exports, cameras_from=None):
     msg = f"{take}: {state.n_frames} frames, action '{action.name}'"
     if target is not None:
         char = pipeline.load_character(target)
-        res = retarget.retarget(arm, char, take=take)
+        res = retarget.retarget(arm, char, take=take, foot_lock=foot_lock)
         msg += f", retargeted {len(res.pairs)} bones onto {char.name}"
         if res.unmapped_target:
             msg += f" (unmapped: {len(res.unmapped_target)} bones)"
@@ -93,7 +95,8 @@ def cmd_fit(args) -> int:
 
     state = pipeline.state_for_scene(args.scene, args.fit, _core.progress.Progress())
     take = args.take or args.scene.resolve().name
-    print(_take(state, take, args.target, args.out, args.export, cameras_from=args.scene))
+    print(_take(state, take, args.target, args.out, args.export, cameras_from=args.scene,
+                foot_lock=args.foot_lock))
     return 0
 
 
@@ -102,7 +105,7 @@ def cmd_retarget(args) -> int:
 
     state = pipeline.read_state(args.state)
     take = args.take or args.state.stem
-    print(_take(state, take, args.target, args.out, args.export))
+    print(_take(state, take, args.target, args.out, args.export, foot_lock=args.foot_lock))
     return 0
 
 
@@ -126,10 +129,12 @@ def cmd_batch(args) -> int:
         try:
             if take.is_dir():
                 state = pipeline.state_for_scene(take, None, _core.progress.Progress())
-                print(_take(state, take.name, args.target, out, args.export, cameras_from=take))
+                print(_take(state, take.name, args.target, out, args.export, cameras_from=take,
+                            foot_lock=args.foot_lock))
             else:
                 state = pipeline.read_state(take)
-                print(_take(state, take.stem, args.target, out, args.export))
+                print(_take(state, take.stem, args.target, out, args.export,
+                            foot_lock=args.foot_lock))
             done += 1
         except _core.errors.InputError as exc:
             failures.append((take.name, str(exc)))

@@ -254,11 +254,14 @@ class SOMACAP_OT_retarget(bpy.types.Operator):
         s = _settings(context)
         try:
             res = rt.retarget(s.body, s.target, take=s.take or "take",
-                              target_preset=_mapping_from_settings(s))
+                              target_preset=_mapping_from_settings(s), foot_lock=s.foot_lock)
         except _core.errors.InputError as exc:
             return _fail(self, exc)
         msg = (f"Retargeted {len(res.pairs)} bones onto {s.target.name} as "
                f"'{res.action.name}' (leg scale {res.scale:.3f})")
+        if res.foot_skate_mm:
+            msg += "; foot skate " + ", ".join(f"{k} {b:.0f}->{a:.0f} mm"
+                                               for k, (b, a) in res.foot_skate_mm.items())
         if res.unmapped_target:
             msg += f"; unmapped: {', '.join(res.unmapped_target[:10])}"
             if len(res.unmapped_target) > 10:

@@ -78,6 +78,7 @@ class SOMACAP_PT_retarget(bpy.types.Panel):
         col = self.layout.column()
         col.prop(s, "body")
         col.prop(s, "target")
+        col.prop(s, "foot_lock")
         row = col.row(align=True)
         row.operator("somacap.map_bones", icon="GROUP_BONE")
         row.operator("somacap.save_mapping", icon="FILE_TICK", text="Save preset")

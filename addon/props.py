@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import bpy
 from bpy.props import (
+    BoolProperty,
     CollectionProperty,
     EnumProperty,
     FloatProperty,
@@ -37,6 +38,9 @@ class SOMACAP_PG_settings(bpy.types.PropertyGroup):
                           description="The recovered armature (source of retargeting)")
     target: PointerProperty(name="Target", type=bpy.types.Object, poll=_is_armature,
                             description="A rigged character to retarget onto")
+    foot_lock: BoolProperty(name="Foot locking", default=False,
+                            description="Pin each foot while it is in contact (low and slow), "
+                                        "bending the leg to reach it")
     mapping: CollectionProperty(type=SOMACAP_PG_bone_pair)
     mapping_index: IntProperty()
     mapping_scheme: StringProperty(name="Scheme")

@@ -26,6 +26,8 @@ class RetargetResult:
     unmapped_target: list = field(default_factory=list)
     scale: float = 1.0
     frames: tuple = (1, 1)
+    #: with ``foot_lock``: side -> (skate before, skate after) in mm, contact frames only
+    foot_skate_mm: dict = field(default_factory=dict)
 
 
 def _check_target(obj, mapping, min_required: bool = True):
@@ -63,7 +65,8 @@ def _rotations(M: np.ndarray) -> np.ndarray:
     return R / np.linalg.norm(R, axis=-2, keepdims=True)
 
 
-def retarget(source, target, take: str, frames=None, source_preset=None, target_preset=None):
+def retarget(source, target, take: str, frames=None, source_preset=None, target_preset=None,
+             foot_lock: bool = False):
     """Retarget ``source``'s current animation onto ``target`` as a new action ``take``.
 
     Parameters
@@ -71,6 +74,9 @@ def retarget(source, target, take: str, frames=None, source_preset=None, target_
     source, target : bpy armature objects.
     take : name of the new action (Blender appends ``.001`` … when it exists).
     frames : (first, last) frame range; default: the source action's range.
+    foot_lock : pin each target foot while it is in contact (low and slow), bending the
+        leg by analytic two-bone IK (:func:`core.foot_lock.lock_leg`).  Not available
+        for constraint-driven rigs (generated Rigify) yet.
 
     Raises
     ------
@@ -118,6 +124,10 @@ def retarget(source, target, take: str, frames=None, source_preset=None, target_
     hips_t = rt.scale_root_path(hips_s, k, o_s, o_t)
 
     if tgt_map.controls:  # constraint-driven rig (generated Rigify): key its controls
+        if foot_lock:
+            raise _core.errors.InputError(
+                f"foot locking is not available for the constraint-driven rig "
+                f"'{target.name}' yet: retarget without it")
         from . import retarget_driven
 
         action = retarget_driven.key_controls(
@@ -143,6 +153,10 @@ def retarget(source, target, take: str, frames=None, source_preset=None, target_
     target.pose.bones.foreach_get("matrix_basis", buf)
     static = buf.reshape(-1, 4, 4).transpose(0, 2, 1).astype(float)
     pose = rt.pose_matrices(rest, parent, rot, root, len(fr), basis=static)
+    skate = {}
+    if foot_lock:
+        skate = _lock_feet(target, canon, ti, tgt_names, R_t, rot, pose, rest, M_obj)
+        pose = rt.pose_matrices(rest, parent, rot, root, len(fr), basis=static)
     basis = builders.basis_matrices(rest, parent, pose)
 
     # Nothing has been changed so far; now write the new action.
@@ -177,7 +191,37 @@ def retarget(source, target, take: str, frames=None, source_preset=None, target_
     action_api.key_channels(target, action, channels, fr)
     action["somacap_take"] = take
     action["somacap_leg_scale"] = float(k)
+    action["somacap_foot_lock"] = bool(foot_lock)
     return RetargetResult(
         action=action, pairs={src_map.bones[c]: tgt_map.bones[c] for c in canon},
         unmapped_source=src_map.unmapped, unmapped_target=tgt_map.unmapped, scale=float(k),
-        frames=(int(fr[0]), int(fr[-1])))
+        frames=(int(fr[0]), int(fr[-1])), foot_skate_mm=skate)
+
+
+def _lock_feet(target, canon, ti, tgt_names, R_t, rot, pose, rest, M_obj) -> dict:
+    """Replace the thigh and shin rotations in ``rot`` by foot-locked ones (in place).
+
+    Returns side -> (skate before, skate after) in mm over the contact frames.
+    """
+    import bpy
+
+    fl = _core.foot_lock
+    render = bpy.context.scene.render
+    fps = render.fps / render.fps_base
+    R_obj = _rotations(M_obj)
+    scale = float(np.cbrt(abs(np.linalg.det(M_obj[:3, :3]))))
+    out = {}
+    for side in ("l", "r"):
+        names = (f"{side}_thigh", f"{side}_shin", f"{side}_foot")
+        if not all(n in canon for n in names):
+            continue
+        bt, bs, bf = (int(ti[canon.index(n)]) for n in names)
+        l1 = scale * float(np.linalg.norm(rest[bs, :3, 3] - rest[bt, :3, 3]))
+        l2 = scale * float(np.linalg.norm(rest[bf, :3, 3] - rest[bs, :3, 3]))
+        hip = pose[:, bt, :3, 3] @ M_obj[:3, :3].T + M_obj[:3, 3]
+        Rt, Rs, contact, before, after = fl.lock_leg(
+            hip, R_t[:, canon.index(names[0])], R_t[:, canon.index(names[1])], l1, l2, fps)
+        rot[bt] = R_obj.T[None] @ Rt
+        rot[bs] = R_obj.T[None] @ Rs
+        out[side] = (fl.skate_mm(before, contact), fl.skate_mm(after, contact))
+    return out

@@ -132,6 +132,15 @@ def main(argv=None) -> int:
         worst["dir"] = max(worst["dir"], err.max())
         worst["rt"] = max(worst["rt"], err_rt.max())
         worst["root"] = max(worst["root"], root.max())
+    # Foot locking: skate (mm of horizontal foot travel while in contact) without and with.
+    print("\nfoot locking (contact = low and slow for >= 3 frames):")
+    for name, tgt in targets.items():
+        if name.startswith("b."):
+            continue  # constraint-driven rig: not supported yet
+        res_l = rt.retarget(src, tgt, take="bench_lock", foot_lock=True)
+        sk = ", ".join(f"{side}: {b:.1f} -> {a:.1f} mm" for side, (b, a) in
+                       res_l.foot_skate_mm.items())
+        print(f"  {name:30s} {sk}")
     ok = worst["dir"] < 1.0 and worst["rt"] < 0.5 and worst["root"] < 1.0
     print(f"worst: direction {worst['dir']:.4f}° (< 1), round trip {worst['rt']:.4f}° (< 0.5), "
           f"root {worst['root']:.4f} % of height (< 1): {'PASS' if ok else 'FAIL'}")

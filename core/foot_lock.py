@@ -7,7 +7,8 @@ horizontal position at the contact's first frame (height kept), and the leg reac
 by the analytic two-bone IK below (thigh and shin lengths kept, the knee kept on the
 side of the original knee).  World: Z up, metres.
 
-Not yet wired into the Blender retarget (``addon/retarget.py``): see the issue's report.
+:func:`lock_leg` applies all of it to a leg's world bone rotations; the Blender retarget
+uses it with ``foot_lock=True`` (``addon/retarget.py``).
 """
 
 from __future__ import annotations
@@ -85,3 +86,45 @@ def skate_mm(xyz: np.ndarray, contact: np.ndarray) -> float:
     both = c[1:] & c[:-1]
     step = np.linalg.norm(np.diff(xyz[:, :2], axis=0), axis=1)
     return float(step[both].sum() * 1000.0)
+
+
+def lock_leg(hip: np.ndarray, R_thigh: np.ndarray, R_shin: np.ndarray, thigh_len: float,
+             shin_len: float, fps: float, axis: int = 1, **contact_kw):
+    """Lock one foot: new world rotations of thigh and shin so the ankle stays put in contact.
+
+    Parameters
+    ----------
+    hip : (F, 3)
+        Thigh head (hip joint) world positions, metres.
+    R_thigh, R_shin : (F, 3, 3)
+        World rotations of the thigh and shin bones; column ``axis`` points head → tail.
+    thigh_len, shin_len : float
+        Bone lengths, metres (knee = hip + thigh_len · thigh axis, ankle likewise).
+    fps : float
+        Frame rate (contact speed threshold is in m/s).
+    contact_kw
+        Passed to :func:`contact_mask`.
+
+    Returns
+    -------
+    R_thigh, R_shin : (F, 3, 3)
+        Locked rotations (each bone turned by the minimal rotation onto its new direction,
+        so twist is kept).
+    contact : (F,) bool
+    ankle : (F, 3)
+        Ankle positions before locking (for measuring skate).
+    ankle_locked : (F, 3)
+    """
+    from .retarget import swing
+
+    hip = np.asarray(hip, float)
+    knee = hip + thigh_len * R_thigh[:, :, axis]
+    ankle = knee + shin_len * R_shin[:, :, axis]
+    contact = contact_mask(ankle, fps, **contact_kw)
+    target = pinned_targets(ankle, contact)
+    new_knee, new_ankle = two_bone_ik(hip, knee, ankle, target)
+    Rt = swing(R_thigh[:, :, axis], new_knee - hip) @ R_thigh
+    Rs = swing(R_shin[:, :, axis], new_ankle - new_knee) @ R_shin
+    keep = ~contact
+    Rt[keep], Rs[keep] = R_thigh[keep], R_shin[keep]
+    return Rt, Rs, contact, ankle, np.where(contact[:, None], new_ankle, ankle)

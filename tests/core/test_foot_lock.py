@@ -50,3 +50,39 @@ def test_two_bone_ik_keeps_lengths_and_knee_side(rng):
     k3, a3 = two_bone_ik(hip, knee, ankle, far)
     reach = np.linalg.norm(knee - hip, axis=1) + np.linalg.norm(ankle - knee, axis=1)
     np.testing.assert_allclose(np.linalg.norm(a3 - hip, axis=1), reach, atol=1e-6)
+
+
+def test_lock_leg_pins_the_ankle_and_keeps_bone_lengths():
+    """A leg whose foot slides during a stance: after locking, the ankle stays put in
+    contact, swings freely otherwise, and the thigh keeps its twist."""
+    from core.foot_lock import lock_leg
+    from core.retarget import swing
+
+    F, fps = 30, 30.0
+    t = np.arange(F)
+    hip = np.stack([0.01 * t, np.zeros(F), np.full(F, 0.9)], axis=1)
+    # the foot slides 5 mm/frame (0.15 m/s) during frames 5..20, lifted outside them
+    down = np.array([0.0, 0.0, -1.0])
+    lift = np.where((t >= 5) & (t <= 20), 0.0, 0.08)
+    ankle = np.stack([0.005 * t - 0.1, np.zeros(F), 0.02 + lift], axis=1)
+    l1 = l2 = 0.46
+    d = ankle - hip
+    dist = np.linalg.norm(d, axis=1, keepdims=True)
+    u = d / dist
+    pole = np.array([1.0, 0.0, 0.0]) - u[:, :1] * u
+    pole /= np.linalg.norm(pole, axis=1, keepdims=True)
+    knee = hip + 0.5 * d + np.sqrt(l1**2 - (dist / 2) ** 2) * pole  # knee bent forward
+    # bone rotations whose Y axis points along each bone, with some twist
+    twist = np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]])
+    R_thigh = swing(np.broadcast_to(down, (F, 3)), knee - hip) @ twist
+    R_shin = swing(np.broadcast_to(down, (F, 3)), ankle - knee) @ twist
+    Rt, Rs, contact, before, after = lock_leg(hip, R_thigh, R_shin, l1, l2, fps)
+    assert contact[8:18].all() and not contact[:3].any()
+    assert skate_mm(before, contact) > 50.0
+    assert skate_mm(after, contact) < 1.0
+    new_ankle = hip + l1 * Rt[:, :, 1] + l2 * Rs[:, :, 1]
+    np.testing.assert_allclose(new_ankle, after, atol=1e-9)
+    np.testing.assert_allclose(Rt[~contact], R_thigh[~contact])
+    for R in (Rt, Rs):
+        np.testing.assert_allclose(R @ np.swapaxes(R, 1, 2), np.broadcast_to(np.eye(3), R.shape),
+                                   atol=1e-9)

@@ -34,7 +34,9 @@ def build_parser() -> argparse.ArgumentParser:
     f = sub.add_parser("fit", help="fit a scene folder and write a .blend")
     f.add_argument("scene", type=Path)
     f.add_argument("--out", type=Path, required=True)
-    f.add_argument("--target", type=Path, help="character .blend to retarget onto")
+    f.add_argument("--target", type=Path,
+                   help="character .blend to retarget onto, or 'rigify' for a Rigify human "
+                        "rig generated from Blender's meta-rig")
     f.add_argument("--fit", type=Path, help="use this fitted state instead of fitting")
     f.add_argument("--take", help="take / action name (default: the scene folder name)")
     r = sub.add_parser("retarget", help="build a fitted state and retarget it")
@@ -79,7 +81,10 @@ def _take(state, take, target, out, exports, cameras_from=None, foot_lock=False)
     arm, balls, action = pipeline.build_take(state, take)
     msg = f"{take}: {state.n_frames} frames, action '{action.name}'"
     if target is not None:
-        char = pipeline.load_character(target)
+        if str(target) == "rigify":
+            char = pipeline.generate_rigify_human(f"{take}_rigify", location=(1.0, 0.0, 0.0))
+        else:
+            char = pipeline.load_character(target)
         res = retarget.retarget(arm, char, take=take, foot_lock=foot_lock)
         msg += f", retargeted {len(res.pairs)} bones onto {char.name}"
         if res.unmapped_target:

@@ -12,8 +12,8 @@ Runs, each as the command a user would type, and says what it wrote:
 3. ``python -m core evaluate`` — the fit against the scene's ground truth, with a PNG of
    the per-frame errors;
 4. ``python -m addon.launch fit`` — Blender (the ``bpy`` module): cameras with the
-   footage, the metaball body, its action, and the motion retargeted onto the shared
-   MakeHuman character when ``../shared/data`` is present; saved as ``out/demo.blend``.
+   footage, the metaball body, its action, and the motion retargeted onto a Rigify
+   human rig generated from Blender's meta-rig; saved as ``out/demo.blend``.
 
 Outputs go to ``out/`` (created; existing files there are replaced, nothing outside it
 is touched).  Exit status is non-zero when a step fails.
@@ -31,7 +31,6 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 SCENE = REPO / "sample_scenes" / "walk_line3"
 OUT = REPO / "out"
-CHARACTER = REPO.parent / "shared" / "data" / "characters" / "makehuman_cmu_mb.blend"
 FIT_FRAMES = 10
 
 
@@ -79,12 +78,11 @@ def main() -> int:
         wrote.append((fit, "the scene's ground truth written as a fitted state"))
 
     blend = OUT / "demo.blend"
-    args = ["-m", "addon.launch", "fit", SCENE, "--fit", fit, "--out", blend]
-    if CHARACTER.is_file():
-        args += ["--target", CHARACTER]
-    _step("build in Blender", args)
-    wrote.append((blend, "cameras + footage, armature, metaball body, action"
-                  + (", retargeted onto MakeHuman" if CHARACTER.is_file() else "")))
+    _step("build in Blender",
+          ["-m", "addon.launch", "fit", SCENE, "--fit", fit, "--out", blend,
+           "--target", "rigify"])
+    wrote.append((blend, "cameras + footage, armature, metaball body, action, the motion "
+                  "retargeted onto a generated Rigify human (FK controls keyed)"))
 
     print("\nThe demo wrote:")
     for path, what in wrote:

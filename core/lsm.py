@@ -8,20 +8,36 @@ its grey levels (Gruen 1985; D'Apuzzo et al. 1999, section 2.3)::
 
 with ``(x, y)`` the pixel offsets from the template centre, ``(a0, b0)`` the matched
 point in the search image (pixels), ``[[a1, a2], [b1, b2]]`` the affine part (2
-scales, 2 shears) and ``r0, r1`` the radiometric offset and gain.  The 8 parameters
-are estimated by Gauss–Newton on the grey-level differences; the search image is
-resampled by bicubic (default) or bilinear interpolation, and its gradients are the
-central differences of the resampled patch, mapped back through the affine part.
+scales, 2 shears) and ``r0, r1`` the radiometric offset and gain.
 
-Every iteration handles all still-active patches as arrays ``(N, P, 8)``: there is no
-Python loop over patches.  Iteration stops per patch when the shift correction falls
-below ``tol_px`` (0.01 px by default).  The precision follows from the normal matrix
-of the last iteration: ``σ0² = vᵀv / (n - u)`` and ``Σ = σ0² N⁻¹``.
+The 8 parameters are estimated by Gauss–Newton in the inverse compositional form
+(Baker & Matthews 2004): the update is computed on the template side, so the design
+matrix ``[∇T·∂W/∂p, 1, T]`` (template gradients, offset, gain) and its normal matrix
+``N`` are computed and inverted once per patch; every iteration then only resamples
+the search patch, forms ``Aᵀe`` and multiplies by ``N⁻¹``.  The warp is composed
+with the inverse update (``W ← W ∘ ΔW⁻¹``) and the radiometry with its inverse.  The
+fixed point is the same as that of the forward-additive Gauss–Newton up to terms of
+the order of the noise in the template gradients.
+
+Resampling: the search images are upsampled 2× once per call by cubic B-spline
+interpolation (a symmetric 12-tap half-pixel filter, so no phase error), and the
+iterations sample that image bilinearly (``cv2.remap``, whose 1/32 px rounding is
+corrected to first order).  This keeps the precision of cubic-spline resampling at
+the cost of bilinear sampling; ``upsample=False`` samples the original image
+bilinearly (faster, ~30 % larger errors on fine texture).  When the patches cover
+only a small part of the images, only windows around the start positions are
+upsampled.
+
+All patches are handled as arrays: there is no Python loop over patches.  Iteration
+stops per patch when the shift correction falls below ``tol_px`` (0.01 px by
+default).  Precision from the normal matrix: ``σ0² = vᵀv / (n - u)``,
+``Σ = σ0² N⁻¹``, mapped to the search image through the affine part.
 
 Optional geometric constraint (multi-photo geometrically constrained matching):
 the matched point must lie on a given line ``n · uv = d`` in the search image (the
 local epipolar line from the calibration, see :func:`epipolar_lines`), added as a
-pseudo-observation with standard deviation ``sigma_line_px``.
+pseudo-observation with standard deviation ``sigma_line_px`` (a rank-one update of
+``N⁻¹`` per iteration).
 """
 
 from __future__ import annotations
@@ -31,7 +47,6 @@ from enum import IntEnum
 
 import cv2
 import numpy as np
-from scipy import ndimage
 
 from .camera import Camera
 
@@ -96,14 +111,85 @@ class LSMResult:
 
 # -- image sampling -----------------------------------------------------------------
 
+def _cardinal_spline_taps(n: int = 6) -> np.ndarray:
+    """Weights of pixels ``j-n+1 .. j+n`` for the cubic-spline value at ``j + 0.5``.
+
+    The cardinal cubic B-spline ``η(s) = Σ_k (√3 - 2)^|k| √3 β³(s - k)`` (its
+    prefilter pole is ``√3 - 2``), sampled at half-pixel offsets; normalised to sum 1.
+    """
+    z = np.sqrt(3.0) - 2.0
+    k = np.arange(-40, 41)
+    d = np.arange(-n + 1, n + 1)
+    s = 0.5 - d[:, None] - k[None, :]
+    a = np.abs(s)
+    beta = np.where(a < 1, 2 / 3 - a ** 2 + a ** 3 / 2, np.where(a < 2, (2 - a) ** 3 / 6, 0.0))
+    w = (np.sqrt(3.0) * z ** np.abs(k) * beta).sum(axis=1)
+    return w / w.sum()
+
+
+_HALF_TAPS = _cardinal_spline_taps(6).astype(np.float32)
+
+
+def upsample2(img: np.ndarray) -> np.ndarray:
+    """Cubic-spline 2× upsampling: (H, W) -> (2H, 2W) float32, ``out[2i, 2j] = img[i, j]``.
+
+    Odd rows / columns are the half-pixel values of the cubic spline interpolant
+    (12-tap symmetric FIR, borders reflected; within 0.2 % of the spread of grey
+    levels of the exact spline values on smooth texture), so a position ``(u, v)`` of the input
+    is ``(2u, 2v)`` of the output.
+    """
+    img = np.ascontiguousarray(img, dtype=np.float32)
+    h, w = img.shape
+    n = len(_HALF_TAPS) // 2
+    hx = cv2.filter2D(img, -1, _HALF_TAPS[None, :], anchor=(n - 1, 0),
+                      borderType=cv2.BORDER_REFLECT_101)
+    even = cv2.merge([img, hx]).reshape(h, 2 * w)                 # columns interleaved
+    odd = cv2.filter2D(even, -1, _HALF_TAPS[:, None], anchor=(0, n - 1),
+                       borderType=cv2.BORDER_REFLECT_101)
+    out = np.empty((h, 2, 2 * w), np.float32)
+    out[:, 0] = even
+    out[:, 1] = odd
+    return out.reshape(2 * h, 2 * w)
+
+
+def _tile(arr: np.ndarray, gap: int, narrow: bool = False):
+    """Tile (M, H, W) images into one mosaic, ``gap`` px of edge replication between.
+
+    The mosaic stays below 30000 rows and columns (15000 with ``narrow``, whose 2×
+    upsampled copy must stay below cv2.remap's 32767).
+
+    Returns the mosaic (float32) and the column / row of each image's pixel (0, 0).
+    """
+    m, h, w = arr.shape
+    g = gap
+    if narrow:
+        # As few columns as the row limit allows: each tile is then (almost) one
+        # contiguous block of memory, which keeps sampling cache friendly.
+        cols = int(np.ceil(m / max(1, 15000 // (h + 2 * g))))
+    else:
+        cols = max(1, min(m, int(np.ceil(np.sqrt(m * (h + 2 * g) / (w + 2 * g))))))
+    cols = min(cols, max(1, 30000 // (w + 2 * g)))
+    rows = int(np.ceil(m / cols))
+    if rows * (h + 2 * g) > 30000:
+        raise ValueError(f"image stack {arr.shape} too large for one mosaic")
+    tiles = np.zeros((rows * cols, h + 2 * g, w + 2 * g), np.float32)
+    if g:
+        tiles[:m] = np.pad(np.asarray(arr, np.float32), ((0, 0), (g, g), (g, g)), mode="edge")
+    else:
+        tiles[:m] = arr
+    mosaic = tiles.reshape(rows, cols, h + 2 * g, w + 2 * g).transpose(0, 2, 1, 3).reshape(
+        rows * (h + 2 * g), cols * (w + 2 * g))
+    k = np.arange(m)
+    return np.ascontiguousarray(mosaic), (k % cols) * (w + 2 * g) + g, (k // cols) * (h + 2 * g) + g
+
+
 class ImageStack:
     """One or more grey images of equal size, tiled into one mosaic for batched sampling.
 
-    Sampling uses ``cv2.remap`` (bilinear or bicubic), which rounds positions to 1/32
-    px; :meth:`sample` returns that rounding so that callers correct it to first order
-    with the local gradient (the remaining error is below 1e-4 grey levels per grey
-    level of curvature).  Samples within ``margin`` of an image border are flagged by
-    :meth:`inside`; tiles are separated by a gap so that they never mix.
+    Images are separated by replicated borders (``GAP`` px), so filters and bilinear
+    sampling near an image border behave as if the border pixels continued.  The 2×
+    cubic-spline upsampled mosaic (:func:`upsample2`) is computed on first use and
+    kept, so several :func:`match` calls on one stack share it.
 
     Parameters
     ----------
@@ -111,11 +197,11 @@ class ImageStack:
         Grey levels (any real dtype).
     """
 
-    GAP = 4
+    GAP = 8
 
     def __init__(self, images):
         if isinstance(images, ImageStack):
-            self.__dict__.update(images.__dict__)
+            self.__dict__ = images.__dict__      # share the cached mosaics
             return
         arr = images if not isinstance(images, list | tuple) else np.stack(images)
         arr = np.asarray(arr)
@@ -123,77 +209,111 @@ class ImageStack:
             arr = arr[None]
         if arr.ndim != 3 or arr.shape[0] == 0:
             raise ValueError(f"images must be (H, W) or (M, H, W), got shape {arr.shape}")
-        m, h, w = arr.shape
         self.shape = arr.shape
-        g = self.GAP
-        cols = max(1, min(m, int(np.ceil(np.sqrt(m * (h + g) / (w + g))))))
-        cols = min(cols, max(1, 30000 // (w + g)))
-        rows = int(np.ceil(m / cols))
-        if rows * (h + g) > 30000:
-            raise ValueError(f"image stack {arr.shape} too large for one mosaic")
-        tiles = np.zeros((rows * cols, h + g, w + g), np.float32)
-        tiles[:m, g // 2:g // 2 + h, g // 2:g // 2 + w] = arr
-        mosaic = tiles.reshape(rows, cols, h + g, w + g).transpose(0, 2, 1, 3).reshape(
-            rows * (h + g), cols * (w + g))
-        k = np.arange(m)
-        self.origin_u = (k % cols) * (w + g) + g // 2
-        self.origin_v = (k // cols) * (h + g) + g // 2
-        self.mosaic = mosaic
-        self._coef = None
+        self.images = arr
+        self._mosaic = None
+        self._up = None
+
+    def _build(self):
+        self._mosaic, self.origin_u, self.origin_v = _tile(self.images, self.GAP)
+
+    @property
+    def mosaic(self) -> np.ndarray:
+        """All images tiled into one float32 mosaic (``origin_u``, ``origin_v`` per image)."""
+        if self._mosaic is None:
+            self._build()
+        return self._mosaic
+
+    @property
+    def up(self) -> np.ndarray:
+        """The mosaic upsampled 2× (:func:`upsample2`), float32."""
+        if self._up is None:
+            self._up = upsample2(self.mosaic)
+        return self._up
 
     def inside(self, u: np.ndarray, v: np.ndarray, margin: float) -> np.ndarray:
         """Whether positions lie at least ``margin`` px inside the image."""
         _, h, w = self.shape
         return (u >= margin) & (v >= margin) & (u <= w - 1 - margin) & (v <= h - 1 - margin)
 
-    def sample(self, index: np.ndarray, u: np.ndarray, v: np.ndarray,
-               order: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Interpolate grey levels at ``(u, v)`` in image ``index`` (broadcast shapes).
+    def pixels(self, index: np.ndarray, iu: np.ndarray, iv: np.ndarray) -> np.ndarray:
+        """Grey levels (float32) at integer positions (broadcast shapes); positions
+        outside the image take the nearest border pixel."""
+        _, h, w = self.shape
+        iu = np.clip(np.asarray(iu, np.int64), 0, w - 1)
+        iv = np.clip(np.asarray(iv, np.int64), 0, h - 1)
+        return self.images[np.asarray(index, np.int64), iv, iu].astype(np.float32)
 
-        Parameters
-        ----------
-        order : {1, 3}
-            1 = bilinear (``cv2.remap``, positions rounded to 1/32 px), 3 = cubic
-            B-spline (``scipy.ndimage``, exact positions).
+    def windows(self, index: np.ndarray, u0: np.ndarray, v0: np.ndarray,
+                size: int) -> np.ndarray:
+        """Square windows ``size`` × ``size`` with top-left pixels ``(u0, v0)`` (N,), which
+        must lie inside the image: (N, size, size) float32."""
+        view = np.lib.stride_tricks.sliding_window_view(self.images, (size, size), axis=(1, 2))
+        return view[np.asarray(index, np.int64), v0, u0].astype(np.float32)
 
-        Returns
-        -------
-        values : ndarray, float32
-            Grey levels at the positions rounded to 1/32 px.
-        du, dv : ndarray, float32
-            ``position - rounded position``, px: add ``grad · (du, dv)`` for the value
-            at the exact position.
+
+class _Source:
+    """Bilinear sampling of 2× upsampled images for N patches.
+
+    A position ``(u, v)`` of patch k's image lies at ``(bu[k] + 2u, bv[k] + 2v)`` in
+    ``up``: either the stack's whole upsampled mosaic, or a mosaic of upsampled
+    windows around each patch (when that is smaller).  ``lo``/``hi`` (N, 2) bound
+    the positions whose samples are valid (inside the window), pixels.
+    """
+
+    MARGIN = 6
+
+    def __init__(self, stack: ImageStack, index: np.ndarray, centre: np.ndarray,
+                 reach: np.ndarray | float, upsample: bool = True):
+        n = len(index)
+        f = 2.0 if upsample else 1.0
+        self.f = f
+        m, h, w = stack.shape
+        reach = np.broadcast_to(np.asarray(reach, float), (n,))
+        # Windows: the reach plus the spline taps that a window border spoils.
+        wh = int(np.ceil(reach.max())) + self.MARGIN if n else 0
+        ws = 2 * wh + 1
+        full = (n == 0 or ws > min(h, w)
+                or n * ws * ws >= m * (h + 2 * stack.GAP) * (w + 2 * stack.GAP))
+        if full:
+            self.up = stack.up if upsample else stack.mosaic
+            self.bu = f * stack.origin_u[index].astype(np.float64)
+            self.bv = f * stack.origin_v[index].astype(np.float64)
+            self.lo = np.full((n, 2), -1e9)
+            self.hi = np.full((n, 2), 1e9)
+            return
+        c = np.rint(np.where(np.isfinite(centre), centre, 0.0)).astype(np.int64)
+        u0 = np.clip(c[:, 0] - wh, 0, w - ws)
+        v0 = np.clip(c[:, 1] - wh, 0, h - ws)
+        mos, ou, ov = _tile(stack.windows(index, u0, v0, ws), 0, narrow=True)
+        self.up = upsample2(mos) if upsample else mos
+        self.bu = f * (ou - u0).astype(np.float64)
+        self.bv = f * (ov - v0).astype(np.float64)
+        # Valid positions: MARGIN px inside the window (or up to the image border).
+        mg = self.MARGIN
+        self.lo = np.stack([np.where(u0 > 0, u0 + mg, -1e9), np.where(v0 > 0, v0 + mg, -1e9)], 1)
+        self.hi = np.stack([np.where(u0 + ws < w, u0 + ws - 1 - mg, 1e9),
+                            np.where(v0 + ws < h, v0 + ws - 1 - mg, 1e9)], 1)
+
+    def sample(self, pu: np.ndarray, pv: np.ndarray):
+        """Values at mosaic positions ``pu``, ``pv`` (n_a, P) float32 of patches ``rows``.
+
+        Returns values and the rounding ``(du, dv)`` of ``cv2.remap`` (1/32 px of the
+        sampled image) in pixels of the original image.
         """
-        index = np.asarray(index, dtype=np.int64)
-        u, v, index = np.broadcast_arrays(np.asarray(u, np.float64), np.asarray(v, np.float64),
-                                          index)
-        shape = u.shape
-        mu = (u + self.origin_u[index]).reshape(-1, shape[-1] if len(shape) else 1)
-        mv = (v + self.origin_v[index]).reshape(mu.shape)
-        if order == 3:
-            # Cubic B-spline on prefiltered coefficients: exact positions, no rounding.
-            if self._coef is None:
-                self._coef = ndimage.spline_filter(self.mosaic, order=3, output=np.float32,
-                                                   mode="mirror")
-            vals = ndimage.map_coordinates(self._coef, np.stack([mv.ravel(), mu.ravel()]),
-                                           order=3, prefilter=False, mode="mirror",
-                                           output=np.float32)
-            zero = np.zeros(shape, np.float32)
-            return vals.reshape(shape), zero, zero
-        mu32, mv32 = mu.astype(np.float32), mv.astype(np.float32)
-        vals = _remap(self.mosaic, mu32, mv32, cv2.INTER_LINEAR)
-        du = (mu - np.rint(mu32.astype(np.float64) * 32.0) / 32.0).astype(np.float32)
-        dv = (mv - np.rint(mv32.astype(np.float64) * 32.0) / 32.0).astype(np.float32)
-        return vals.reshape(shape), du.reshape(shape), dv.reshape(shape)
+        vals = _remap(self.up, pu, pv)
+        du = (pu - np.rint(pu * 32.0) * (1 / 32.0)) * (1.0 / self.f)
+        dv = (pv - np.rint(pv * 32.0) * (1 / 32.0)) * (1.0 / self.f)
+        return vals, du, dv
 
 
-def _remap(img: np.ndarray, mu: np.ndarray, mv: np.ndarray, flag: int) -> np.ndarray:
-    """cv2.remap in row blocks (its maps must stay below 32767 rows)."""
+def _remap(img: np.ndarray, mu: np.ndarray, mv: np.ndarray) -> np.ndarray:
+    """Bilinear cv2.remap in row blocks (its maps must stay below 32767 rows)."""
     rows = mu.shape[0]
     if rows <= 32000:
-        return cv2.remap(img, mu, mv, flag, borderMode=cv2.BORDER_REPLICATE)
+        return cv2.remap(img, mu, mv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     return np.concatenate([
-        cv2.remap(img, mu[i:i + 32000], mv[i:i + 32000], flag,
+        cv2.remap(img, mu[i:i + 32000], mv[i:i + 32000], cv2.INTER_LINEAR,
                   borderMode=cv2.BORDER_REPLICATE) for i in range(0, rows, 32000)])
 
 
@@ -203,34 +323,55 @@ def _grid(half: int, border: int = 0) -> tuple[np.ndarray, np.ndarray]:
     return x, y
 
 
+def template_patches(images, uv: np.ndarray, half: int = 6, index=None,
+                     upsample: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Patches around ``uv`` (N, 2), with their gradients.
+
+    Integer centres are read directly; sub-pixel centres are resampled like the
+    search patches of :func:`match`.  Gradients are central differences.
+
+    Returns
+    -------
+    patch, gu, gv : ndarray, shape (N, 2h+1, 2h+1), float32
+        Grey levels (row = v) and their derivatives along u and v, per pixel.
+    """
+    stack = ImageStack(images)
+    uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+    n = len(uv)
+    idx = np.zeros(n, np.int64) if index is None else np.asarray(index, np.int64)
+    x, y = _grid(half, 1)
+    c = np.rint(uv)
+    frac = uv - c
+    if np.all(np.abs(frac) < 1e-9):
+        _, h, w = stack.shape
+        k = 2 * half + 3
+        if k <= min(h, w):
+            ci = c.astype(np.int64) - half - 1
+            P = stack.windows(idx, np.clip(ci[:, 0], 0, w - k), np.clip(ci[:, 1], 0, h - k), k)
+        else:
+            P = stack.pixels(idx[:, None, None], c[:, 0, None, None] + x,
+                             c[:, 1, None, None] + y)
+    else:
+        src = _Source(stack, idx, uv, half + 2, upsample)
+        pu = (src.bu[:, None, None] + src.f * (uv[:, 0, None, None] + x)).astype(np.float32)
+        pv = (src.bv[:, None, None] + src.f * (uv[:, 1, None, None] + y)).astype(np.float32)
+        s = pu.shape
+        vals, du, dv = src.sample(pu.reshape(n, -1), pv.reshape(n, -1))
+        P = vals.reshape(s)
+        gu, gv = _gradients(P)
+        P = P.copy()
+        P[:, 1:-1, 1:-1] += gu * du.reshape(s)[:, 1:-1, 1:-1] + gv * dv.reshape(s)[:, 1:-1, 1:-1]
+    gu, gv = _gradients(P)
+    return P[:, 1:-1, 1:-1], gu, gv
+
+
 def _gradients(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Central differences of patches with a 1-px border: (n, s, s) -> 2 x (n, s-2, s-2)."""
     return (0.5 * (P[:, 1:-1, 2:] - P[:, 1:-1, :-2]),
             0.5 * (P[:, 2:, 1:-1] - P[:, :-2, 1:-1]))
 
 
-def template_patches(images, uv: np.ndarray, half: int = 6, index=None,
-                     order: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Patches around ``uv`` (N, 2), with their gradients.
-
-    Returns
-    -------
-    patch, gu, gv : ndarray, shape (N, 2h+1, 2h+1), float64
-        Grey levels (row = v) and their derivatives along u and v, per pixel.
-    """
-    stack = ImageStack(images)
-    uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
-    idx = np.zeros(len(uv), np.int64) if index is None else np.asarray(index, np.int64)
-    x, y = _grid(half, 1)
-    P, du, dv = stack.sample(idx[:, None, None], uv[:, 0, None, None] + x,
-                             uv[:, 1, None, None] + y, order)
-    P = P.astype(np.float64)
-    gu, gv = _gradients(P)
-    P = P[:, 1:-1, 1:-1] + gu * du[:, 1:-1, 1:-1] + gv * dv[:, 1:-1, 1:-1]
-    return P, gu, gv
-
-
-# -- the matcher ----------------------------------------------------------------------
+# -- linear algebra -------------------------------------------------------------------
 
 def _cholesky_solve(N: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Solve SPD systems ``N x = B`` batched: N (n, k, k), B (n, k, m) -> x, ok (n,).
@@ -259,13 +400,104 @@ def _cholesky_solve(N: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return x, ok
 
 
+def _spd_inverse(N: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Inverses of SPD matrices (n, k, k) and an ok flag (n,) (False: not PD / not finite).
+
+    Unit-diagonal scaling, then LAPACK Cholesky for the whole batch; the column-wise
+    :func:`_cholesky_solve` takes over only when some matrix is not positive definite.
+    """
+    n, k, _ = N.shape
+    ok = np.isfinite(N).all(axis=(1, 2))
+    dg = np.sqrt(np.maximum(np.einsum("nii->ni", N), 1e-30))
+    dg[~ok] = 1.0
+    Ns = N / dg[:, :, None] / dg[:, None, :]
+    Ns[~ok] = np.eye(k)
+    eye = np.broadcast_to(np.eye(k), N.shape)
+    try:
+        L = np.linalg.cholesky(Ns)
+        Li = np.linalg.solve(L, eye) if n < 64 else _lower_inverse(L)
+        inv = np.matmul(Li.transpose(0, 2, 1), Li)
+        pd = np.all(np.einsum("nii->ni", L) > 1e-6, axis=1)
+    except np.linalg.LinAlgError:
+        inv, pd = _cholesky_solve(Ns, eye.copy())
+    ok &= pd
+    inv = inv / dg[:, :, None] / dg[:, None, :]
+    return inv, ok
+
+
+def _lower_inverse(L: np.ndarray) -> np.ndarray:
+    """Inverses of lower triangular matrices (n, k, k) by forward substitution."""
+    n, k, _ = L.shape
+    X = np.zeros_like(L)
+    for i in range(k):
+        rhs = -np.einsum("nj,njm->nm", L[:, i, :i], X[:, :i, :]) if i else np.zeros((n, k))
+        rhs[:, i] += 1.0
+        X[:, i, :] = rhs / L[:, i, i, None]
+    return X
+
+
+# -- the matcher ----------------------------------------------------------------------
+
+def _line_update(Ninv: np.ndarray, A: np.ndarray, normal: np.ndarray, d: np.ndarray,
+                 uv: np.ndarray, w: float):
+    """Add the line pseudo-observation ``normal · (uv - A Δt) = d`` with weight ``w``.
+
+    Its design row is ``j = -Aᵀ normal`` on the shift parameters (0 and 3); ``N⁻¹`` is
+    updated by Sherman–Morrison.  Returns the new ``N⁻¹`` (n, 8, 8), ``j`` (n, 8) and
+    the misclosure ``d - normal · uv`` (n,), pixels.
+    """
+    mis = d - np.einsum("ni,ni->n", normal, uv)
+    jv = np.zeros((len(d), 8))
+    jv[:, [0, 3]] = -np.einsum("nji,nj->ni", A, normal)
+    Nj = np.einsum("nij,nj->ni", Ninv, jv)
+    k = w / (1.0 + w * np.einsum("ni,ni->n", jv, Nj))
+    return Ninv - k[:, None, None] * Nj[:, :, None] * Nj[:, None, :], jv, mis
+
+
 # Moments basis: m_i m_j for m = (1, x, y) -> index into (1, x, y, x², xy, y²).
 _MOM = np.array([[0, 1, 2], [1, 3, 4], [2, 4, 5]])
 
 
+def _normal_matrix(T: np.ndarray, gx: np.ndarray, gy: np.ndarray, xs: np.ndarray,
+                   ys: np.ndarray) -> np.ndarray:
+    """``N = JᵀJ`` (n, 8, 8) of the design ``J = [gx·(1, x, y), gy·(1, x, y), 1, T]``.
+
+    Built from weighted moments with one GEMM: T, gx, gy (n, P) float32; xs, ys (P,)
+    the template pixel offsets.  Parameter order: a0, a1, a2, b0, b1, b2, r0, r1.
+    """
+    n, npx = T.shape
+    basis = np.stack([np.ones_like(xs), xs, ys, xs * xs, xs * ys, ys * ys], axis=1)  # (P, 6)
+    Q = np.empty((9, n, npx), np.float32)
+    np.multiply(gx, gx, out=Q[0])
+    np.multiply(gx, gy, out=Q[1])
+    np.multiply(gy, gy, out=Q[2])
+    Q[3] = gx
+    Q[4] = gy
+    np.multiply(gx, T, out=Q[5])
+    np.multiply(gy, T, out=Q[6])
+    Q[7] = T
+    np.multiply(T, T, out=Q[8])
+    M = (Q.reshape(9 * n, npx) @ basis).reshape(9, n, 6).astype(np.float64)
+    N = np.empty((n, 8, 8))
+    for i in range(3):
+        for j in range(3):
+            k = _MOM[i, j]
+            N[:, i, j] = M[0, :, k]
+            N[:, i, 3 + j] = N[:, 3 + j, i] = M[1, :, k]
+            N[:, 3 + i, 3 + j] = M[2, :, k]
+        N[:, i, 6] = N[:, 6, i] = M[3, :, i]
+        N[:, 3 + i, 6] = N[:, 6, 3 + i] = M[4, :, i]
+        N[:, i, 7] = N[:, 7, i] = M[5, :, i]
+        N[:, 3 + i, 7] = N[:, 7, 3 + i] = M[6, :, i]
+    N[:, 6, 6] = npx
+    N[:, 6, 7] = N[:, 7, 6] = M[7, :, 0]
+    N[:, 7, 7] = M[8, :, 0]
+    return N
+
+
 def match(template_images, search_images, uv_template, uv_search, *, half: int = 6,
-          affine=None, template_index=None, search_index=None, order: int = 3,
-          tol_px: float = 0.01, max_iter: int = 30, max_shift_px: float = 4.0,
+          affine=None, template_index=None, search_index=None, upsample: bool = True,
+          tol_px: float = 0.01, max_iter: int = 20, max_shift_px: float = 4.0,
           max_sigma_px: float = 0.2, min_texture: float = 3.0, lines=None,
           sigma_line_px: float = 0.05, sigma_grey: float = 2.0) -> LSMResult:
     """Least squares matching of N template patches into search images.
@@ -274,7 +506,8 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
     ----------
     template_images, search_images : ndarray (H, W) or (M, H, W), or :class:`ImageStack`
         Grey images; with stacks, ``template_index`` / ``search_index`` (N,) int pick
-        the image of each patch (default 0).
+        the image of each patch (default 0).  Pass the same ImageStack to several
+        calls to share its upsampled copy.
     uv_template : ndarray, shape (N, 2)
         Template centres, pixels (sub-pixel allowed: resampled).
     uv_search : ndarray, shape (N, 2)
@@ -283,8 +516,8 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
         Half width ``h``: patches are ``(2h+1)²`` (default 13 × 13).
     affine : ndarray, shape (N, 2, 2) or (2, 2), optional
         Start of the affine part (default identity).
-    order : {1, 3}
-        Interpolation of the images: 1 bilinear, 3 bicubic.
+    upsample : bool
+        Resample the 2× cubic-spline upsampled images (default) or the originals.
     tol_px : float
         Convergence: both shift corrections below this, pixels.
     max_iter : int
@@ -319,194 +552,177 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
                         (n, 2, 2)).copy()
     status = np.full(n, Status.NOT_CONVERGED, dtype=np.int8)
     iters = np.zeros(n, np.int32)
-    uv = uv_s0.copy()
     gain = np.ones(n)
     offset = np.zeros(n)
     sigma0 = np.full(n, np.nan)
     cov = np.full((n, 2, 2), np.nan)
 
-    finite = np.all(np.isfinite(uv_t), axis=1) & np.all(np.isfinite(uv_s0), axis=1)
+    finite = (np.all(np.isfinite(uv_t), axis=1) & np.all(np.isfinite(uv_s0), axis=1)
+              & np.all(np.isfinite(A), axis=(1, 2)))
     status[~finite] = Status.INVALID
-    uv_t_safe = np.where(finite[:, None], uv_t, 0.0)
-    uv = np.where(finite[:, None], uv, 0.0)
-    margin = half + 3
-    t_in = tstack.inside(uv_t_safe[:, 0], uv_t_safe[:, 1], margin)
+    uv_t = np.where(finite[:, None], uv_t, 0.0)
+    uv = np.where(finite[:, None], uv_s0, 0.0)
+    A[~finite] = np.eye(2)
+    t_in = tstack.inside(uv_t[:, 0], uv_t[:, 1], half + 1)
     status[finite & ~t_in] = Status.OUT_OF_IMAGE
 
-    # Template patch and its texture (smaller eigenvalue of the structure tensor).
-    # Integer centres are sampled exactly by bilinear interpolation (no prefilter needed).
-    integral = np.all(np.abs(uv_t_safe - np.rint(uv_t_safe)) < 1e-9)
-    T, tx, ty = template_patches(tstack, uv_t_safe, half, ti, order=1 if integral else order)
-    T = T.reshape(n, -1)
-    npx = T.shape[1]
-    sxx = np.mean(tx * tx, axis=(1, 2))
-    syy = np.mean(ty * ty, axis=(1, 2))
-    sxy = np.mean(tx * ty, axis=(1, 2))
+    # Template, its gradients and texture (smaller eigenvalue of the structure tensor).
+    T, tx, ty = template_patches(tstack, np.where(t_in[:, None], uv_t, half + 1.0), half, ti,
+                                 upsample)
+    npx = T[0].size
+    T = T.reshape(n, npx)
+    gx = tx.reshape(n, npx)
+    gy = ty.reshape(n, npx)
+    # Normal matrix of the inverse compositional step, factorised once per patch.
+    xg, yg = _grid(half)
+    xs = xg.ravel().astype(np.float32)
+    ys = yg.ravel().astype(np.float32)
+    basis = np.stack([np.ones_like(xs), xs, ys])                # (3, P)
+    N = _normal_matrix(T, gx, gy, xs, ys)
+    # Texture: smaller eigenvalue of the structure tensor (mean of ∇T ∇Tᵀ).
+    sxx, syy, sxy = N[:, 0, 0] / npx, N[:, 3, 3] / npx, N[:, 0, 3] / npx
     lam_min = 0.5 * (sxx + syy) - np.sqrt(0.25 * (sxx - syy) ** 2 + sxy ** 2)
     texture = np.sqrt(np.maximum(lam_min, 0.0))
     status[finite & t_in & (texture < min_texture)] = Status.WEAK_TEXTURE
+    N[status != Status.NOT_CONVERGED] = np.eye(8)
+    Ninv, pd = _spd_inverse(N)
+    status[(status == Status.NOT_CONVERGED) & ~pd] = Status.DEGENERATE
 
     if lines is not None:
         ln_n = np.asarray(lines[0], float).reshape(n, 2)
         ln_d = np.asarray(lines[1], float).reshape(n)
-    xg, yg = _grid(half, 1)                      # sampling grid with a 1-px border
-    xi, yi = xg[1:-1, 1:-1].ravel(), yg[1:-1, 1:-1].ravel()
-    basis = np.stack([np.ones_like(xi), xi, yi, xi * xi, xi * yi, yi * yi], axis=1)  # (P, 6)
-    basis32 = basis.astype(np.float32)
-    aff_idx = [1, 2, 4, 5]
+        w_line = (sigma_grey / sigma_line_px) ** 2
+    corners = np.array([[-half, -half], [half, -half], [-half, half], [half, half]], float)
+    _, h_img, w_img = sstack.shape
+    bu = np.zeros(n)
+    bv = np.zeros(n)
+    lo = np.zeros((n, 2))
+    hi = np.zeros((n, 2))
+    fresh = np.ones(n, bool)             # radiometry not yet initialised
+    it_left = np.full(n, max_iter)
 
-    active = np.flatnonzero(status == Status.NOT_CONVERGED)
-    shift_only = np.ones(n, bool)     # first iterations: shifts + radiometry only
-    T32 = T.astype(np.float32)
-    first = True
-    for it in range(max_iter):
-        if active.size == 0:
-            break
-        a = active
-        na = len(a)
-        Aa = A[a]
-        # Warped sampling positions (n_a, 2h+3, 2h+3).
-        pu = uv[a, 0, None, None] + Aa[:, 0, 0, None, None] * xg + Aa[:, 0, 1, None, None] * yg
-        pv = uv[a, 1, None, None] + Aa[:, 1, 0, None, None] * xg + Aa[:, 1, 1, None, None] * yg
-        inside = np.all(sstack.inside(pu, pv, 1.0 + (order == 3)), axis=(1, 2))
-        Sb, du, dv = sstack.sample(si[a, None, None], pu, pv, order)
-        # Gradients of the resampled patch w.r.t. template offsets, mapped to search px.
-        dx, dy = _gradients(Sb)
-        dx = dx.reshape(na, -1)
-        dy = dy.reshape(na, -1)
-        det = Aa[:, 0, 0] * Aa[:, 1, 1] - Aa[:, 0, 1] * Aa[:, 1, 0]
-        safe_det = np.where(np.abs(det) > 1e-6, det, 1.0)
-        # grad_S = A^-T grad_(S∘A)
-        i00 = (Aa[:, 1, 1] / safe_det).astype(np.float32)[:, None]
-        i01 = (-Aa[:, 1, 0] / safe_det).astype(np.float32)[:, None]
-        i10 = (-Aa[:, 0, 1] / safe_det).astype(np.float32)[:, None]
-        i11 = (Aa[:, 0, 0] / safe_det).astype(np.float32)[:, None]
-        gx = i00 * dx + i01 * dy
-        gy = i10 * dx + i11 * dy
-        S = Sb[:, 1:-1, 1:-1].reshape(na, -1)
-        if order == 1:
-            # First-order correction of the 1/32-px rounding of the sample positions.
-            S = S + gx * du[:, 1:-1, 1:-1].reshape(na, -1) + gy * dv[:, 1:-1, 1:-1].reshape(na, -1)
-        if first:
-            # Radiometric start: match the mean and spread of the grey levels.
-            sd_s = S.std(axis=1, dtype=np.float64)
-            g0 = np.where(sd_s > 1e-6, T[a].std(axis=1) / np.maximum(sd_s, 1e-6), 1.0)
-            gain[a] = g0
-            offset[a] = T[a].mean(axis=1) - g0 * S.mean(axis=1, dtype=np.float64)
-            first = False
-        r1 = gain[a]
-        res = T32[a] - (offset[a, None].astype(np.float32)
-                        + r1[:, None].astype(np.float32) * S)      # observed - computed
-        # Normal equations from weighted moments: one GEMM (Q, n_a, P) @ (P, 6).
-        Q = np.empty((13, na, npx), np.float32)
-        np.multiply(gx, gx, out=Q[0])
-        np.multiply(gx, gy, out=Q[1])
-        np.multiply(gy, gy, out=Q[2])
-        Q[3] = gx
-        Q[4] = gy
-        np.multiply(gx, S, out=Q[5])
-        np.multiply(gy, S, out=Q[6])
-        np.multiply(gx, res, out=Q[7])
-        np.multiply(gy, res, out=Q[8])
-        Q[9] = S
-        np.multiply(S, S, out=Q[10])
-        Q[11] = res
-        np.multiply(S, res, out=Q[12])
-        M = (Q.reshape(-1, npx) @ basis32).reshape(13, na, 6).astype(np.float64)
-        Nm = np.empty((na, 8, 8))
-        r1s = r1 * r1
-        for i in range(3):
-            for j in range(3):
-                k = _MOM[i, j]
-                Nm[:, i, j] = r1s * M[0, :, k]
-                Nm[:, i, 3 + j] = r1s * M[1, :, k]
-                Nm[:, 3 + i, j] = r1s * M[1, :, k]
-                Nm[:, 3 + i, 3 + j] = r1s * M[2, :, k]
-            Nm[:, i, 6] = Nm[:, 6, i] = r1 * M[3, :, i]
-            Nm[:, 3 + i, 6] = Nm[:, 6, 3 + i] = r1 * M[4, :, i]
-            Nm[:, i, 7] = Nm[:, 7, i] = r1 * M[5, :, i]
-            Nm[:, 3 + i, 7] = Nm[:, 7, 3 + i] = r1 * M[6, :, i]
-        Nm[:, 6, 6] = npx
-        Nm[:, 6, 7] = Nm[:, 7, 6] = M[9, :, 0]
-        Nm[:, 7, 7] = M[10, :, 0]
-        b = np.concatenate([r1[:, None] * M[7, :, :3], r1[:, None] * M[8, :, :3],
-                            M[11, :, :1], M[12, :, :1]], axis=1)   # (n_a, 8)
-        vv = np.einsum("np,np->n", res, res, dtype=np.float64)
-        if lines is not None:
-            # Pseudo-observation n·(uv + d_uv) = d, weight σ_grey² / σ_line².
-            w = (sigma_grey / sigma_line_px) ** 2
-            nrm = ln_n[a]
-            mis = ln_d[a] - np.einsum("ni,ni->n", nrm, uv[a])
-            vv += w * mis * mis
-            for i, pi in enumerate((0, 3)):
-                b[:, pi] += w * nrm[:, i] * mis
-                for j, pj in enumerate((0, 3)):
-                    Nm[:, pi, pj] += w * nrm[:, i] * nrm[:, j]
-        so = shift_only[a]
-        if np.any(so):
-            sub = Nm[so]
-            sub[:, aff_idx, :] = 0.0
-            sub[:, :, aff_idx] = 0.0
-            sub[:, aff_idx, aff_idx] = 1.0
-            Nm[so] = sub
-            bs = b[so]
-            bs[:, aff_idx] = 0.0
-            b[so] = bs
-        ok_solve = np.isfinite(Nm).all(axis=(1, 2)) & (np.abs(det) > 1e-3)
-        # Unit-diagonal scaling, then one solve for the update and two covariance columns.
-        dg = np.sqrt(np.maximum(np.einsum("nii->ni", Nm), 1e-30))
-        Ns = Nm / dg[:, :, None] / dg[:, None, :]
-        Ns[~ok_solve] = np.eye(8)
-        rhs = np.zeros((na, 8, 3))
-        rhs[:, :, 0] = b / dg
-        rhs[:, 0, 1] = 1.0
-        rhs[:, 3, 2] = 1.0
-        sol, pd = _cholesky_solve(Ns, rhs)
-        ok_solve &= pd
-        sol = sol / dg[:, :, None]
-        dp = sol[:, :, 0]
-        ok_solve &= np.isfinite(dp).all(axis=1)
-        dp[~ok_solve] = 0.0
-        uv[a, 0] += dp[:, 0]
-        uv[a, 1] += dp[:, 3]
-        A[a, 0, 0] += dp[:, 1]
-        A[a, 0, 1] += dp[:, 2]
-        A[a, 1, 0] += dp[:, 4]
-        A[a, 1, 1] += dp[:, 5]
-        offset[a] += dp[:, 6]
-        gain[a] += dp[:, 7]
-        iters[a] = it + 1
-        # Precision from this linearisation: σ0² = vᵀv / (n - u), Σ = σ0² N⁻¹.
-        dof = npx - (8 - 4 * so) + (lines is not None)
-        vtv = vv - np.einsum("ni,ni->n", dp, b)
-        s0 = np.sqrt(np.maximum(vtv, 0.0) / dof)
-        sigma0[a] = s0
-        Ninv_uv = sol[:, [0, 3], 1:] / dg[:, None, [0, 3]]
-        cov[a] = (s0 ** 2)[:, None, None] * Ninv_uv
+    todo = np.flatnonzero(status == Status.NOT_CONVERGED)
+    while todo.size:
+        # Search windows around the current positions: the patch footprint and 2 px of
+        # drift; patches that walk out of their window (within max_shift_px) get a new
+        # one in the next round.
+        reach = half * np.max(np.abs(A[todo]).sum(axis=2), axis=1) + 2.0
+        src = _Source(sstack, si[todo], uv[todo], reach, upsample)
+        f = src.f
+        bu[todo], bv[todo], lo[todo], hi[todo] = src.bu, src.bv, src.lo, src.hi
+        active = todo
+        rewindow = []
+        while active.size:
+            a = active
+            na = len(a)
+            Aa = A[a]
+            # Sampling positions in the source: one GEMM each for u and v.
+            Mu = np.stack([bu[a] + f * uv[a, 0], f * Aa[:, 0, 0], f * Aa[:, 0, 1]], axis=1)
+            Mv = np.stack([bv[a] + f * uv[a, 1], f * Aa[:, 1, 0], f * Aa[:, 1, 1]], axis=1)
+            pu = Mu.astype(np.float32) @ basis
+            pv = Mv.astype(np.float32) @ basis
+            S = _remap(src.up, pu, pv)
+            Ta, gxa, gya = T[a], gx[a], gy[a]
+            new = fresh[a]
+            if new.any():
+                # Radiometric start: match the mean and spread of the grey levels.
+                k = a[new]
+                sd_s = S[new].std(axis=1, dtype=np.float64)
+                g0 = np.where(sd_s > 1e-6, T[k].std(axis=1) / np.maximum(sd_s, 1e-6), 1.0)
+                gain[k] = g0
+                offset[k] = T[k].mean(axis=1) - g0 * S[new].mean(axis=1, dtype=np.float64)
+                fresh[k] = False
+            e = S * gain[a, None].astype(np.float32)
+            e += offset[a, None].astype(np.float32)
+            e -= Ta                                                 # e = r1 S + r0 - T
+            # cv2.remap samples at positions rounded to 1/32 px of the source: the mean
+            # rounding over the patch is a shift of the sampled patch, taken out of the
+            # update below (what varies from pixel to pixel acts as < 0.1 grey level noise).
+            ru = np.rint(pu * 32.0).mean(axis=1, dtype=np.float64)
+            rv = np.rint(pv * 32.0).mean(axis=1, dtype=np.float64)
+            shift_r = np.stack([Mu[:, 0] - ru / 32.0, Mv[:, 0] - rv / 32.0], axis=1) / f
+            # b = Jᵀe by moments: one GEMM (4 n_a, P) @ (P, 3).
+            Q = np.empty((4, na, npx), np.float32)
+            np.multiply(gxa, e, out=Q[0])
+            np.multiply(gya, e, out=Q[1])
+            Q[2] = e
+            np.multiply(Ta, e, out=Q[3])
+            M = (Q.reshape(4 * na, npx) @ basis.T).reshape(4, na, 3).astype(np.float64)
+            b = np.concatenate([M[0], M[1], M[2, :, :1], M[3, :, :1]], axis=1)   # (n_a, 8)
+            vv = np.einsum("np,np->n", e, e, dtype=np.float64)
+            Ninv_a = Ninv[a]
+            if lines is not None:
+                Ninv_a, jv, mis = _line_update(Ninv_a, Aa, ln_n[a], ln_d[a], uv[a], w_line)
+                b = b + (w_line * mis)[:, None] * jv
+                vv = vv + w_line * mis * mis
+            dq = np.einsum("nij,nj->ni", Ninv_a, b)
+            ok_step = np.isfinite(dq).all(axis=1)
+            dq[~ok_step] = 0.0
+            # Compose W <- W ∘ ΔW⁻¹ with ΔW(x) = Δt + (I + ΔA) x; radiometry likewise.
+            m00, m01, m10, m11 = 1 + dq[:, 1], dq[:, 2], dq[:, 4], 1 + dq[:, 5]
+            dd = m00 * m11 - m01 * m10
+            dd = np.where(np.abs(dd) > 1e-6, dd, 1.0)
+            Minv = np.stack([np.stack([m11, -m01], 1), np.stack([-m10, m00], 1)], 1)
+            An = Aa @ (Minv / dd[:, None, None])
+            step = np.einsum("nij,nj->ni", An, dq[:, [0, 3]]) + shift_r
+            uv[a] -= step
+            A[a] = An
+            den = 1.0 + dq[:, 7]
+            den = np.where(np.abs(den) > 1e-6, den, 1.0)
+            gain[a] /= den
+            offset[a] = (offset[a] - dq[:, 6]) / den
+            iters[a] += 1
+            it_left[a] -= 1
+            # Precision from this linearisation: σ0² = vᵀv / (n - u), Σ = σ0² N⁻¹.
+            dof = npx - 8 + (lines is not None)
+            vtv = vv - np.einsum("ni,ni->n", dq, b)
+            s0 = np.sqrt(np.maximum(vtv, 0.0) / dof)
+            sigma0[a] = s0
 
-        small = (np.abs(dp[:, 0]) < tol_px) & (np.abs(dp[:, 3]) < tol_px)
-        # Leave the shift-only phase once the shift settles to 0.2 px (or after 3 steps).
-        leave = so & ((np.abs(dp[:, 0]) < 0.2) & (np.abs(dp[:, 3]) < 0.2) | (it >= 2))
-        shift_only[a[leave]] = False
-        conv = small & ~so
-        drift = np.hypot(*(uv[a] - uv_s0[a]).T) > max_shift_px
-        sc = np.abs(det)
-        degen = ~ok_solve | (sc < 0.25) | (sc > 4.0) | (gain[a] < 0.1) | (gain[a] > 10.0)
-        st = np.full(na, Status.NOT_CONVERGED, dtype=np.int8)
-        st[conv] = Status.OK
-        st[drift] = Status.OUT_OF_SEARCH
-        st[degen] = Status.DEGENERATE
-        st[~inside] = Status.OUT_OF_IMAGE
-        status[a] = st
-        active = a[st == Status.NOT_CONVERGED]
+            conv = np.all(np.abs(step) < tol_px, axis=1)
+            drift = np.hypot(*(uv[a] - uv_s0[a]).T) > max_shift_px
+            cp = uv[a, None, :] + np.einsum("nij,kj->nki", An, corners)     # (n_a, 4, 2)
+            in_img = np.all((cp[..., 0] >= 1.0) & (cp[..., 1] >= 1.0)
+                            & (cp[..., 0] <= w_img - 2.0) & (cp[..., 1] <= h_img - 2.0), axis=1)
+            in_win = np.all((cp >= lo[a, None]) & (cp <= hi[a, None]), axis=(1, 2))
+            sc = np.abs(An[:, 0, 0] * An[:, 1, 1] - An[:, 0, 1] * An[:, 1, 0])
+            g = gain[a]
+            degen = ~ok_step | (sc < 0.25) | (sc > 4.0) | (g < 0.1) | (g > 10.0)
+            st = np.full(na, Status.NOT_CONVERGED, dtype=np.int8)
+            st[conv] = Status.OK
+            st[drift] = Status.OUT_OF_SEARCH
+            st[degen] = Status.DEGENERATE
+            st[~in_img] = Status.OUT_OF_IMAGE
+            status[a] = st
+            if conv.any():
+                # Report the radiometry as the symmetric fit T ≈ r1 S + r0 (spread
+                # ratio): the inverse compositional r1 regresses T on S, biased by noise.
+                k = a[conv]
+                sd_s = S[conv].std(axis=1, dtype=np.float64)
+                g1 = np.where(sd_s > 1e-6, T[k].std(axis=1, dtype=np.float64)
+                              / np.maximum(sd_s, 1e-6), gain[k])
+                offset[k] = T[k].mean(axis=1, dtype=np.float64) - g1 * S[conv].mean(
+                    axis=1, dtype=np.float64)
+                gain[k] = g1
+            going = st == Status.NOT_CONVERGED
+            out_win = going & ~in_win
+            rewindow.append(a[out_win & (it_left[a] > 0)])
+            active = a[going & in_win & (it_left[a] > 0)]
+        todo = np.concatenate(rewindow)
 
+    # Covariance of the matched point: Σ = σ0² N⁻¹ (shifts), mapped by the affine part.
+    done = np.flatnonzero(np.isfinite(sigma0))
+    Nd = Ninv[done]
+    if lines is not None and done.size:
+        Nd = _line_update(Nd, A[done], ln_n[done], ln_d[done], uv[done], w_line)[0]
+    ct = Nd[:, [0, 3]][:, :, [0, 3]]
+    Ad = A[done]
+    cov[done] = (sigma0[done] ** 2)[:, None, None] * (Ad @ ct @ Ad.transpose(0, 2, 1))
     sig = np.sqrt(np.abs(np.diagonal(cov, axis1=1, axis2=2)))
     big = (status == Status.OK) & ~(np.all(sig <= max_sigma_px, axis=1))
     status[big] = Status.LARGE_SIGMA
     return LSMResult(uv=uv, affine=A, gain=gain, offset=offset, sigma0=sigma0, cov_uv=cov,
                      iterations=iters, status=status, texture=texture)
-
-
 # -- geometric constraint -------------------------------------------------------------
 
 def epipolar_lines(cam_template: Camera, cam_search: Camera, uv_template: np.ndarray,

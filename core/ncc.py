@@ -16,7 +16,7 @@ from enum import IntEnum
 import numpy as np
 from scipy.signal import fftconvolve
 
-from .lsm import ImageStack, _grid
+from .lsm import ImageStack
 
 
 class NCCStatus(IntEnum):
@@ -107,13 +107,13 @@ def search(template_images, search_images, uv_template, uv_predicted, *, half: i
     if use.size == 0:
         return NCCResult(out_uv, score, status)
 
-    xt, yt = _grid(half)
-    xs, ys = _grid(half + radius)
-    # Integer positions: bilinear sampling is exact.
-    T = tstack.sample(ti[use, None, None], ct[use, 0, None, None] + xt,
-                      ct[use, 1, None, None] + yt, 1)[0].astype(np.float64)
-    S = sstack.sample(si[use, None, None], cs[use, 0, None, None] + xs,
-                      cs[use, 1, None, None] + ys, 1)[0].astype(np.float64)
+    # Integer positions, inside the images (checked above): plain windows.
+    ct_i = ct[use].astype(np.int64)
+    cs_i = cs[use].astype(np.int64)
+    T = tstack.windows(ti[use], ct_i[:, 0] - half, ct_i[:, 1] - half,
+                       2 * half + 1).astype(np.float64)
+    S = sstack.windows(si[use], cs_i[:, 0] - half - radius, cs_i[:, 1] - half - radius,
+                       2 * (half + radius) + 1).astype(np.float64)
     k = 2 * half + 1
     npx = k * k
     T0 = T - T.mean(axis=(1, 2), keepdims=True)

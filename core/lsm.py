@@ -459,14 +459,16 @@ _MOM = np.array([[0, 1, 2], [1, 3, 4], [2, 4, 5]])
 
 
 def _normal_matrix(T: np.ndarray, gx: np.ndarray, gy: np.ndarray, xs: np.ndarray,
-                   ys: np.ndarray) -> np.ndarray:
-    """``N = JᵀJ`` (n, 8, 8) of the design ``J = [gx·(1, x, y), gy·(1, x, y), 1, T]``.
+                   ys: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """``N = JᵀWJ`` (n, 8, 8) of the design ``J = [gx·(1, x, y), gy·(1, x, y), 1, T]``.
 
     Built from weighted moments with one GEMM: T, gx, gy (n, P) float32; xs, ys (P,)
-    the template pixel offsets.  Parameter order: a0, a1, a2, b0, b1, b2, r0, r1.
+    the template pixel offsets; w (P,) the pixel weights.  Parameter order: a0, a1,
+    a2, b0, b1, b2, r0, r1.
     """
     n, npx = T.shape
     basis = np.stack([np.ones_like(xs), xs, ys, xs * xs, xs * ys, ys * ys], axis=1)  # (P, 6)
+    basis = (basis * w[:, None]).astype(np.float32)
     Q = np.empty((9, n, npx), np.float32)
     np.multiply(gx, gx, out=Q[0])
     np.multiply(gx, gy, out=Q[1])
@@ -489,7 +491,7 @@ def _normal_matrix(T: np.ndarray, gx: np.ndarray, gy: np.ndarray, xs: np.ndarray
         N[:, 3 + i, 6] = N[:, 6, 3 + i] = M[4, :, i]
         N[:, i, 7] = N[:, 7, i] = M[5, :, i]
         N[:, 3 + i, 7] = N[:, 7, 3 + i] = M[6, :, i]
-    N[:, 6, 6] = npx
+    N[:, 6, 6] = float(np.sum(w))
     N[:, 6, 7] = N[:, 7, 6] = M[7, :, 0]
     N[:, 7, 7] = M[8, :, 0]
     return N
@@ -499,7 +501,8 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
           affine=None, template_index=None, search_index=None, upsample: bool = True,
           tol_px: float = 0.01, max_iter: int = 20, max_shift_px: float = 4.0,
           max_sigma_px: float = 0.2, min_texture: float = 3.0, lines=None,
-          sigma_line_px: float = 0.05, sigma_grey: float = 2.0) -> LSMResult:
+          sigma_line_px: float = 0.05, sigma_grey: float = 2.0,
+          weight_sigma: float | None = None) -> LSMResult:
     """Least squares matching of N template patches into search images.
 
     Parameters
@@ -531,6 +534,12 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
         Geometric constraint ``normal · uv = d`` (unit normals) with σ ``sigma_line_px``.
     sigma_grey : float
         A-priori σ of a grey level, weighting the line constraint against the patch.
+    weight_sigma : float, optional
+        Weight the template pixels by a Gaussian of this σ (pixels) around the centre:
+        on curved surfaces the affine model holds over a smaller area, and a smaller
+        effective patch biases the match less, while the whole patch still helps
+        convergence.  The covariance is then the sandwich ``N⁻¹ (JᵀW²J) N⁻¹ σ²`` with
+        ``σ² = vᵀWv / (tr W - tr(N⁻¹ JᵀW²J))``.  Default: uniform weights (Gruen).
 
     Returns
     -------
@@ -578,14 +587,33 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
     xs = xg.ravel().astype(np.float32)
     ys = yg.ravel().astype(np.float32)
     basis = np.stack([np.ones_like(xs), xs, ys])                # (3, P)
-    N = _normal_matrix(T, gx, gy, xs, ys)
-    # Texture: smaller eigenvalue of the structure tensor (mean of ∇T ∇Tᵀ).
-    sxx, syy, sxy = N[:, 0, 0] / npx, N[:, 3, 3] / npx, N[:, 0, 3] / npx
+    if weight_sigma is None:
+        wpx = np.ones(npx, np.float32)
+    else:
+        wpx = np.exp(-(xs * xs + ys * ys) / (2.0 * weight_sigma ** 2)).astype(np.float32)
+    basis_w = basis * wpx
+    N = _normal_matrix(T, gx, gy, xs, ys, wpx)
+    N2 = N if weight_sigma is None else _normal_matrix(T, gx, gy, xs, ys, wpx * wpx)
+    sw = float(wpx.sum())
+    # Texture: smaller eigenvalue of the (weighted) structure tensor, mean of ∇T ∇Tᵀ.
+    sxx, syy, sxy = N[:, 0, 0] / sw, N[:, 3, 3] / sw, N[:, 0, 3] / sw
     lam_min = 0.5 * (sxx + syy) - np.sqrt(0.25 * (sxx - syy) ** 2 + sxy ** 2)
     texture = np.sqrt(np.maximum(lam_min, 0.0))
     status[finite & t_in & (texture < min_texture)] = Status.WEAK_TEXTURE
     N[status != Status.NOT_CONVERGED] = np.eye(8)
     Ninv, pd = _spd_inverse(N)
+    # Shifts and radiometry only (the first iterations, until the shift settles to
+    # 0.5 px, at most 3): the affine part of a far-off start would diverge.
+    sub = [0, 3, 6, 7]
+    Ninv_s = np.zeros_like(Ninv)
+    Ninv_s[:, np.ix_(sub, sub)[0], np.ix_(sub, sub)[1]] = _spd_inverse(N[:, sub][:, :, sub])[0]
+    shift_only = np.ones(n, bool)
+    # Redundancy: tr W - tr(N⁻¹ JᵀW²J) (= n - u for uniform weights).
+    if weight_sigma is None:
+        dof = np.full(n, npx - 8.0)
+    else:
+        dof = float(np.sum(wpx)) - np.einsum("nij,nji->n", Ninv, N2)
+    dof = dof + (lines is not None)
     status[(status == Status.NOT_CONVERGED) & ~pd] = Status.DEGENERATE
 
     if lines is not None:
@@ -642,15 +670,17 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
             rv = np.rint(pv * 32.0).mean(axis=1, dtype=np.float64)
             shift_r = np.stack([Mu[:, 0] - ru / 32.0, Mv[:, 0] - rv / 32.0], axis=1) / f
             # b = Jᵀe by moments: one GEMM (4 n_a, P) @ (P, 3).
-            Q = np.empty((4, na, npx), np.float32)
+            Q = np.empty((5, na, npx), np.float32)
             np.multiply(gxa, e, out=Q[0])
             np.multiply(gya, e, out=Q[1])
             Q[2] = e
             np.multiply(Ta, e, out=Q[3])
-            M = (Q.reshape(4 * na, npx) @ basis.T).reshape(4, na, 3).astype(np.float64)
+            np.multiply(e, e, out=Q[4])
+            M = (Q.reshape(5 * na, npx) @ basis_w.T).reshape(5, na, 3).astype(np.float64)
             b = np.concatenate([M[0], M[1], M[2, :, :1], M[3, :, :1]], axis=1)   # (n_a, 8)
-            vv = np.einsum("np,np->n", e, e, dtype=np.float64)
-            Ninv_a = Ninv[a]
+            vv = M[4, :, 0]                                         # vᵀWv
+            so = shift_only[a]
+            Ninv_a = np.where(so[:, None, None], Ninv_s[a], Ninv[a])
             if lines is not None:
                 Ninv_a, jv, mis = _line_update(Ninv_a, Aa, ln_n[a], ln_d[a], uv[a], w_line)
                 b = b + (w_line * mis)[:, None] * jv
@@ -674,12 +704,12 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
             iters[a] += 1
             it_left[a] -= 1
             # Precision from this linearisation: σ0² = vᵀv / (n - u), Σ = σ0² N⁻¹.
-            dof = npx - 8 + (lines is not None)
             vtv = vv - np.einsum("ni,ni->n", dq, b)
-            s0 = np.sqrt(np.maximum(vtv, 0.0) / dof)
+            s0 = np.sqrt(np.maximum(vtv, 0.0) / dof[a])
             sigma0[a] = s0
 
-            conv = np.all(np.abs(step) < tol_px, axis=1)
+            conv = np.all(np.abs(step) < tol_px, axis=1) & ~so
+            shift_only[a[so & (np.all(np.abs(step) < 0.5, axis=1) | (iters[a] >= 3))]] = False
             drift = np.hypot(*(uv[a] - uv_s0[a]).T) > max_shift_px
             cp = uv[a, None, :] + np.einsum("nij,kj->nki", An, corners)     # (n_a, 4, 2)
             in_img = np.all((cp[..., 0] >= 1.0) & (cp[..., 1] >= 1.0)
@@ -714,7 +744,12 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
     done = np.flatnonzero(np.isfinite(sigma0))
     Nd = Ninv[done]
     if lines is not None and done.size:
-        Nd = _line_update(Nd, A[done], ln_n[done], ln_d[done], uv[done], w_line)[0]
+        Nd, jv, _ = _line_update(Nd, A[done], ln_n[done], ln_d[done], uv[done], w_line)
+    if weight_sigma is not None and done.size:
+        M2 = N2[done]
+        if lines is not None:
+            M2 = M2 + w_line * jv[:, :, None] * jv[:, None, :]
+        Nd = Nd @ M2 @ Nd
     ct = Nd[:, [0, 3]][:, :, [0, 3]]
     Ad = A[done]
     cov[done] = (sigma0[done] ** 2)[:, None, None] * (Ad @ ct @ Ad.transpose(0, 2, 1))

@@ -23,6 +23,11 @@ from .intersect import triangulate
 from .lsm import ImageStack, match
 from .ncc import search
 
+#: Default Gaussian weighting σ of the LSM patches, pixels (measured on the sample scene).
+WEIGHT_SIGMA = 4.0
+#: Narrower weighting σ of the final re-match (:func:`refine`), pixels.
+REFINE_SIGMA = 1.5
+
 #: Default seed joints, in order of preference (on the torso and thighs: large, textured).
 SEED_JOINTS = ("pelvis", "neck", "l_hip", "r_hip", "l_shoulder", "r_shoulder", "l_knee",
                "r_knee")
@@ -81,7 +86,7 @@ def seeds_from_clicks(clicks: dict, cameras: list[str], max_seeds: int = 5) -> n
 
 def _match_views(stack: ImageStack, cams: list[Camera], ref: int, uv_ref: np.ndarray,
                  uv_pred: np.ndarray, aff_pred: np.ndarray, *, half: int, ncc_radius: int,
-                 max_rms_px: float, sigma_px: float):
+                 max_rms_px: float, sigma_px: float, weight_sigma: float | None = None):
     """Match reference points into all other cameras; returns uv, affine, sigma, xyz, ok."""
     n, c = uv_pred.shape[:2]
     others = [j for j in range(c) if j != ref]
@@ -100,7 +105,7 @@ def _match_views(stack: ImageStack, cams: list[Camera], ref: int, uv_ref: np.nda
         start = np.where(nc.ok[:, None], nc.uv, pred)
     r = match(stack, stack, tmpl, start, half=half, affine=aff_pred[:, others].reshape(-1, 2, 2),
               template_index=np.full(len(tmpl), ref), search_index=sidx,
-              max_shift_px=max(3.0, ncc_radius + 1.0))
+              max_shift_px=max(3.0, ncc_radius + 1.0), weight_sigma=weight_sigma)
     ok = r.ok.reshape(n, len(others))
     uv[:, others] = np.where(ok[..., None], r.uv.reshape(n, len(others), 2), np.nan)
     aff[:, others] = r.affine.reshape(n, len(others), 2, 2)
@@ -113,7 +118,9 @@ def _match_views(stack: ImageStack, cams: list[Camera], ref: int, uv_ref: np.nda
 def measure_surface(images, cameras: list[Camera], seeds_uv: np.ndarray, *, ref: int | None = None,
                     step: int = 2, half: int = 6, max_rms_px: float = 1.0,
                     max_jump_m: float = 0.03, max_points: int = 50000, progress=None,
-                    occupied_uv: np.ndarray | None = None) -> Surface:
+                    occupied_uv: np.ndarray | None = None,
+                    weight_sigma: float | None = WEIGHT_SIGMA,
+                    refine_sigma: float | None = REFINE_SIGMA) -> Surface:
     """Grow a dense point cloud over the textured surface seen by all cameras.
 
     Parameters
@@ -132,6 +139,13 @@ def measure_surface(images, cameras: list[Camera], seeds_uv: np.ndarray, *, ref:
         Largest reprojection RMS of an accepted point, pixels.
     max_jump_m : float
         Largest 3-D distance between a new point and the neighbour it grew from, metres.
+    weight_sigma : float or None
+        Gaussian weighting of the LSM patches, pixels (see :func:`core.lsm.match`):
+        on a body seen from metres away a 13 × 13 patch spans ~8 cm of curved skin,
+        and the affine model over all of it biases the match (the measured point
+        lies behind the convex surface).
+    refine_sigma : float or None
+        After growing, re-match all points with this narrower weighting (:func:`refine`).
     occupied_uv : ndarray, shape (K, 2), optional
         Reference-image points already measured (e.g. live tracks): their grid cells are
         not grown again, but growth passes through them.
@@ -167,7 +181,7 @@ def measure_surface(images, cameras: list[Camera], seeds_uv: np.ndarray, *, ref:
     aff0 = np.tile(np.eye(2), (len(g), c, 1, 1))
     uv, aff, sig, inter, good = _match_views(stack, cameras, ref, uv_ref, pred, aff0, half=half,
                                              ncc_radius=12, max_rms_px=max_rms_px,
-                                             sigma_px=0.05)
+                                             sigma_px=0.05, weight_sigma=weight_sigma)
     inb = (g[:, 0] >= 0) & (g[:, 0] < gw) & (g[:, 1] >= 0) & (g[:, 1] < gh)
     good &= inb
     visited[g[inb, 1], g[inb, 0]] = True
@@ -201,7 +215,8 @@ def measure_surface(images, cameras: list[Camera], seeds_uv: np.ndarray, *, ref:
         pu = np.where(have[..., None], pu, uv_ref[:, None])
         uv, aff, sig, inter, good = _match_views(stack, cameras, ref, uv_ref, pu, faff[parent],
                                                  half=half, ncc_radius=0,
-                                                 max_rms_px=max_rms_px, sigma_px=0.05)
+                                                 max_rms_px=max_rms_px, sigma_px=0.05,
+                                                 weight_sigma=weight_sigma)
         jump = np.linalg.norm(inter.xyz - fxyz[parent], axis=1)
         good &= jump < max_jump_m
         for k, v in (("g", cand), ("uv", uv), ("aff", aff), ("sig", sig), ("xyz", inter.xyz),
@@ -216,5 +231,42 @@ def measure_surface(images, cameras: list[Camera], seeds_uv: np.ndarray, *, ref:
                             f"surface: wave {wave}, {total} points")
     cat = {k: np.concatenate(v) for k, v in acc.items()}
     k = cat["keep"]
-    return Surface(xyz=cat["xyz"][k], cov=cat["cov"][k], uv=cat["uv"][k], affine=cat["aff"][k],
+    surf = Surface(xyz=cat["xyz"][k], cov=cat["cov"][k], uv=cat["uv"][k], affine=cat["aff"][k],
                    sigma_uv=cat["sig"][k], rms=cat["rms"][k], ref=ref)
+    if refine_sigma is not None and len(surf):
+        surf = refine(stack, cameras, surf, half=half, weight_sigma=refine_sigma,
+                      max_rms_px=max_rms_px)
+    return surf
+
+
+def refine(images, cameras: list[Camera], surf: Surface, *, half: int = 6,
+           weight_sigma: float = REFINE_SIGMA, max_rms_px: float = 1.0) -> Surface:
+    """Re-match every point of a surface with narrower patch weights, then re-intersect.
+
+    Growing needs the robustness of wide patches; the final coordinates are less biased
+    by surface curvature with a narrow Gaussian weighting (``weight_sigma`` px).  One
+    batched LSM call from the reference camera into all others, started at the grown
+    matches and their affine parts; where the refinement fails, the grown match is
+    kept.  Points whose re-intersection reprojects badly keep their grown result.
+    """
+    stack = ImageStack(images)
+    n, c = surf.uv.shape[:2]
+    ref = surf.ref
+    pi, ci = np.nonzero(np.isfinite(surf.uv[..., 0]) & (np.arange(c) != ref)[None])
+    r = match(stack, stack, surf.uv[pi, ref], surf.uv[pi, ci], half=half,
+              affine=surf.affine[pi, ci], template_index=np.full(len(pi), ref),
+              search_index=ci, max_shift_px=1.0, weight_sigma=weight_sigma)
+    uv = surf.uv.copy()
+    uv[pi[r.ok], ci[r.ok]] = r.uv[r.ok]
+    aff = surf.affine.copy()
+    aff[pi[r.ok], ci[r.ok]] = r.affine[r.ok]
+    sig = surf.sigma_uv.copy()
+    sig[pi[r.ok], ci[r.ok]] = r.sigma_uv[r.ok].max(axis=1)
+    inter = triangulate(cameras, uv, sigma_px=0.05)
+    good = inter.ok & (inter.rms < max_rms_px)
+    g3 = good[:, None, None]
+    return Surface(xyz=np.where(good[:, None], inter.xyz, surf.xyz),
+                   cov=np.where(g3, inter.cov, surf.cov), uv=np.where(g3, uv, surf.uv),
+                   affine=np.where(good[:, None, None, None], aff, surf.affine),
+                   sigma_uv=np.where(good[:, None], sig, surf.sigma_uv),
+                   rms=np.where(good, inter.rms, surf.rms), ref=ref)

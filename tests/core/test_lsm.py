@@ -174,3 +174,16 @@ def test_mismatched_inputs_raise():
     with pytest.raises(ValueError, match="outside the image stacks"):
         match(P.template, P.search, np.zeros((2, 2)), np.zeros((2, 2)),
               search_index=[0, 5])
+
+
+def test_gaussian_weighting_keeps_predicted_sigma_consistent():
+    P = make_pairs(400, seed=14, max_shift=1.0, noise=2.0, scale=(0.95, 1.05), shear=0.05)
+    r = _match(P, weight_sigma=2.5)
+    u = _match(P)
+    assert r.ok.mean() > 0.98
+    err = (r.uv - P.uv_true)[r.ok]
+    rms = np.sqrt(np.mean(err ** 2))
+    assert 0.8 < rms / np.sqrt(np.mean(r.sigma_uv[r.ok] ** 2)) < 1.25
+    # Fewer effective pixels: larger predicted and real errors than the uniform patch.
+    assert np.median(r.sigma_uv) > 1.1 * np.median(u.sigma_uv)
+    assert abs(np.median(r.sigma0) - np.median(u.sigma0)) < 0.3

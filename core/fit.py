@@ -33,15 +33,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .attractor import attractor, gather, member_table
 from .ekf import EKF
 from .errors import InputError
 from .fit_init import Initialisation
-from .fitting import FitSettings, Observations, fit, part_members
-from .metaballs import THRESHOLD, Metaballs, world_frames
-from .metaballs import field as mb_field
+from .fitting import FitSettings, Observations, fit
+from .metaballs import Metaballs, world_frames
 from .progress import Progress
 from .segment import carry_labels, no_labels, segment_points
-from .skeleton import Skeleton, forward
+from .skeleton import Skeleton, forward, stiff_sigma
 from .state import FitState, Quality
 
 
@@ -103,21 +103,20 @@ class SequenceResult:
     seconds: float
 
 
-def _field_sigma(sigma_m: np.ndarray) -> float:
-    """A-priori σ of the field residual from point σ in metres (|∇F| ≈ 12 /m at the
-    surface of a limb-sized metaball)."""
-    return float(max(12.0 * np.median(sigma_m) if len(sigma_m) else 0.02, 0.005))
+def _point_sigma(sigma_m: np.ndarray, model_m: float) -> np.ndarray:
+    """A-priori σ (N,) of a point's distance to the model surface: the point's own σ and
+    the metaball model's misfit to a real body, added in quadrature (metres)."""
+    return np.sqrt(np.asarray(sigma_m, float) ** 2 + model_m**2)
 
 
 def surface_residuals(skel: Skeleton, balls: Metaballs, theta, root, s, radii,
                       xyz: np.ndarray, part: np.ndarray, members: str = "part") -> np.ndarray:
-    """First-order distance (N,) metres of each point to its part's surface
-    (membership as in :func:`core.fitting.part_members`)."""
+    """Signed distance (N,) metres of each point to its part's surface (positive inside;
+    membership as in :func:`core.attractor.member_table`)."""
     pose = forward(skel, np.asarray(theta)[None], np.asarray(root)[None], s)
     Rw, cw = world_frames(skel, pose, balls, s)
-    member = part_members(skel, balls, part, members)
-    F, g, _, _ = mb_field(xyz, Rw[0], cw[0], radii, member)
-    return (F - THRESHOLD) / np.maximum(np.linalg.norm(g, axis=-1), 1e-9)
+    idx, ok = gather(*member_table(skel, balls, members), part)
+    return attractor(xyz, idx, ok, Rw[0], cw[0], radii).dist
 
 
 class _Predictor:
@@ -158,9 +157,10 @@ class _Predictor:
             self.hist.append(h[-1] + (self.cfg.damping * (h[-1] - h[-2]) if len(h) > 1 else 0))
 
 
-def _observations(pts: FramePoints, part: np.ndarray, q_pred, sig_pred, n, joints=None):
+def _observations(pts: FramePoints, part: np.ndarray, q_pred, sig_pred, n, joints=None,
+                  model_m: float = 0.004):
     use = part >= 0
-    o = Observations(xyz=pts.xyz[use], part=part[use], sigma_field=_field_sigma(pts.sigma[use]),
+    o = Observations(xyz=pts.xyz[use], part=part[use], sigma=_point_sigma(pts.sigma[use], model_m),
                      theta_pred=None if q_pred is None else q_pred[:n],
                      sigma_pred=sig_pred)
     if joints is not None:
@@ -206,6 +206,7 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
     click_obs = (np.array([skel.joint_index(j) for j in ci.names]), ci.xyz, 0.01)
     pose_cfg = FitSettings(**{**cfg.fit.__dict__, "max_nfev": cfg.max_nfev})
     labels = no_labels()
+    stiff = stiff_sigma(skel)
 
     def one_frame(f, q_pred, sig_pred, joints=None):
         """Pose-only fit of frame f from the prediction; returns (q, σ, ok, info)."""
@@ -224,7 +225,7 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
                                          cfg.segment_max_dist)
                 if (part >= 0).sum() < cfg.min_points:
                     break
-            o = _observations(pts, part, q_pred, sig_pred, n, joints)
+            o = _observations(pts, part, q_pred, np.minimum(sig_pred, stiff), n, joints)
             r = fit(skel, balls, o, th, rt, s, radii, solve="pose", settings=pose_cfg)
             th, rt = r.theta, r.root_xyz
         return np.concatenate([th, rt]), r, True, part

@@ -32,8 +32,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .metaballs import THRESHOLD, Metaballs, pose_jacobian, radius_jacobian, world_frames
-from .metaballs import field as mb_field
+from .attractor import LN_T, attractor, attractor_jacobians, gather, member_table, scatter
+from .metaballs import Metaballs, world_frames
 from .skeleton import Skeleton, forward, joint_jacobians, limit_residuals
 
 
@@ -45,7 +45,8 @@ class Observations:
     ----------
     xyz : (N, 3) attractor points, world metres
     part : (N,) int — body part (bone index) of each point
-    sigma_field : a-priori σ of an attractor residual (field units)
+    sigma : a-priori σ of an attractor point's distance to the surface, metres
+      (scalar or (N,)); include the model's own misfit
     joint_idx : (K,) int — observed joints (index into ``skeleton.joint_names``)
     joint_xyz : (K, 3) metres
     sigma_joint : σ of a joint observation, metres
@@ -54,7 +55,7 @@ class Observations:
 
     xyz: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     part: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
-    sigma_field: float = 0.02
+    sigma: float | np.ndarray = 0.004
     joint_idx: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
     joint_xyz: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     sigma_joint: float = 0.01
@@ -86,16 +87,19 @@ class FitSettings:
 
     sigma_limits: float = 0.05
     sigma_radius: float = 0.05
-    robust_scale: float = 3.0  # soft-L1 knee, in σ units of the attractor residual
+    robust_scale: float = 3.0  # Huber knee, in σ units of the attractor residual
     rounds: int = 3
     polish: bool = True
     max_nfev: int = 100
-    tol: float = 1e-12
+    tol: float = 1e-6  # relative cost decrease at which a Gauss-Newton step stops
     use_limits: bool = True
     shape_prior: bool = True
     free_centers: bool = False
     sigma_center: float = 0.03
     members: str = "part"  # field of a point: "part", "neighbours" or "body" (all)
+    irls_rounds: int = 3  # re-weighting rounds (distance scale and Huber weights)
+    irls_tol: float = 1e-7  # stop re-weighting when no unknown moved more than this
+    g_min: float = 2.0  # floor of |∇ ln F| (1/m) in the distance of deep points
 
 
 def part_members(skel: Skeleton, balls: Metaballs, part: np.ndarray,
@@ -131,51 +135,88 @@ class _Problem:
         self.anc = skel.ancestors()
         self.radii0 = radii0
         self.centers0 = centers0
-        self.members = [part_members(skel, balls, o.part, settings.members) for o in obs]
+        table, valid = member_table(skel, balls, settings.members)
+        self.gathers = []
+        for o in obs:
+            idx, ok = gather(table, valid, o.part)
+            use = ok.any(axis=1)
+            sig = np.broadcast_to(np.asarray(o.sigma, float), (len(o.xyz),))[use]
+            self.gathers.append((np.asarray(o.xyz, float).reshape(-1, 3)[use], idx[use],
+                                 ok[use], sig))
+        self.frozen: list | None = None
 
-    def blocks(self, theta, root, s, radii, centers):
-        """Residual r (m,) and Jacobian blocks per unknown group for every frame:
-        ``(kind, r, J_theta, J_root, J_s, J_radii, J_centers)``."""
-        skel, cfg = self.skel, self.cfg
+    def freeze(self, theta, root, s, radii, centers) -> None:
+        """Fix the point weights (1/(σ |∇L|) times the Huber weight) at this state, so
+        that the Jacobian within one Gauss–Newton solve is exact (IRLS)."""
+        self.frozen = None
+        out = []
+        for f in range(len(self.obs)):
+            x, _, _, sig = self.gathers[f]
+            if not len(x):
+                out.append(np.zeros(0))
+                continue
+            att = self.attractors(f, theta, root, s, radii, centers)[2]
+            w = att.inv_g / sig
+            if self.cfg.robust_scale:
+                w = w * _huber_weights((att.L - LN_T) * w, self.cfg.robust_scale)
+            out.append(w)
+        self.frozen = out
+
+    def attractors(self, f, theta, root, s, radii, centers):
+        """Pose of frame f, its metaballs and the attractor terms of its points."""
         b0 = self.balls
         balls = Metaballs(b0.bone, centers, b0.group, b0.rot, radii)
-        scale = np.where(b0.group >= 0, np.asarray(s, float)[np.maximum(b0.group, 0)], 1.0)
+        pose = forward(self.skel, theta[f][None], root[f][None], s)
+        Rw, cw = world_frames(self.skel, pose, balls, s)
+        x, idx, ok, _ = self.gathers[f]
+        att = attractor(x, idx, ok, Rw[0], cw[0], radii, self.cfg.g_min)
+        return pose, balls, att
+
+    def blocks(self, theta, root, s, radii, centers, shape: bool = True):
+        """Residual r (m,) and Jacobian blocks per unknown group for every frame:
+        ``(kind, r, J_theta, J_root, J_s, J_radii, J_centers)`` (the last two None
+        when not ``shape``)."""
+        skel, cfg = self.skel, self.cfg
+        M3 = radii.size
         rows = []
+
+        def zeros(k):
+            return (np.zeros((k, skel.n_dof)), np.zeros((k, 3)), np.zeros((k, skel.n_groups)),
+                    np.zeros((k, M3)) if shape else None, np.zeros((k, M3)) if shape else None)
+
         for f, o in enumerate(self.obs):
-            pose = forward(skel, theta[f][None], root[f][None], s)
-            Rw, cw = world_frames(skel, pose, balls, s)
             parts = []
-            if len(o.xyz):
-                F, _, fm, y = mb_field(o.xyz, Rw[0], cw[0], radii, self.members[f])
-                Jt, Jr, Js = pose_jacobian(skel, pose, balls, s, o.xyz, fm, y, radii,
-                                           anc=self.anc)
-                Jrad = radius_jacobian(fm, y, radii).reshape(len(o.xyz), -1)
-                q = y / radii[None] ** 2
-                Jc = 4.0 * (fm * scale[None])[..., None] * np.einsum("mij,nmj->nmi", b0.rot, q)
-                w = 1.0 / o.sigma_field
-                parts.append(("point", (F - THRESHOLD) * w, Jt * w, Jr * w, Js * w, Jrad * w,
-                              Jc.reshape(len(o.xyz), -1) * w))
+            x, idx, ok, sig = self.gathers[f]
+            if len(x):
+                pose, balls, att = self.attractors(f, theta, root, s, radii, centers)
+                jac = attractor_jacobians(skel, pose, balls, s, x, idx, att, radii, self.anc,
+                                          shape=shape)
+                w = att.inv_g / sig if self.frozen is None else self.frozen[f]
+                Jr_ = [jac[0] * w[:, None], jac[1] * w[:, None], jac[2] * w[:, None]]
+                if shape:
+                    M = len(radii)
+                    Jr_.append(scatter(jac[3], idx, ok, M) * w[:, None])
+                    Jr_.append(scatter(jac[4], idx, ok, M) * w[:, None])
+                else:
+                    Jr_ += [None, None]
+                parts.append(("point", (att.L - LN_T) * w, *Jr_))
             if len(o.joint_idx):
-                x, Jt, Js = joint_jacobians(skel, theta[f][None], root[f][None], s)
+                xj, Jt, Js = joint_jacobians(skel, theta[f][None], root[f][None], s)
                 w = 1.0 / o.sigma_joint
                 k = len(o.joint_idx)
-                parts.append(("joint", ((x[0, o.joint_idx] - o.joint_xyz) * w).ravel(),
+                z = zeros(3 * k)
+                parts.append(("joint", ((xj[0, o.joint_idx] - o.joint_xyz) * w).ravel(),
                               Jt[0, o.joint_idx].reshape(3 * k, -1) * w,
                               np.tile(np.eye(3), (k, 1)) * w,
-                              Js[0, o.joint_idx].reshape(3 * k, -1) * w,
-                              np.zeros((3 * k, radii.size)), np.zeros((3 * k, radii.size))))
+                              Js[0, o.joint_idx].reshape(3 * k, -1) * w, z[3], z[4]))
             if o.theta_pred is not None:
                 w = 1.0 / np.broadcast_to(np.asarray(o.sigma_pred, float), (skel.n_dof,))
-                parts.append(("prior", (theta[f] - o.theta_pred) * w, np.diag(w),
-                              np.zeros((skel.n_dof, 3)), np.zeros((skel.n_dof, skel.n_groups)),
-                              np.zeros((skel.n_dof, radii.size)),
-                              np.zeros((skel.n_dof, radii.size))))
+                z = zeros(skel.n_dof)
+                parts.append(("prior", (theta[f] - o.theta_pred) * w, np.diag(w), *z[1:]))
             if cfg.use_limits:
                 r, d = limit_residuals(skel, theta[f][None], cfg.sigma_limits)
-                parts.append(("limit", r[0], np.diag(d[0]), np.zeros((skel.n_dof, 3)),
-                              np.zeros((skel.n_dof, skel.n_groups)),
-                              np.zeros((skel.n_dof, radii.size)),
-                              np.zeros((skel.n_dof, radii.size))))
+                z = zeros(skel.n_dof)
+                parts.append(("limit", r[0], np.diag(d[0]), *z[1:]))
             rows.append(parts)
         return rows
 
@@ -221,10 +262,10 @@ def _solve(prob: _Problem, theta, root, s, radii, centers, free: str, max_nfev: 
         if key in cache:
             return cache[key]
         th, rt, ss, rd, ce = unpack(x)
-        rows = prob.blocks(th, rt, ss, rd, ce)
+        rows = prob.blocks(th, rt, ss, rd, ce, shape=shape_free)
         res, jac = [], []
         for f, parts in enumerate(rows):
-            for kind, r, Jt, Jr, Js, Jrad, Jc in parts:
+            for _kind, r, Jt, Jr, Js, Jrad, Jc in parts:
                 J = np.zeros((len(r), len(x)))
                 if pose_free:
                     J[:, f * n:(f + 1) * n] = Jt
@@ -235,9 +276,6 @@ def _solve(prob: _Problem, theta, root, s, radii, centers, free: str, max_nfev: 
                     J[:, i + G:i + G + M3] = Jrad
                     if C3:
                         J[:, i + G + M3:] = Jc
-                if kind == "point" and cfg.robust_scale:
-                    wgt = _huber_weights(r, cfg.robust_scale)
-                    r, J = r * wgt, J * wgt[:, None]
                 res.append(r)
                 jac.append(J)
         if shape_free and cfg.shape_prior:
@@ -262,8 +300,19 @@ def _solve(prob: _Problem, theta, root, s, radii, centers, free: str, max_nfev: 
     if shape_free:
         lo[m_pose:m_pose + G] = 0.2
         lo[m_pose + G:m_pose + G + M3] = 1e-3
-    x0 = np.maximum(x0, lo)
-    sol = _levenberg_marquardt(system, x0, lo, max_nfev, cfg.tol)
+    x = np.maximum(x0, lo)
+    nfev = 0
+    for _ in range(max(cfg.irls_rounds, 1)):  # weights frozen per round (IRLS)
+        prob.freeze(*unpack(x))
+        cache.clear()
+        sol = _levenberg_marquardt(system, x, lo, max_nfev, cfg.tol)
+        nfev += sol.nfev
+        moved = float(np.abs(sol.x - x).max(initial=0.0))
+        x = sol.x
+        if moved < cfg.irls_tol:
+            break
+    prob.frozen = None
+    sol.nfev = nfev
     th, rt, ss, rd, ce = unpack(sol.x)
     return th, rt, ss, rd, ce, sol
 
@@ -316,21 +365,13 @@ def _report(prob: _Problem, theta, root, s, radii, centers, sol) -> list[FitResu
     """Per-frame quality: attractor RMSE, σ of the angles (pose-only normal matrix)."""
     skel = prob.skel
     out = []
-    rows = prob.blocks(theta, root, s, radii, centers)
-    balls = Metaballs(prob.balls.bone, centers, prob.balls.group, prob.balls.rot, radii)
+    rows = prob.blocks(theta, root, s, radii, centers, shape=False)
     for f, parts in enumerate(rows):
-        r_pt = np.concatenate([p[1] for p in parts if p[0] == "point"] or [np.zeros(0)])
-        sig_f = prob.obs[f].sigma_field
-        rmse_field = float(np.sqrt(np.mean((r_pt * sig_f) ** 2))) if len(r_pt) else np.nan
-        # metres: field residual over the gradient norm at the point (first order)
-        rmse_m = np.nan
-        o = prob.obs[f]
-        if len(o.xyz):
-            pose = forward(skel, theta[f][None], root[f][None], s)
-            Rw, cw = world_frames(skel, pose, balls, s)
-            F, g, _, _ = mb_field(o.xyz, Rw[0], cw[0], radii, prob.members[f])
-            dist = (F - THRESHOLD) / np.maximum(np.linalg.norm(g, axis=-1), 1e-9)
-            rmse_m = float(np.sqrt(np.mean(dist**2)))
+        rmse_field = rmse_m = np.nan
+        if len(prob.gathers[f][0]):
+            att = prob.attractors(f, theta, root, s, radii, centers)[2]
+            rmse_field = float(np.sqrt(np.mean((att.L - LN_T) ** 2)))
+            rmse_m = float(np.sqrt(np.mean(att.dist ** 2)))
         J = np.concatenate([np.concatenate([p[2], p[3]], axis=1) for p in parts], axis=0)
         r = np.concatenate([p[1] for p in parts])
         dof = max(len(r) - J.shape[1], 1)
@@ -388,6 +429,7 @@ def _levenberg_marquardt(system, x0: np.ndarray, lo: np.ndarray, max_nfev: int,
         cn = float(rn @ rn)
         if np.isfinite(cn) and cn < cost:
             small = (cost - cn) <= tol * cost and mu < 1.0  # a full Gauss-Newton step
+            small = small or float(np.abs(step).max(initial=0.0)) < 1e-10
             x, r, J, cost = xn, rn, Jn, cn
             mu = max(mu / 5.0, 1e-15)
             if small or cost < 1e-28:

@@ -128,6 +128,25 @@ LIMITS = {
 }
 
 
+#: Stiffness of DOFs the surface hardly observes: the σ (radians) of a prior towards the
+#: predicted angle that is never exceeded (twists of round parts, clavicles, the split
+#: of a bend among the spine links, the hands).  DOFs not listed have no floor.
+STIFF_SIGMA = {
+    "l_clavicle_z": 0.03, "l_clavicle_y": 0.03, "r_clavicle_z": 0.03, "r_clavicle_y": 0.03,
+    "lowerback_z": 0.04, "spine_z": 0.04, "chest_z": 0.04,
+    "lowerback_x": 0.08, "lowerback_y": 0.08, "spine_x": 0.08, "spine_y": 0.08,
+    "chest_x": 0.08, "chest_y": 0.08,
+    "neck_x": 0.08, "neck_y": 0.08, "neck_z": 0.08, "head_x": 0.1, "head_y": 0.1,
+    "l_wrist_x": 0.15, "l_wrist_y": 0.15, "r_wrist_x": 0.15, "r_wrist_y": 0.15,
+    "l_elbow_z": 0.1, "r_elbow_z": 0.1, "l_ankle_z": 0.1, "r_ankle_z": 0.1,
+}
+
+
+def stiff_sigma(skel: Skeleton) -> np.ndarray:
+    """Per-DOF prior σ ceiling (n,) radians from :data:`STIFF_SIGMA` (inf elsewhere)."""
+    return np.array([STIFF_SIGMA.get(n, np.inf) for n in skel.dof_names])
+
+
 def axis_permutation(axis: str) -> np.ndarray:
     """Proper rotation (3, 3) that permutes the axes cyclically so that z goes to ``axis``."""
     e = np.eye(3)

@@ -108,7 +108,10 @@ def _match_views(stack: ImageStack, cams: list[Camera], ref: int, uv_ref: np.nda
               max_shift_px=max(3.0, ncc_radius + 1.0), weight_sigma=weight_sigma)
     ok = r.ok.reshape(n, len(others))
     uv[:, others] = np.where(ok[..., None], r.uv.reshape(n, len(others), 2), np.nan)
-    aff[:, others] = r.affine.reshape(n, len(others), 2, 2)
+    # Failed matches keep the predicted affine part (a diverged one would poison the
+    # growth and later re-acquisition in tracking).
+    aff[:, others] = np.where(ok[..., None, None], r.affine.reshape(n, len(others), 2, 2),
+                              aff_pred[:, others])
     sig[:, others] = np.where(ok, r.sigma_uv.max(axis=1).reshape(n, len(others)), np.nan)
     inter = triangulate(cams, uv, sigma_px=sigma_px)
     good = inter.ok & (inter.rms < max_rms_px) & (np.sum(ok, axis=1) >= 1)

@@ -9,9 +9,11 @@ cameras at once:
 4. spatial LSM at frame i+1 from the reference camera into the others, started at
    the temporal results (or, where a camera lost the point, at the projection of the
    predicted 3-D point: that camera is re-acquired);
-5. a camera is accepted where spatial and temporal agree within ``agree_px`` (or, for a
-   re-acquired camera, where the spatial match exists); a point lives on while two or
-   more cameras are accepted and the forward intersection reprojects within
+5. a camera's temporal match is accepted unless the spatial match converged more than
+   ``agree_px`` away from it (a failed spatial match does not veto: the forward
+   intersection checks the geometry); a camera without a temporal match is
+   re-acquired where the spatial match exists; a point lives on while two or more
+   cameras are accepted and the forward intersection reprojects within
    ``max_rms_px``.
 
 Beyond the paper, every ``regen_every`` frames the surface is grown again from the
@@ -92,7 +94,8 @@ def _derivative(x: np.ndarray, fps: float) -> np.ndarray:
 def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: float, *,
           half: int = 6, ncc_radius: int = 5, first_radius: int = 14,
           agree_px: float = 0.5, max_rms_px: float = 1.0,
-          regen_every: int = 5, step: int = 2, progress=None) -> Tracks:
+          regen_every: int = 5, step: int = 2, progress=None,
+          log: list | None = None) -> Tracks:
     """Track the surface points through ``n_frames`` frames.
 
     Parameters
@@ -107,6 +110,10 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
         NCC search box half widths with a velocity prediction and without one, pixels.
     regen_every : int
         Regenerate / seed new points every this many frames (0: never).
+    log : list, optional
+        Receives one dict per frame step with the counts of (point, camera) pairs
+        through each stage (``seen``, ``ncc_ok``, ``temporal_ok``, ``spatial_ok``,
+        ``agree``) and of points (``live_before``, ``live_after``, ``regenerated``).
 
     Returns
     -------
@@ -123,6 +130,7 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
     prev = _stack(frames(0), cameras, 0)
     for i in range(n_frames - 1):
         nxt = _stack(frames(i + 1), cameras, i + 1)
+        stage: dict = {}
         uv_i = uv_hist[-1]
         uv_im1 = uv_hist[-2] if len(uv_hist) > 1 else uv_i
         n = len(uv_i)
@@ -145,6 +153,11 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
                        template_index=ci, search_index=ci, max_shift_px=3.0)
             ok_t = rt.ok & valid
             uv_t[pi[ok_t], ci[ok_t]] = rt.uv[ok_t]
+            if log is not None:
+                stage = {"seen": len(pi), "ncc_ok": int(nc.ok.sum()),
+                         "ncc_status": np.bincount(nc.status, minlength=6).tolist(),
+                         "temporal_ok": int(ok_t.sum()),
+                         "temporal_status": np.bincount(rt.status, minlength=8).tolist()}
         # Spatial LSM at i+1 from the reference camera (or the first temporally ok one).
         has_t = np.all(np.isfinite(uv_t), axis=2)
         tcam = np.where(has_t[:, ref], ref, np.argmax(has_t, axis=1))
@@ -165,9 +178,20 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
             rs = match(nxt.stack, nxt.stack, uv_t[qi, tc], start_s[qi, qc], half=half,
                        affine=aff0, template_index=tc, search_index=qc, max_shift_px=3.0)
             d = np.linalg.norm(rs.uv - uv_t[qi, qc], axis=1)
-            agree = rs.ok & nxt.valid[qc] & np.where(has_t[qi, qc], d < agree_px, True)
+            # A temporal match is vetoed only by a spatial match that converged elsewhere;
+            # a failed spatial match (occlusion edge, weak texture in that view) leaves
+            # the check to the forward intersection.  Re-acquisitions need the spatial.
+            ht = has_t[qi, qc]
+            agree = nxt.valid[qc] & np.where(ht, ~rs.ok | (d < agree_px), rs.ok)
             use_uv = np.where(has_t[qi, qc][:, None], uv_t[qi, qc], rs.uv)
             uv_acc[qi[agree], qc[agree]] = use_uv[agree]
+            if log is not None:
+                stage.update(spatial_ok=int(rs.ok.sum()), agree=int(agree.sum()),
+                             with_t=int(has_t[qi, qc].sum()),
+                             with_t_ok=int((rs.ok & has_t[qi, qc]).sum()),
+                             spatial_status=np.bincount(rs.status, minlength=8).tolist(),
+                             disagree_d=np.percentile(d[rs.ok & has_t[qi, qc]], [50, 90, 99])
+                             .round(3).tolist() if np.any(rs.ok & has_t[qi, qc]) else [])
             upd = agree & (tc == ref)
             aff_sp[qi[upd], qc[upd]] = rs.affine[upd]
         inter = triangulate(cameras, uv_acc, sigma_px=0.05)
@@ -175,6 +199,11 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
         uv_new = np.where(good[:, None, None], uv_acc, np.nan)
         xyz_new = np.where(good[:, None], inter.xyz, np.nan)
         sig_new = np.where(good[:, None], inter.sigma, np.nan)
+        if log is not None:
+            stage.update(live_before=int(live.sum()), live_after=int(good.sum()),
+                         tri_fail=int((np.sum(np.isfinite(uv_acc[..., 0]), 1) >= 2).sum()
+                                      - good.sum()))
+            log.append(stage)
         uv_hist.append(uv_new)
         xyz_hist.append(xyz_new)
         sig_hist.append(sig_new)

@@ -81,6 +81,11 @@ class SequenceSettings:
     sigma_pred: float = 0.15  # floor of the prior σ on each predicted angle
     sigma_pred_max: float = 0.6
     accel_sigma: float = 0.05  # EKF process noise, rad (or m) per frame²
+    shape_scales: bool = False  # bone scales refitted to the points (else: the clicks')
+    shape_centers: bool = True  # metaball centres free in the shape solve
+    shape_sigma_radius: float = 0.02  # shape priors towards the template, metres
+    shape_sigma_center: float = 0.01
+    sigma_click: float = 0.003  # σ of a forward-intersected click, metres
     segment_max_dist: float = 0.08
     min_points: int = 40
     max_rmse_m: float = 0.025
@@ -203,7 +208,7 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
     inl = np.zeros(nf)
     msgs: list[str] = []
     ci = init.clicks
-    click_obs = (np.array([skel.joint_index(j) for j in ci.names]), ci.xyz, 0.01)
+    click_obs = (np.array([skel.joint_index(j) for j in ci.names]), ci.xyz, cfg.sigma_click)
     pose_cfg = FitSettings(**{**cfg.fit.__dict__, "max_nfev": cfg.max_nfev})
     labels = no_labels()
     stiff = stiff_sigma(skel)
@@ -265,7 +270,11 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
     # 1) shape: at the clicked frame the clicks fix the pose; later shape frames are
     #    pose-fitted with the current shape, then the shape is re-solved over all of
     #    them with their poses held (shape-only solves avoid the shape/pose trade-off)
-    shape_cfg = FitSettings(**{**cfg.fit.__dict__, "max_nfev": cfg.max_nfev_shape})
+    shape_cfg = FitSettings(**{**cfg.fit.__dict__, "max_nfev": cfg.max_nfev_shape,
+                               "fit_scales": cfg.shape_scales,
+                               "free_centers": cfg.shape_centers,
+                               "sigma_radius": cfg.shape_sigma_radius,
+                               "sigma_center": cfg.shape_sigma_center})
     shape_range = list(range(f0, min(nf, f0 + max(cfg.shape_frames, 1))))
     store(f0, np.concatenate([init.theta, init.root_xyz]), True)
     shaped = []
@@ -290,6 +299,7 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
             rs = fit(skel, balls, obs_s, theta[keep], root[keep], s, radii, solve="shape",
                      settings=shape_cfg)
             s, radii = rs[0].s.copy(), rs[0].radii.copy()
+            balls.center0 = rs[0].centers.copy()
             shaped = keep
         if progress is not None:
             progress.update(k + 1, nf + len(shape_range), f"shape: frame {f}")

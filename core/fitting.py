@@ -95,6 +95,7 @@ class FitSettings:
     use_limits: bool = True
     shape_prior: bool = True
     free_centers: bool = False
+    fit_scales: bool = True  # bone scales free in the shape solve (else held)
     sigma_center: float = 0.03
     members: str = "part"  # field of a point: "part", "neighbours" or "body" (all)
     irls_rounds: int = 3  # re-weighting rounds (distance scale and Huber weights)
@@ -234,6 +235,7 @@ def _solve(prob: _Problem, theta, root, s, radii, centers, free: str, max_nfev: 
     pose_free = free in ("pose", "all")
     shape_free = free in ("shape", "all")
     C3 = M3 if (shape_free and cfg.free_centers) else 0
+    G = G if (shape_free and cfg.fit_scales) else 0  # scale columns in the layout
     m_pose = nf * (n + 3) if pose_free else 0
 
     def unpack(x):
@@ -243,7 +245,7 @@ def _solve(prob: _Problem, theta, root, s, radii, centers, free: str, max_nfev: 
             rt = x[nf * n:nf * (n + 3)].reshape(nf, 3)
         if shape_free:
             i = m_pose
-            ss = x[i:i + G]
+            ss = x[i:i + G] if G else s
             rd = x[i + G:i + G + M3].reshape(radii.shape)
             if C3:
                 ce = x[i + G + M3:i + G + M3 + C3].reshape(centers.shape)
@@ -253,7 +255,7 @@ def _solve(prob: _Problem, theta, root, s, radii, centers, free: str, max_nfev: 
     if pose_free:
         x0 += [theta.ravel(), root.ravel()]
     if shape_free:
-        x0 += [s, radii.ravel()] + ([centers.ravel()] if C3 else [])
+        x0 += ([s] if G else []) + [radii.ravel()] + ([centers.ravel()] if C3 else [])
     x0 = np.concatenate(x0)
     cache = {}
 
@@ -272,7 +274,8 @@ def _solve(prob: _Problem, theta, root, s, radii, centers, free: str, max_nfev: 
                     J[:, nf * n + 3 * f:nf * n + 3 * f + 3] = Jr
                 if shape_free:
                     i = m_pose
-                    J[:, i:i + G] = Js
+                    if G:
+                        J[:, i:i + G] = Js
                     J[:, i + G:i + G + M3] = Jrad
                     if C3:
                         J[:, i + G + M3:] = Jc

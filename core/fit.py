@@ -86,7 +86,7 @@ class SequenceSettings:
     shape_sigma_radius: float = 0.02  # shape priors towards the template, metres
     shape_sigma_center: float = 0.01
     sigma_click: float = 0.003  # σ of a forward-intersected click, metres
-    segment_max_dist: float = 0.08
+    segment_max_dist: float = 0.04
     min_points: int = 40
     max_rmse_m: float = 0.025
     min_inliers: float = 0.5

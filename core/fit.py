@@ -85,8 +85,12 @@ class SequenceSettings:
     shape_centers: bool = True  # metaball centres free in the shape solve
     shape_sigma_radius: float = 0.02  # shape priors towards the template, metres
     shape_sigma_center: float = 0.01
+    min_part_points: int = 8  # a part with fewer points is hidden: ...
+    sigma_hidden: float = 0.05  # ... its DOFs follow the prior with this σ (rad), ...
+    hold_hidden: bool = True  # ... held at the previous frame's angles (else predicted)
     sigma_click: float = 0.003  # σ of a forward-intersected click, metres
     segment_max_dist: float = 0.04
+    segment_margin: float = 0.015  # ambiguous points between non-adjacent parts dropped
     min_points: int = 40
     max_rmse_m: float = 0.025
     min_inliers: float = 0.5
@@ -213,13 +217,25 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
     labels = no_labels()
     stiff = stiff_sigma(skel)
 
-    def one_frame(f, q_pred, sig_pred, joints=None):
+    dof_bone = np.array([skel.bone_index(d.rsplit("_", 1)[0]) for d in skel.dof_names])
+
+    def prior(part, th_pred, sig_pred, th_hold):
+        """Target and σ of the prior on the angles: the prediction, σ capped for stiff
+        DOFs; the DOFs of parts with too few points (hidden) are held at ``th_hold``
+        (the previous frame, when given) with σ ``sigma_hidden``."""
+        cnt = np.bincount(part[part >= 0], minlength=len(skel.bone_names))
+        sig = np.minimum(sig_pred, stiff)
+        hidden = cnt[dof_bone] < cfg.min_part_points
+        target = th_pred if th_hold is None else np.where(hidden, th_hold, th_pred)
+        return target, np.where(hidden, np.minimum(sig, cfg.sigma_hidden), sig)
+
+    def one_frame(f, q_pred, sig_pred, joints=None, q_hold=None):
         """Pose-only fit of frame f from the prediction; returns (q, σ, ok, info)."""
         nonlocal labels
         pts = frames[f]
         th_p, rt_p = q_pred[:n], q_pred[n:]
         part, _ = segment_points(pts.xyz, skel, balls, th_p, rt_p, s, radii,
-                                 cfg.segment_max_dist)
+                                 cfg.segment_max_dist, cfg.segment_margin)
         part, labels = carry_labels(part, pts.ids, labels)
         if (part >= 0).sum() < cfg.min_points:
             return None, None, False, f"frame {f}: only {(part >= 0).sum()} usable points"
@@ -227,10 +243,13 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
         for it in range(2 if cfg.resegment else 1):
             if it:
                 part, _ = segment_points(pts.xyz, skel, balls, th, rt, s, radii,
-                                         cfg.segment_max_dist)
+                                         cfg.segment_max_dist, cfg.segment_margin)
                 if (part >= 0).sum() < cfg.min_points:
                     break
-            o = _observations(pts, part, q_pred, np.minimum(sig_pred, stiff), n, joints)
+                part, labels = carry_labels(part, pts.ids, labels)
+            target, sig = prior(part, q_pred[:n], sig_pred,
+                                None if q_hold is None else q_hold[:n])
+            o = _observations(pts, part, target, sig, n, joints)
             r = fit(skel, balls, o, th, rt, s, radii, solve="pose", settings=pose_cfg)
             th, rt = r.theta, r.root_xyz
         return np.concatenate([th, rt]), r, True, part
@@ -290,7 +309,7 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
             obs_s, keep = [], []
             for g in (shaped + [f]) if rnd == 0 else shaped:
                 part, _d = segment_points(frames[g].xyz, skel, balls, theta[g], root[g], s,
-                                          radii, cfg.segment_max_dist)
+                                          radii, cfg.segment_max_dist, cfg.segment_margin)
                 if (part >= 0).sum() >= cfg.min_points:
                     obs_s.append(_observations(frames[g], part, None, cfg.sigma_pred, n))
                     keep.append(g)
@@ -329,7 +348,8 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
                 pred.skip()
         for f in order:
             q_pred, sig_pred = pred.predict()
-            res = one_frame(f, q_pred, sig_pred)
+            res = one_frame(f, q_pred, sig_pred, q_hold=np.concatenate(
+                [theta[f - direction], root[f - direction]]) if cfg.hold_hidden else None)
             ok = judge(f, res, res[3] if not res[2] else None)
             if ok:
                 sig = np.concatenate([q_sig[f], np.full(3, 0.005)])

@@ -3,8 +3,11 @@
 Observation equations by type, each weighted by its a-priori σ (eq. 12,
 ``p_i / p_j = σ_j² / σ_i²``; here every residual is divided by its σ):
 
-* **attractor points** (eq. 15): ``(Σ_{m ∈ part} exp(−2 d_m(x)) − 0.5) / σ_field`` for a
-  3-D point x assigned to a body part (a bone; see :mod:`core.segment`);
+* **attractor points** (eq. 15, ``Σ_{m ∈ part} exp(−2 d_m(x)) = 0.5`` for a 3-D point x
+  assigned to a body part, see :mod:`core.segment`), written as the signed distance
+  ``(ln Σ f − ln 0.5) / |∇ ln Σ f|`` in metres (:mod:`core.attractor`) over σ in
+  metres, so that every point weighs like a distance whatever its depth or the size
+  of its metaballs;
 * **joint positions** (clicked or predicted): ``(x_joint(θ, s) − obs) / σ_joint``;
 * **pose prior** (e.g. the prediction from the previous frames):
   ``(θ − θ_pred) / σ_pred``;
@@ -15,14 +18,15 @@ Observation equations by type, each weighted by its a-priori σ (eq. 12,
 Unknowns per frame: ``θ`` (n) and ``root_xyz`` (3) — the pose; ``s`` (G) and the
 metaball radii (3M) and, optionally, the metaball centres in their bones' frames (3M;
 the paper fixes them on the bone axis, but real flesh is not centred on the bone) —
-the shape (``∂f_m/∂c0_m = 4 f_m s_g rot_m q_m`` with ``q = y / l²``).  As in the
+the shape; the bone scales can be held (``FitSettings.fit_scales``).  As in the
 paper, pose and shape are solved alternately (better convergence from a rough
 start), then optionally polished together.  Each solve is Levenberg–Marquardt on
-dense normal equations with Huber reweighting of the attractor residuals and
-analytic Jacobians.  The field of an attractor point sums the metaballs of its part
-(eq. 15), optionally also those of the adjacent parts or of the whole body
-(:func:`part_members`).  Per frame
-the result reports the attractor RMSE (field units and approximately metres), σ of
+dense normal equations with analytic Jacobians, inside a few re-weighting rounds
+(IRLS): the distance scale ``1/|∇ ln Σ f|`` and the Huber weights of the attractor
+residuals are frozen within a round, so the Jacobian of a round is exact.  The field
+of an attractor point sums the metaballs of its part (eq. 15), optionally also those
+of the adjacent parts or of the whole body (:func:`core.attractor.member_table`).
+Per frame the result reports the attractor RMSE (log-field units and metres), σ of
 every joint angle from the normal matrix, and converged / diverged flags.
 """
 
@@ -101,30 +105,6 @@ class FitSettings:
     irls_rounds: int = 3  # re-weighting rounds (distance scale and Huber weights)
     irls_tol: float = 1e-7  # stop re-weighting when no unknown moved more than this
     g_min: float = 2.0  # floor of |∇ ln F| (1/m) in the distance of deep points
-
-
-def part_members(skel: Skeleton, balls: Metaballs, part: np.ndarray,
-                 members: str = "part") -> np.ndarray:
-    """``(N, M)`` bool: the metaballs whose field counts for each point.
-
-    ``"part"``: the metaballs of the point's part (bone), eq. 15 of the paper;
-    ``"neighbours"``: also those of the parent and child bones, so that the surface
-    stays continuous across a joint; ``"body"``: all metaballs — the visible body
-    surface ``Σ f = 0.5`` itself, where a wrong segmentation cannot pull a part.
-    Points with part −1 use none.
-    """
-    if members not in ("part", "neighbours", "body"):
-        raise ValueError(f"unknown membership {members!r}")
-    part = np.asarray(part, dtype=int)
-    nb = len(skel.bone_names)
-    adj = np.eye(nb, dtype=bool)
-    if members == "body":
-        adj[:] = True
-    elif members == "neighbours":
-        for b, p in enumerate(skel.bone_parent):
-            if p >= 0:
-                adj[b, p] = adj[p, b] = True
-    return adj[np.clip(part, 0, nb - 1)][:, balls.bone] & (part >= 0)[:, None]
 
 
 class _Problem:

@@ -44,7 +44,7 @@ def surface_distance(xyz: np.ndarray, Rw: np.ndarray, cw: np.ndarray,
 
 def segment_points(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, theta: np.ndarray,
                    root_xyz: np.ndarray, s: np.ndarray, radii: np.ndarray | None = None,
-                   max_dist: float = 0.08) -> tuple[np.ndarray, np.ndarray]:
+                   max_dist: float = 0.08, margin: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Assign each point to the bone of the nearest metaball surface.
 
     Parameters
@@ -53,6 +53,10 @@ def segment_points(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, theta: np.
     theta : (n,) radians, root_xyz : (3,) metres, s : (G,) — the posture
     radii : (M, 3) metaball radii (default ``balls.radii``)
     max_dist : points farther than this (metres) from every part get part −1
+    margin : an ambiguous point — one whose distance to the surface of a part not
+        adjacent to the chosen one (neither its parent nor a child) exceeds the
+        distance to the chosen part's surface by less than ``margin`` metres, e.g. a
+        point between a hanging hand and the hip — gets part −1 too
 
     Returns
     -------
@@ -79,6 +83,15 @@ def segment_points(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, theta: np.
     part = bones[best].astype(int)
     d = np.min(np.where(balls.bone[None, :] == part[:, None], dist, np.inf), axis=1)
     bad = ~np.isfinite(dist.min(axis=1)) | (dist.min(axis=1) > max_dist)
+    if margin > 0:
+        nb = len(skel.bone_names)
+        adj = np.eye(nb, dtype=bool)
+        for b, p in enumerate(skel.bone_parent):
+            if p >= 0:
+                adj[b, p] = adj[p, b] = True
+        other = ~adj[part][:, balls.bone]  # (N, M) metaballs of non-adjacent parts
+        d_other = np.min(np.where(other, dist, np.inf), axis=1)
+        bad |= d_other - d < margin
     part[bad] = -1
     return part, d
 

@@ -37,3 +37,29 @@ def test_tracked_points_keep_their_first_label():
     part, known = carry_labels(np.array([5, 5, 7]), np.array([11, 12, 10]), known)
     assert part.tolist() == [4, 5, 3]  # 11 and 10 keep theirs; 12 is new
     assert dict(zip(known[0].tolist(), known[1].tolist(), strict=True)) == {10: 3, 11: 4, 12: 5}
+
+
+def test_margin_drops_exactly_the_points_ambiguous_between_non_adjacent_parts(rng):
+    from core.segment import surface_distance
+
+    skel = sk.make_skeleton()
+    balls = mb.make_metaballs(skel)
+    theta, root, s = np.zeros(skel.n_dof), np.array([0.0, 0.0, 1.0]), np.ones(skel.n_groups)
+    pose = sk.forward(skel, theta[None], root[None], s)
+    Rw, cw = mb.world_frames(skel, pose, balls, s)
+    # points around the hanging hands and the thighs beside them
+    near = [skel.bone_index(b) for b in ("l_wrist", "l_hip", "r_wrist", "r_hip")]
+    c = cw[0, np.isin(balls.bone, near)]
+    xyz = c[rng.integers(0, len(c), 400)] + rng.normal(0, 0.06, (400, 3))
+    plain, d = segment_points(xyz, skel, balls, theta, root, s)
+    got, _ = segment_points(xyz, skel, balls, theta, root, s, margin=0.02)
+    kept = got >= 0
+    assert np.all(got[kept] == plain[kept])  # the margin only removes points
+    dropped = (plain >= 0) & ~kept
+    assert dropped.sum() > 10 and kept.sum() > 50
+    dist = surface_distance(xyz, Rw[0], cw[0], balls.radii)
+    for i in np.nonzero(plain >= 0)[0]:
+        b = plain[i]
+        adjacent = {b, skel.bone_parent[b], *np.nonzero(skel.bone_parent == b)[0]}
+        other = ~np.isin(balls.bone, list(adjacent))
+        assert (dist[i, other].min() - d[i] < 0.02) == dropped[i]

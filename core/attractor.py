@@ -115,7 +115,7 @@ def attractor(x: np.ndarray, idx: np.ndarray, valid: np.ndarray, Rw: np.ndarray,
     """
     x = np.asarray(x, float)
     R = Rw[idx]  # (N, K, 3, 3)
-    y = np.einsum("nkji,nkj->nki", R, x[:, None, :] - cw[idx])
+    y = np.matmul((x[:, None, :] - cw[idx])[..., None, :], R)[..., 0, :]  # Rᵀ (x − c)
     q = y / radii[idx] ** 2
     a = -2.0 * np.sum(y * q, axis=-1)
     a = np.where(valid, a, -np.inf)
@@ -126,8 +126,8 @@ def attractor(x: np.ndarray, idx: np.ndarray, valid: np.ndarray, Rw: np.ndarray,
     with np.errstate(divide="ignore"):
         L = top_f + np.log(tot)
     p = e / np.maximum(tot, 1e-300)[:, None]
-    gx = -4.0 * np.einsum("nkij,nkj->nki", R, q)
-    grad = np.einsum("nk,nki->ni", p, gx)
+    gx = -4.0 * np.matmul(R, q[..., None])[..., 0]
+    grad = np.matmul(p[:, None, :], gx)[:, 0]
     gn = np.linalg.norm(grad, axis=-1)
     inv_g = 1.0 / np.maximum(gn, g_min)
     L = np.where(valid.any(axis=1), L, -np.inf)
@@ -157,10 +157,13 @@ def attractor_jacobians(skel: Skeleton, pose: Pose, balls: Metaballs, s: np.ndar
     """
     pg = att.p[..., None] * att.gx  # (N, K, 3): p_m ∇(−2 d_m)
     ball_anc = anc[skel.bone_dof[balls.bone]].astype(float)  # (M, n)
-    G = np.einsum("nki,nkj->nji", pg, ball_anc[idx])  # (N, n, 3): Σ_{m below k}
+    G = np.matmul(np.swapaxes(ball_anc[idx], 1, 2), pg)  # (N, n, 3): Σ_{m below k}
     w = pose.axes[frame]  # (n, 3)
     d = np.asarray(x, float)[:, None, :] - pose.p[frame][None]  # (N, n, 3)
-    J_theta = -np.einsum("nji,nji->nj", G, np.cross(w[None], d))
+    wxd = np.stack([w[None, :, 1] * d[..., 2] - w[None, :, 2] * d[..., 1],
+                    w[None, :, 2] * d[..., 0] - w[None, :, 0] * d[..., 2],
+                    w[None, :, 0] * d[..., 1] - w[None, :, 1] * d[..., 0]], axis=-1)
+    J_theta = -np.sum(G * wxd, axis=-1)
     J_root = -att.grad
     # scales: centre c_m moves by Σ_{k anc, group g} R_par(k) o_k + [g_m = g] R_b c0_m
     off_world = np.einsum("kij,kj->ki", pose.R_parent[frame], skel.dof_offset)
@@ -174,7 +177,8 @@ def attractor_jacobians(skel: Skeleton, pose: Pose, balls: Metaballs, s: np.ndar
     own = np.einsum("mij,mj->mi", Rb[balls.bone], balls.center0)
     sel = np.nonzero(balls.group >= 0)[0]
     dc[sel, :, balls.group[sel]] += own[sel]
-    J_s = -np.einsum("nki,nkig->ng", pg, dc[idx])
+    N, K = idx.shape
+    J_s = -np.matmul(pg.reshape(N, 1, 3 * K), dc[idx].reshape(N, 3 * K, -1))[:, 0]
     if not shape:
         return J_theta, J_root, J_s
     J_radii = 4.0 * att.p[..., None] * att.y ** 2 / radii[idx] ** 3

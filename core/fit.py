@@ -96,9 +96,10 @@ class SequenceSettings:
     min_inliers: float = 0.5
     inlier_m: float = 0.02
     resegment: bool = True
-    max_nfev: int = 30
+    max_nfev: int = 20
     max_nfev_shape: int = 40
-    fit: FitSettings = field(default_factory=lambda: FitSettings(members="neighbours"))
+    fit: FitSettings = field(default_factory=lambda: FitSettings(members="neighbours",
+                                                                 irls_rounds=2))
 
 
 @dataclass

@@ -95,7 +95,7 @@ class FitSettings:
     rounds: int = 3
     polish: bool = True
     max_nfev: int = 100
-    tol: float = 1e-6  # relative cost decrease at which a Gauss-Newton step stops
+    tol: float = 1e-4  # relative cost decrease at which the solve stops
     use_limits: bool = True
     shape_prior: bool = True
     free_centers: bool = False
@@ -411,7 +411,7 @@ def _levenberg_marquardt(system, x0: np.ndarray, lo: np.ndarray, max_nfev: int,
         nfev += 1
         cn = float(rn @ rn)
         if np.isfinite(cn) and cn < cost:
-            small = (cost - cn) <= tol * cost and mu < 1.0  # a full Gauss-Newton step
+            small = (cost - cn) <= tol * cost  # no longer a significant decrease
             small = small or float(np.abs(step).max(initial=0.0)) < 1e-10
             x, r, J, cost = xn, rn, Jn, cn
             mu = max(mu / 5.0, 1e-15)

@@ -45,6 +45,11 @@ class ContourObservations:
         d residual / d θ, pixels per radian.
     J_root : ndarray, shape (M, 3)
         d residual / d root position, pixels per metre.
+    ellipsoid : ndarray, shape (M,), int
+        Metaball whose rim gave each observation.
+    J_radii : ndarray, shape (M, 3)
+        d residual / d (lx, ly, lz) of that metaball, pixels per metre (the rim point moves
+        with the visible radii ``VISIBLE · l`` at fixed unit-sphere coordinates).
     camera : ndarray, shape (M,), int
     part : ndarray, shape (M,), int
         Bone index (the body part) of the model point.
@@ -59,6 +64,8 @@ class ContourObservations:
     residual: np.ndarray
     J_theta: np.ndarray
     J_root: np.ndarray
+    ellipsoid: np.ndarray
+    J_radii: np.ndarray
     camera: np.ndarray
     part: np.ndarray
     sigma_px: float
@@ -137,7 +144,7 @@ def contour_observations(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray
             observ[:, c] = np.linalg.norm(sums, axis=1)
     selection = (select_cameras(vis, observ, min_visibility=min_visibility) if select
                  else select_cameras(np.where(np.isfinite(vis), 1.0, np.nan)))
-    res, Jt, Jr, cam_idx, parts = [], [], [], [], []
+    res, Jt, Jr, cam_idx, parts, ells, Jrad = [], [], [], [], [], [], []
     for c, (cam, rim) in enumerate(zip(cameras, rims, strict=True)):
         use_parts = np.flatnonzero(selection.use[:, c])
         if len(use_parts) == 0 or len(rim) == 0:
@@ -154,12 +161,18 @@ def contour_observations(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray
         Jr.append(-nJ)
         cam_idx.append(np.full(len(m), c))
         parts.append(sub.part)
+        e = sub.ellipsoid
+        # unit-sphere coordinates of the rim points: x = c + axes (r ∘ p)
+        p_unit = np.einsum("mji,mj->mi", axes[e], sub.xyz - centers[e]) / radii[e]
+        Jrad.append(-np.einsum("mj,mjk->mk", nJ, axes[e]) * p_unit * VISIBLE)
+        ells.append(e)
     n = skel.n_dof
     if not res:
         return ContourObservations(np.zeros(0), np.zeros((0, n)), np.zeros((0, 3)),
-                                   np.zeros(0, int), np.zeros(0, int), sigma_px, selection,
-                                   renders)
+                                   np.zeros(0, int), np.zeros((0, 3)), np.zeros(0, int),
+                                   np.zeros(0, int), sigma_px, selection, renders)
     return ContourObservations(np.concatenate(res), np.vstack(Jt), np.vstack(Jr),
+                               np.concatenate(ells), np.vstack(Jrad),
                                np.concatenate(cam_idx), np.concatenate(parts), sigma_px,
                                selection, renders)
 

@@ -1,0 +1,104 @@
+"""Contour tracking inside the EKF, on silhouettes the model itself produces."""
+
+import numpy as np
+import pytest
+
+from core.contour_obs import body_ellipsoids
+from core.contour_track import ContourTrackSettings, fit_shape_to_contours, track_contours
+from core.contours import occluding_contours
+from core.metaballs import make_metaballs
+from core.model_render import render_parts
+from core.skeleton import joint_positions, make_skeleton
+from tests.core.test_contour_obs import _look_at
+
+
+@pytest.fixture(scope="module")
+def rig():
+    skel = make_skeleton()
+    balls = make_metaballs(skel)
+    s = np.ones(skel.n_groups)
+    target = np.array([0.0, 0.0, 1.0])
+    cams = [_look_at(target + d, target) for d in (np.array([0.0, -4.0, 0.0]),
+                                                    np.array([4.0, 0.0, 0.0]),
+                                                    np.array([-2.8, -2.8, 0.0]))]
+    return skel, balls, s, cams
+
+
+def _contours(skel, theta, root, s, balls, cams):
+    out = []
+    for cam in cams:
+        c, a, r, p = body_ellipsoids(skel, theta, root, s, balls)
+        out.append(occluding_contours(render_parts(cam, c, a, r, p).mask, spacing=1.5))
+    return out
+
+
+def _swing(skel, F=8):
+    """Arms and legs swinging, the body walking forward (smooth, ~3 cm/frame)."""
+    theta = np.zeros((F, skel.n_dof))
+    t = np.arange(F)
+    for name, amp, base in (("l_shoulder_x", 0.35, 0.0), ("r_shoulder_x", -0.35, 0.0),
+                            ("l_shoulder_y", 0.0, -0.5), ("r_shoulder_y", 0.0, 0.5),
+                            ("l_hip_x", -0.3, 0.0), ("r_hip_x", 0.3, 0.0),
+                            ("l_elbow_x", 0.2, -0.5), ("r_knee_x", 0.2, 0.3)):
+        theta[:, skel.dof_index(name)] = base + amp * np.sin(t / 4.0)
+    root = np.stack([np.zeros(F), -0.03 * t, np.full(F, 1.0)], axis=1)
+    return theta, root
+
+
+def test_shape_from_silhouettes_recovers_radii(rig):
+    skel, balls, s, cams = rig
+    theta, root = _swing(skel, 1)
+    truth = balls.copy(radii=balls.radii * np.where(np.arange(len(balls)) % 2, 1.12, 0.9)[:, None])
+    observed = _contours(skel, theta[0], root[0], s, truth, cams)
+    start_err = np.abs(balls.radii - truth.radii).mean()
+    fitted, th, rt, rms = fit_shape_to_contours(skel, s, balls, theta[0], root[0], cams, observed,
+                                                ContourTrackSettings(q_sigma_theta=0.01))
+    assert rms < 1.0
+    # radii along bones and hidden ones are weakly observed: the error falls, not to zero
+    assert np.abs(fitted.radii - truth.radii).mean() < 0.75 * start_err
+
+    def iou(body):
+        ious = []
+        for cam in cams:
+            a = render_parts(cam, *body_ellipsoids(skel, th, rt, s, body)).mask
+            b = render_parts(cam, *body_ellipsoids(skel, theta[0], root[0], s, truth)).mask
+            ious.append((a & b).sum() / (a | b).sum())
+        return np.mean(ious)
+
+    # silhouettes agree far better than the template's (0.89 here)
+    assert iou(fitted) > 0.95 and iou(fitted) > iou(balls) + 0.05
+
+
+def test_tracking_follows_the_motion_with_and_without_selection(rig):
+    skel, balls, s, cams = rig
+    theta, root = _swing(skel)
+    contours = [_contours(skel, theta[f], root[f], s, balls, cams) for f in range(len(theta))]
+    truth = joint_positions(skel, theta, root, s)
+    errs = {}
+    for select in (True, False):
+        out = track_contours(skel, s, balls, theta[0], root[0], cams, contours,
+                             ContourTrackSettings(select=select))
+        assert all(t.updated for t in out)
+        th = np.array([t.theta for t in out])
+        rt = np.array([t.root for t in out])
+        err = np.linalg.norm(joint_positions(skel, th, rt, s) - truth, axis=2)
+        errs[select] = err
+        # a still model would be off by the motion itself (several cm by the end)
+        assert np.median(err[-1]) < 0.015, (select, np.median(err, axis=1))
+    moved = np.linalg.norm(truth[-1] - truth[0], axis=1)
+    assert np.median(moved) > 0.15
+    # camera use is recorded per part and frame
+    assert out[3].use.shape == (len(skel.bone_names), len(cams))
+
+
+def test_a_frame_without_contours_coasts_on_the_prediction(rig):
+    skel, balls, s, cams = rig
+    theta, root = _swing(skel, 6)
+    contours = [_contours(skel, theta[f], root[f], s, balls, cams) for f in range(6)]
+    contours[3] = [[] for _ in cams]  # the person left every image for one frame
+    out = track_contours(skel, s, balls, theta[0], root[0], cams, contours)
+    assert [t.updated for t in out] == [True, True, True, False, True, True]
+    assert np.all(np.isfinite(out[3].theta))
+    err = np.linalg.norm(joint_positions(skel, out[5].theta, out[5].root, s)
+                         - joint_positions(skel, theta[5], root[5], s), axis=1)
+    assert np.median(err) < 0.015  # recovered after the gap

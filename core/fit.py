@@ -41,7 +41,7 @@ from .fitting import FitSettings, Observations, fit
 from .metaballs import Metaballs, world_frames
 from .progress import Progress
 from .segment import carry_labels, no_labels, segment_points
-from .skeleton import Skeleton, forward, stiff_sigma
+from .skeleton import Skeleton, anchor_sigma, forward, stiff_sigma
 from .state import FitState, Quality
 
 
@@ -87,6 +87,7 @@ class SequenceSettings:
     shape_sigma_center: float = 0.01
     min_part_points: int = 8  # a part with fewer points is hidden: ...
     sigma_hidden: float = 0.05  # ... its DOFs follow the prior with this σ (rad), ...
+    sigma_hidden_anchor: float = 0.15  # ... and drift back to the clicked posture
     hold_hidden: bool = True  # ... held at the previous frame's angles (else predicted)
     sigma_click: float = 0.003  # σ of a forward-intersected click, metres
     segment_max_dist: float = 0.04
@@ -217,18 +218,24 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
     pose_cfg = FitSettings(**{**cfg.fit.__dict__, "max_nfev": cfg.max_nfev})
     labels = no_labels()
     stiff = stiff_sigma(skel)
+    anchor = anchor_sigma(skel)
 
     dof_bone = np.array([skel.bone_index(d.rsplit("_", 1)[0]) for d in skel.dof_names])
 
     def prior(part, th_pred, sig_pred, th_hold):
         """Target and σ of the prior on the angles: the prediction, σ capped for stiff
         DOFs; the DOFs of parts with too few points (hidden) are held at ``th_hold``
-        (the previous frame, when given) with σ ``sigma_hidden``."""
+        (the previous frame, when given) with σ ``sigma_hidden``; fused with a prior
+        towards the initial posture (anchored DOFs, and hidden parts, which drift back
+        to the clicked posture instead of wandering)."""
         cnt = np.bincount(part[part >= 0], minlength=len(skel.bone_names))
         sig = np.minimum(sig_pred, stiff)
         hidden = cnt[dof_bone] < cfg.min_part_points
         target = th_pred if th_hold is None else np.where(hidden, th_hold, th_pred)
-        return target, np.where(hidden, np.minimum(sig, cfg.sigma_hidden), sig)
+        sig = np.where(hidden, np.minimum(sig, cfg.sigma_hidden), sig)
+        sig_a = np.where(hidden, np.minimum(anchor, cfg.sigma_hidden_anchor), anchor)
+        w1, w2 = 1.0 / sig**2, 1.0 / sig_a**2
+        return (w1 * target + w2 * init.theta) / (w1 + w2), 1.0 / np.sqrt(w1 + w2)
 
     def one_frame(f, q_pred, sig_pred, joints=None, q_hold=None):
         """Pose-only fit of frame f from the prediction; returns (q, σ, ok, info)."""

@@ -142,6 +142,20 @@ STIFF_SIGMA = {
 }
 
 
+#: σ (radians) of a prior towards the initial (clicked) posture for DOFs that hardly
+#: move in a person and that the surface barely observes: without it, a per-frame
+#: prior towards the prediction lets them wander over a long take.
+ANCHOR_SIGMA = {
+    "l_clavicle_z": 0.05, "l_clavicle_y": 0.05, "r_clavicle_z": 0.05, "r_clavicle_y": 0.05,
+    "lowerback_z": 0.2, "spine_z": 0.2, "chest_z": 0.2,
+}
+
+
+def anchor_sigma(skel: Skeleton) -> np.ndarray:
+    """Per-DOF σ (n,) radians of the prior towards the initial posture (inf: none)."""
+    return np.array([ANCHOR_SIGMA.get(n, np.inf) for n in skel.dof_names])
+
+
 def stiff_sigma(skel: Skeleton) -> np.ndarray:
     """Per-DOF prior σ ceiling (n,) radians from :data:`STIFF_SIGMA` (inf elsewhere)."""
     return np.array([STIFF_SIGMA.get(n, np.inf) for n in skel.dof_names])

@@ -147,7 +147,10 @@ STIFF_SIGMA = {
 #: prior towards the prediction lets them wander over a long take.
 ANCHOR_SIGMA = {
     "l_clavicle_z": 0.05, "l_clavicle_y": 0.05, "r_clavicle_z": 0.05, "r_clavicle_y": 0.05,
-    "lowerback_z": 0.2, "spine_z": 0.2, "chest_z": 0.2,
+    "lowerback_x": 0.1, "lowerback_y": 0.1, "lowerback_z": 0.1,
+    "spine_x": 0.1, "spine_y": 0.1, "spine_z": 0.1,
+    "chest_x": 0.1, "chest_y": 0.1, "chest_z": 0.1,
+    "neck_x": 0.15, "neck_y": 0.15, "neck_z": 0.15, "head_x": 0.2, "head_y": 0.2,
 }
 
 

@@ -75,7 +75,7 @@ class FramePoints:
 class SequenceSettings:
     """Settings of :func:`fit_sequence` (lengths in metres, angles in radians)."""
 
-    shape_frames: int = 1
+    shape_frames: int = 2
     predictor: str = "ekf"  # or "constant_velocity"
     damping: float = 0.8  # rate decay per frame of the prediction
     sigma_pred: float = 0.15  # floor of the prior σ on each predicted angle

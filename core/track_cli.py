@@ -7,6 +7,8 @@ Arrays written to the ``.npz`` (F frames, P points, C cameras):
 * ``uv`` (F, P, C, 2) float — image points, pixels, NaN where not matched
 * ``sigma_xyz`` (F, P, 3) float — standard deviations from the forward intersection, m
 * ``start`` (P,) int — first frame of each trajectory (0 = measured at frame 0)
+* ``measured`` (F, P) bool — measured by forward intersection in that frame (False
+  where a short gap was bridged, see ``--max-coast``, or not tracked)
 * ``removed`` (P,) bool, ``truncated`` (P,) bool — outcome of the filters
 * ``camera_names`` (C,) str, ``fps`` () float
 """
@@ -34,6 +36,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--step", type=int, default=2, help="surface grid step, pixels")
     parser.add_argument("--regen-every", type=int, default=5,
                         help="regenerate points every N frames (0: never)")
+    parser.add_argument("--predict", choices=("ekf", "linear"), default="ekf",
+                        help="search prediction: 3-D Kalman filter or 2-D linear")
+    parser.add_argument("--max-coast", type=int, default=0,
+                        help="frames a point may go unmeasured and be re-acquired")
 
 
 def run(args) -> int:
@@ -53,12 +59,14 @@ def run(args) -> int:
           file=sys.stderr)
     t1 = time.perf_counter()
     tr = track(lambda i: [scene.image(c, i) for c in scene.cameras], cams, surf, n, scene.fps,
-               step=args.step, regen_every=args.regen_every, progress=progress)
+               step=args.step, regen_every=args.regen_every, predict=args.predict,
+               max_coast=args.max_coast, progress=progress)
     dt = time.perf_counter() - t1
     flt = filter_trajectories(tr.xyz, scene.fps)
     out = Path(args.output)
     np.savez_compressed(out, xyz=flt.xyz, xyz_raw=tr.xyz, uv=tr.uv, sigma_xyz=tr.sigma_xyz,
-                        start=tr.start, removed=flt.removed, truncated=flt.truncated,
+                        start=tr.start, measured=tr.measured, removed=flt.removed,
+                        truncated=flt.truncated,
                         camera_names=np.array(scene.cameras), fps=np.float64(scene.fps))
     alive = np.all(np.isfinite(flt.xyz), axis=2)
     print(f"tracked {n} frames at {(n - 1) / max(dt, 1e-9):.2f} frames/s; "

@@ -3,18 +3,28 @@
 Per frame i -> i+1 (D'Apuzzo et al. 1999, section 2.4), for all live points and
 cameras at once:
 
-1. linear prediction ``uv_i + (uv_i - uv_{i-1})`` in every camera;
-2. NCC search in a box around it (frame i template, frame i+1 image);
-3. temporal LSM from frame i to frame i+1, started at the NCC peak;
+1. prediction: every point carries a constant-velocity Kalman filter in 3-D
+   (:class:`PointFilter`); its prediction is projected into every camera, and the
+   projected covariance sets the NCC search box (``predict="ekf"``, default).  The
+   paper's 2-D linear prediction ``uv_i + (uv_i - uv_{i-1})`` with a fixed box is
+   kept as ``predict="linear"``;
+2. NCC search in the box (template: the camera's last measurement of the point);
+3. temporal LSM from that frame (usually i) to frame i+1, started at the NCC peak;
 4. spatial LSM at frame i+1 from the reference camera into the others, started at
    the temporal results (or, where a camera lost the point, at the projection of the
-   predicted 3-D point: that camera is re-acquired);
+   intersection of the temporal matches, or of the predicted point: that camera is
+   re-acquired);
 5. a camera's temporal match is accepted unless the spatial match converged more than
    ``agree_px`` away from it (a failed spatial match does not veto: the forward
    intersection checks the geometry); a camera without a temporal match is
-   re-acquired where the spatial match exists; a point lives on while two or more
-   cameras are accepted and the forward intersection reprojects within
-   ``max_rms_px``.
+   re-acquired where the spatial match exists.  The point is measured when two or
+   more cameras are accepted, the forward intersection reprojects within
+   ``max_rms_px`` and lies within ``gate`` (Mahalanobis) of the prediction; failing
+   that, the temporal matches alone are tried (``fallback``, which also overrides a
+   spatial veto).  An unmeasured point coasts on its prediction for up to
+   ``max_coast`` frames and is re-acquired from its last templates; the gaps so
+   bridged are filled by cubic Hermite interpolation (:func:`fill_gaps`,
+   ``Tracks.measured`` tells them apart).
 
 Beyond the paper, every ``regen_every`` frames the surface is grown again from the
 live points (:func:`core.surface.measure_surface`) over grid cells that no live point
@@ -57,6 +67,9 @@ class Tracks:
         Frame where each trajectory starts (0 for the surface measured at frame 0,
         later for regenerated / new points).
     fps : float
+    measured : ndarray, shape (F, P) bool, optional
+        The position was measured (forward intersection) in that frame; False where a
+        short gap was filled (:func:`fill_gaps`) or the point is not tracked.
     """
 
     xyz: np.ndarray
@@ -64,6 +77,7 @@ class Tracks:
     sigma_xyz: np.ndarray
     start: np.ndarray
     fps: float
+    measured: np.ndarray | None = None
 
     @property
     def alive(self) -> np.ndarray:
@@ -91,10 +105,124 @@ def _derivative(x: np.ndarray, fps: float) -> np.ndarray:
     return v
 
 
+@dataclass
+class PointFilter:
+    """Constant-velocity Kalman filters for P independent 3-D points, batched.
+
+    State per point ``[xyz, rate]`` (metres and metres per frame); system model
+    ``xyz <- xyz + rate``, ``rate <- damping * rate`` with white acceleration noise of
+    standard deviation ``accel_sigma`` (m / frame², the discretised white-noise
+    acceleration ``Q`` of :class:`core.ekf.EKF`, per axis).  The measurement is the
+    forward intersection of the point (linear in the state), so the update is that of
+    a plain Kalman filter; the image-space prediction is its projection
+    (:func:`predict_in_image`), which is where the model becomes non-linear.
+
+    Attributes
+    ----------
+    x : ndarray, shape (P, 6)
+    P : ndarray, shape (P, 6, 6)
+    accel_sigma : float
+    damping : float
+    """
+
+    x: np.ndarray
+    P: np.ndarray
+    accel_sigma: float = 0.01
+    damping: float = 1.0
+
+    @classmethod
+    def start(cls, xyz: np.ndarray, cov: np.ndarray, rate: np.ndarray | None = None,
+              rate_sigma: np.ndarray | float = 0.03, accel_sigma: float = 0.01,
+              damping: float = 1.0) -> PointFilter:
+        """Filters at ``xyz`` (P, 3) with position covariance ``cov`` (P, 3, 3), m², and
+        rate ``rate`` (P, 3), m/frame (default 0) of standard deviation ``rate_sigma``."""
+        xyz = np.asarray(xyz, float).reshape(-1, 3)
+        n = len(xyz)
+        rate = np.zeros((n, 3)) if rate is None else np.asarray(rate, float)
+        P = np.zeros((n, 6, 6))
+        P[:, :3, :3] = cov
+        P[:, 3:, 3:] = np.eye(3) * (np.broadcast_to(rate_sigma, (n,)) ** 2)[:, None, None]
+        return cls(np.concatenate([xyz, rate], axis=1), P, float(accel_sigma), float(damping))
+
+    def __len__(self) -> int:
+        return len(self.x)
+
+    def append(self, other: PointFilter) -> None:
+        self.x = np.concatenate([self.x, other.x])
+        self.P = np.concatenate([self.P, other.P])
+
+    def _F(self) -> np.ndarray:
+        F = np.eye(6)
+        F[:3, 3:] = np.eye(3)
+        F[3:, 3:] *= self.damping
+        return F
+
+    def _Q(self) -> np.ndarray:
+        a2 = self.accel_sigma ** 2
+        return np.kron(np.array([[a2 / 4, a2 / 2], [a2 / 2, a2]]), np.eye(3))
+
+    def predicted(self) -> tuple[np.ndarray, np.ndarray]:
+        """Prediction one frame ahead without changing the filters: xyz (P, 3), cov (P, 3, 3)."""
+        F = self._F()
+        x = self.x @ F.T
+        P = F @ self.P @ F.T + self._Q()
+        return x[:, :3], P[:, :3, :3]
+
+    def predict(self) -> None:
+        """Advance every filter one frame (in place)."""
+        F = self._F()
+        self.x = self.x @ F.T
+        self.P = F @ self.P @ F.T + self._Q()
+
+    def mahalanobis2(self, z: np.ndarray, R: np.ndarray) -> np.ndarray:
+        """Squared Mahalanobis distance of measurements ``z`` (P, 3) with covariance
+        ``R`` (P, 3, 3) from the current (predicted) positions; NaN where z is NaN."""
+        d = z - self.x[:, :3]
+        S = self.P[:, :3, :3] + R
+        ok = np.all(np.isfinite(d), axis=1) & np.all(np.isfinite(S), axis=(1, 2))
+        out = np.full(len(d), np.nan)
+        if ok.any():
+            out[ok] = np.einsum("ni,ni->n", d[ok], np.linalg.solve(S[ok], d[ok][..., None])[..., 0])
+        return out
+
+    def update(self, z: np.ndarray, R: np.ndarray, rows: np.ndarray) -> None:
+        """Measurement update of the filters ``rows`` (K,) int with xyz ``z`` (K, 3), m,
+        of covariance ``R`` (K, 3, 3), m² (in place, Joseph form)."""
+        if len(rows) == 0:
+            return
+        x, P = self.x[rows], self.P[rows]
+        H = np.zeros((3, 6))
+        H[:, :3] = np.eye(3)
+        S = P[:, :3, :3] + R
+        G = np.linalg.solve(S, P[:, :3, :]).transpose(0, 2, 1)           # (K, 6, 3) = P Hᵀ S⁻¹
+        x = x + np.einsum("kij,kj->ki", G, z - x[:, :3])
+        I_GH = np.eye(6) - G @ H
+        P = I_GH @ P @ I_GH.transpose(0, 2, 1) + G @ R @ G.transpose(0, 2, 1)
+        self.x[rows], self.P[rows] = x, 0.5 * (P + P.transpose(0, 2, 1))
+
+
+def predict_in_image(cam: Camera, xyz: np.ndarray, cov: np.ndarray,
+                     eps: float = 1e-3) -> tuple[np.ndarray, np.ndarray]:
+    """Project points (P, 3) with covariance (P, 3, 3) into a camera.
+
+    Returns ``uv`` (P, 2), pixels, and the largest standard deviation of the projected
+    covariance ``J Σ Jᵀ`` (P,), pixels (``J`` by forward differences of ``eps`` metres).
+    """
+    uv = cam.project(xyz)
+    J = np.stack([(cam.project(xyz + eps * e) - uv) / eps for e in np.eye(3)], axis=-1)
+    S = J @ cov @ J.transpose(0, 2, 1)
+    a, b, d = S[:, 0, 0], S[:, 0, 1], S[:, 1, 1]
+    lam = 0.5 * (a + d) + np.sqrt(np.maximum(0.25 * (a - d) ** 2 + b * b, 0.0))
+    return uv, np.sqrt(np.maximum(lam, 0.0))
+
+
 def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: float, *,
-          half: int = 6, ncc_radius: int = 5, first_radius: int = 14,
-          agree_px: float = 0.5, max_rms_px: float = 1.0,
-          regen_every: int = 5, step: int = 2, progress=None,
+          half: int = 6, predict: str = "ekf", ncc_radius: int = 5, first_radius: int = 14,
+          adaptive: bool = True, max_radius: int = 16, agree_px: float = 0.5,
+          max_rms_px: float = 1.0, accel_sigma: float = 0.025, gate: float = 5.0,
+          max_coast: int = 0, temporal_sigma: float | None = 4.0,
+          max_sigma_px: float = 0.2, fallback: bool = True, regen_every: int = 5,
+          step: int = 2, progress=None,
           log: list | None = None) -> Tracks:
     """Track the surface points through ``n_frames`` frames.
 
@@ -106,72 +234,137 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
     cameras : list of Camera, length C
     surface : Surface
         Points measured at frame 0 (:func:`core.surface.measure_surface`).
+    predict : {"ekf", "linear"}
+        Start of the temporal search: the per-point 3-D Kalman prediction projected
+        into each camera, or the paper's 2-D linear prediction (same image motion as
+        in the last step, no motion where unknown).
     ncc_radius, first_radius : int
-        NCC search box half widths with a velocity prediction and without one, pixels.
+        NCC search box half widths with a velocity estimate and without one, pixels
+        (``predict="linear"`` or ``adaptive=False``).
+    adaptive : bool
+        With ``predict="ekf"``: box half width ``3 σ + 1`` of the projected prediction
+        covariance, within ``[3, max_radius]`` px, instead of the fixed radii.
+    accel_sigma : float
+        Process noise of the point filters, m / frame².
+    gate : float
+        Largest Mahalanobis distance between a measured point and its prediction.
+    max_coast : int
+        Frames a point may go unmeasured (occluded, no match) before it is dropped;
+        meanwhile it is re-acquired from its last templates at its predicted position,
+        and the gaps so bridged are filled afterwards (:attr:`Tracks.measured` is
+        False there).  Default 0: on the sample scene 3 frames raised the frame-0
+        points kept through 15 frames from 42 % to 57 %, but wrong re-acquisitions
+        raised the 95th percentile of the 3-D error over 50 frames to ~90 mm.
+    temporal_sigma : float or None
+        Gaussian weighting σ of the temporal LSM patches, pixels (None: uniform).
+    max_sigma_px : float
+        Largest σ of an accepted temporal match, pixels.
+    fallback : bool
+        Where the accepted cameras fail the intersection or the gate, try the
+        temporal matches alone (also those a spatial match vetoed).
     regen_every : int
         Regenerate / seed new points every this many frames (0: never).
     log : list, optional
         Receives one dict per frame step with the counts of (point, camera) pairs
         through each stage (``seen``, ``ncc_ok``, ``temporal_ok``, ``spatial_ok``,
-        ``agree``) and of points (``live_before``, ``live_after``, ``regenerated``).
+        ``agree``) and of points (``live_before``, ``measured``, ``coasting``,
+        ``gated``, ``regenerated``).
 
     Returns
     -------
     Tracks
     """
+    if predict not in ("ekf", "linear"):
+        raise ValueError(f"predict must be 'ekf' or 'linear', got {predict!r}")
     c = len(cameras)
     ref = surface.ref
     p0 = len(surface)
-    uv_hist = [surface.uv.copy()]                    # per frame (P, C, 2)
+    uv_hist = [surface.uv.copy()]                    # measured, per frame (P, C, 2)
     xyz_hist = [surface.xyz.copy()]
     sig_hist = [np.sqrt(np.abs(np.diagonal(surface.cov, axis1=1, axis2=2)))]
+    rate_hist = [np.zeros((p0, 3))]                  # filtered rates, m/frame
     start = np.zeros(p0, int)
     aff_sp = surface.affine.copy()                   # spatial affine ref -> camera
-    prev = _stack(frames(0), cameras, 0)
+    kf = PointFilter.start(surface.xyz, surface.cov + _COV_FLOOR, accel_sigma=accel_sigma)
+    seen0 = np.all(np.isfinite(surface.uv), axis=2)
+    last_f = np.where(seen0, 0, -1)                  # (P, C) last measured frame
+    last_uv = surface.uv.copy()                      # (P, C, 2) there
+    prev_uv = np.full_like(last_uv, np.nan)          # and in the frame before, if measured
+    coast = np.zeros(p0, int)
+    dead = np.zeros(p0, bool)
+    ring = {0: _stack(frames(0), cameras, 0)}
     for i in range(n_frames - 1):
         nxt = _stack(frames(i + 1), cameras, i + 1)
-        stage: dict = {}
-        uv_i = uv_hist[-1]
-        uv_im1 = uv_hist[-2] if len(uv_hist) > 1 else uv_i
-        n = len(uv_i)
-        vel = np.where(np.isfinite(uv_im1), uv_i - uv_im1, 0.0)
-        pred = uv_i + vel
-        live = np.all(np.isfinite(xyz_hist[-1]), axis=1)
-        seen = np.all(np.isfinite(uv_i), axis=2) & live[:, None]
-        pi, ci = np.nonzero(seen)
-        # Temporal: NCC then LSM frame i -> i+1, every (point, camera) in one call.
+        ring[i + 1] = nxt
+        for f in [f for f in ring if f < i - max_coast]:
+            del ring[f]
+        n = len(kf)
+        stage: dict = {"live_before": int((~dead & (coast == 0)).sum()),
+                       "coasting_before": int((~dead & (coast > 0)).sum())}
+        kf.predict()
+        xyz_p, cov_p = kf.x[:, :3].copy(), kf.P[:, :3, :3].copy()
+        proj = np.full((n, c, 2), np.nan)
+        sig_p = np.full((n, c), np.nan)
+        for j, cam in enumerate(cameras):
+            proj[:, j], sig_p[:, j] = predict_in_image(cam, xyz_p, cov_p)
+        age = i + 1 - last_f
+        pairs = ~dead[:, None] & (last_f >= 0) & (age <= max_coast + 1) & nxt.valid[None]
+        # --- temporal: NCC then LSM from each camera's last measurement into i+1 ---
+        if predict == "ekf":
+            pred = proj
+            has_vel = np.ones((n, c), bool)
+        else:
+            lin = last_uv + age[..., None] * (last_uv - prev_uv)
+            has_vel = np.all(np.isfinite(lin), axis=2)
+            pred = np.where(has_vel[..., None], lin, last_uv)
+        pairs &= np.all(np.isfinite(pred), axis=2)
+        pi, ci = np.nonzero(pairs)
         uv_t = np.full((n, c, 2), np.nan)
         if len(pi):
-            # No velocity yet at the first step (or for a new point): a wider box.
-            fresh = ~np.all(np.isfinite(uv_im1[pi, ci]), axis=1) | (len(uv_hist) == 1)
-            rad = first_radius if np.any(fresh) else ncc_radius
-            nc = search(prev.stack, nxt.stack, uv_i[pi, ci], pred[pi, ci], half=half,
-                        radius=rad, template_index=ci, search_index=ci, min_score=0.6)
-            st = np.where(nc.ok[:, None], nc.uv, pred[pi, ci])
-            valid = nxt.valid[ci] & prev.valid[ci]
-            rt = match(prev.stack, nxt.stack, uv_i[pi, ci], st, half=half,
-                       template_index=ci, search_index=ci, max_shift_px=3.0)
-            ok_t = rt.ok & valid
+            if predict == "ekf" and adaptive:
+                rad = np.clip(np.ceil(3.0 * sig_p[pi, ci]) + 1, 3, max_radius).astype(int)
+            else:
+                rad = np.where(has_vel[pi, ci], ncc_radius, first_radius)
+            lf = last_f[pi, ci]
+            fr = np.unique(lf)
+            tvalid = np.array([ring[f].valid[k] for f, k in zip(lf, ci, strict=True)])
+            if len(fr) == 1 and fr[0] == i:
+                tstack, tidx = ring[i].stack, ci
+            else:
+                tstack = ImageStack(np.concatenate([ring[f].stack.images for f in fr]))
+                tidx = np.searchsorted(fr, lf) * c + ci
+            st = pred[pi, ci].copy()
+            ncc_ok = np.zeros(len(pi), bool)
+            for r in np.unique(rad):
+                k = np.flatnonzero(rad == r)
+                nc = search(tstack, nxt.stack, last_uv[pi[k], ci[k]], pred[pi[k], ci[k]],
+                            half=half, radius=int(r), template_index=tidx[k],
+                            search_index=ci[k], min_score=0.6)
+                st[k[nc.ok]] = nc.uv[nc.ok]
+                ncc_ok[k] = nc.ok
+            rt = match(tstack, nxt.stack, last_uv[pi, ci], st, half=half,
+                       template_index=tidx, search_index=ci, max_shift_px=3.0,
+                       weight_sigma=temporal_sigma, max_sigma_px=max_sigma_px)
+            ok_t = rt.ok & nxt.valid[ci] & tvalid
             uv_t[pi[ok_t], ci[ok_t]] = rt.uv[ok_t]
-            if log is not None:
-                stage = {"seen": len(pi), "ncc_ok": int(nc.ok.sum()),
-                         "ncc_status": np.bincount(nc.status, minlength=6).tolist(),
-                         "temporal_ok": int(ok_t.sum()),
-                         "temporal_status": np.bincount(rt.status, minlength=8).tolist()}
-        # Spatial LSM at i+1 from the reference camera (or the first temporally ok one).
+            stage.update(seen=len(pi), ncc_ok=int(ncc_ok.sum()), temporal_ok=int(ok_t.sum()),
+                         temporal_status=np.bincount(rt.status, minlength=8).tolist(),
+                         radius_mean=float(rad.mean()))
+        # --- spatial LSM at i+1 from the reference camera (or the first temporal one) ---
         has_t = np.all(np.isfinite(uv_t), axis=2)
         tcam = np.where(has_t[:, ref], ref, np.argmax(has_t, axis=1))
-        anchor = has_t[np.arange(n), tcam] & live
-        # Start in cameras without a temporal match: the predicted 3-D point projected.
-        xyz_pred = xyz_hist[-1] + (xyz_hist[-1] - xyz_hist[-2] if len(xyz_hist) > 1
-                                   else 0.0)
-        xyz_pred = np.where(np.isfinite(xyz_pred), xyz_pred, xyz_hist[-1])
-        proj = np.stack([cam.project(xyz_pred) for cam in cameras], axis=1)
-        start_s = np.where(has_t[..., None], uv_t, proj)
+        anchor = has_t[np.arange(n), tcam] & ~dead
+        # Cameras without a temporal match start at the intersection of the temporal
+        # matches (two or more) projected, or else at the predicted point projected.
+        it_ = triangulate(cameras, uv_t, sigma_px=0.3)
+        xyz_s = np.where((it_.ok & (it_.rms < max_rms_px))[:, None], it_.xyz, xyz_p)
+        proj_s = np.stack([cam.project(xyz_s) for cam in cameras], axis=1)
+        start_s = np.where(has_t[..., None], uv_t, proj_s)
         qi, qc = np.nonzero(anchor[:, None] & (np.arange(c)[None] != tcam[:, None])
-                            & np.all(np.isfinite(start_s), axis=2))
+                            & np.all(np.isfinite(start_s), axis=2) & nxt.valid[None])
         uv_acc = np.full((n, c, 2), np.nan)
         uv_acc[anchor, tcam[anchor]] = uv_t[anchor, tcam[anchor]]
+        uv_tonly = uv_acc.copy()
         if len(qi):
             tc = tcam[qi]
             aff0 = np.where((tc == ref)[:, None, None], aff_sp[qi, qc], np.eye(2))
@@ -182,55 +375,150 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
             # a failed spatial match (occlusion edge, weak texture in that view) leaves
             # the check to the forward intersection.  Re-acquisitions need the spatial.
             ht = has_t[qi, qc]
-            agree = nxt.valid[qc] & np.where(ht, ~rs.ok | (d < agree_px), rs.ok)
-            use_uv = np.where(has_t[qi, qc][:, None], uv_t[qi, qc], rs.uv)
+            agree = np.where(ht, ~rs.ok | (d < agree_px), rs.ok)
+            use_uv = np.where(ht[:, None], uv_t[qi, qc], rs.uv)
             uv_acc[qi[agree], qc[agree]] = use_uv[agree]
-            if log is not None:
-                stage.update(spatial_ok=int(rs.ok.sum()), agree=int(agree.sum()),
-                             with_t=int(has_t[qi, qc].sum()),
-                             with_t_ok=int((rs.ok & has_t[qi, qc]).sum()),
-                             spatial_status=np.bincount(rs.status, minlength=8).tolist(),
-                             disagree_d=np.percentile(d[rs.ok & has_t[qi, qc]], [50, 90, 99])
-                             .round(3).tolist() if np.any(rs.ok & has_t[qi, qc]) else [])
-            upd = agree & (tc == ref)
+            kt = agree & ht
+            uv_tonly[qi[kt], qc[kt]] = use_uv[kt]
+            stage.update(spatial_ok=int(rs.ok.sum()), agree=int(agree.sum()),
+                         reacquired=int((agree & ~ht).sum()))
+            upd = agree & (tc == ref) & rs.ok
             aff_sp[qi[upd], qc[upd]] = rs.affine[upd]
-        inter = triangulate(cameras, uv_acc, sigma_px=0.05)
-        good = inter.ok & (inter.rms < max_rms_px) & (np.sum(np.isfinite(uv_acc[..., 0]), 1) >= 2)
-        uv_new = np.where(good[:, None, None], uv_acc, np.nan)
-        xyz_new = np.where(good[:, None], inter.xyz, np.nan)
-        sig_new = np.where(good[:, None], inter.sigma, np.nan)
-        if log is not None:
-            stage.update(live_before=int(live.sum()), live_after=int(good.sum()),
-                         tri_fail=int((np.sum(np.isfinite(uv_acc[..., 0]), 1) >= 2).sum()
-                                      - good.sum()))
-            log.append(stage)
+        # --- forward intersection, gated against the prediction ---
+        uv_new = np.full((n, c, 2), np.nan)
+        xyz_new = np.full((n, 3), np.nan)
+        cov_new = np.full((n, 3, 3), np.nan)
+        chosen = np.zeros(n, bool)
+        n_gated = 0
+        cands = (uv_acc, uv_tonly) + ((np.where(anchor[:, None, None], uv_t, np.nan),)
+                                      if fallback else ())
+        for cand in cands:
+            inter = triangulate(cameras, cand, sigma_px=0.3)
+            m2 = kf.mahalanobis2(inter.xyz, inter.cov + _COV_FLOOR)
+            ok = (~chosen & ~dead & inter.ok & (inter.rms < max_rms_px)
+                  & (np.sum(np.isfinite(cand[..., 0]), 1) >= 2))
+            n_gated += int((ok & ~(m2 < gate ** 2)).sum())
+            ok &= m2 < gate ** 2
+            uv_new[ok], xyz_new[ok], cov_new[ok] = cand[ok], inter.xyz[ok], inter.cov[ok]
+            chosen |= ok
+        rows = np.flatnonzero(chosen)
+        kf.update(xyz_new[rows], cov_new[rows] + _COV_FLOOR, rows)
+        coast = np.where(chosen, 0, coast + 1)
+        dead |= coast > max_coast
+        got = np.all(np.isfinite(uv_new), axis=2)
+        prev_uv = np.where((got & (last_f == i))[..., None], last_uv,
+                           np.where(got[..., None], np.nan, prev_uv))
+        last_uv = np.where(got[..., None], uv_new, last_uv)
+        last_f = np.where(got, i + 1, last_f)
+        stage.update(measured=int(chosen.sum()), gated=n_gated,
+                     coasting=int((~dead & ~chosen).sum()))
         uv_hist.append(uv_new)
         xyz_hist.append(xyz_new)
-        sig_hist.append(sig_new)
-        # Regenerate lost points and seed newly visible surface.
-        if regen_every and (i + 1) % regen_every == 0 and good.any():
-            occ = uv_new[good, ref]
-            seeds = uv_new[good][:: max(1, int(good.sum()) // 20)]
+        sig_hist.append(np.sqrt(np.abs(np.diagonal(cov_new, axis1=1, axis2=2))))
+        rate_hist.append(np.where(chosen[:, None], kf.x[:, 3:], np.nan))
+        # --- regenerate lost points and seed newly visible surface ---
+        if regen_every and (i + 1) % regen_every == 0 and chosen.any() and nxt.valid.all():
+            occ = np.concatenate([uv_new[chosen, ref], proj[~dead & ~chosen, ref]])
+            seeds = uv_new[chosen][:: max(1, int(chosen.sum()) // 20)]
             seeds = seeds[np.all(np.isfinite(seeds[:, ref]), axis=1)]
-            if len(seeds) and nxt.valid.all():
-                new = measure_surface(nxt.stack, cameras, seeds, ref=ref, step=step,
-                                      half=half, occupied_uv=occ)
-                if len(new):
-                    k = len(new)
-                    uv_hist = [_pad(u, k) for u in uv_hist]
-                    xyz_hist = [_pad(x, k) for x in xyz_hist]
-                    sig_hist = [_pad(s, k) for s in sig_hist]
-                    uv_hist[-1][-k:] = new.uv
-                    xyz_hist[-1][-k:] = new.xyz
-                    sig_hist[-1][-k:] = np.sqrt(np.abs(np.diagonal(new.cov, axis1=1, axis2=2)))
-                    start = np.concatenate([start, np.full(k, i + 1)])
-                    aff_sp = np.concatenate([aff_sp, new.affine])
-        prev = nxt
+            new = (measure_surface(nxt.stack, cameras, seeds, ref=ref, step=step, half=half,
+                                   occupied_uv=occ) if len(seeds) else None)
+            if new is not None and len(new):
+                k = len(new)
+                uv_hist = [_pad(u, k) for u in uv_hist]
+                xyz_hist = [_pad(x, k) for x in xyz_hist]
+                sig_hist = [_pad(s, k) for s in sig_hist]
+                rate_hist = [_pad(s, k) for s in rate_hist]
+                uv_hist[-1][-k:] = new.uv
+                xyz_hist[-1][-k:] = new.xyz
+                sig_hist[-1][-k:] = np.sqrt(np.abs(np.diagonal(new.cov, axis1=1, axis2=2)))
+                rate0, rsig = _neighbour_rates(xyz_new[chosen], kf.x[chosen, 3:], new.xyz)
+                rate_hist[-1][-k:] = rate0
+                kf.append(PointFilter.start(new.xyz, new.cov + _COV_FLOOR, rate0, rsig))
+                start = np.concatenate([start, np.full(k, i + 1)])
+                aff_sp = np.concatenate([aff_sp, new.affine])
+                seen_n = np.all(np.isfinite(new.uv), axis=2)
+                last_f = np.concatenate([last_f, np.where(seen_n, i + 1, -1)])
+                last_uv = np.concatenate([last_uv, new.uv])
+                prev_uv = np.concatenate([prev_uv, np.full_like(new.uv, np.nan)])
+                coast = np.concatenate([coast, np.zeros(k, int)])
+                dead = np.concatenate([dead, np.zeros(k, bool)])
+                stage["regenerated"] = k
+        if log is not None:
+            log.append(stage)
         if progress is not None:
-            alive = int(np.all(np.isfinite(xyz_hist[-1]), axis=1).sum())
-            progress.update(i + 1, n_frames - 1, f"tracking: frame {i + 1}, {alive} points")
-    return Tracks(xyz=np.stack(xyz_hist), uv=np.stack(uv_hist), sigma_xyz=np.stack(sig_hist),
-                  start=start, fps=float(fps))
+            progress.update(i + 1, n_frames - 1,
+                            f"tracking: frame {i + 1}, {int(chosen.sum())} points")
+    xyz = np.stack(xyz_hist)
+    measured = np.all(np.isfinite(xyz), axis=2)
+    filled = fill_gaps(xyz, np.stack(rate_hist), max_coast)
+    return Tracks(xyz=filled, uv=np.stack(uv_hist), sigma_xyz=np.stack(sig_hist),
+                  start=start, fps=float(fps), measured=measured)
+
+
+#: Added to every point covariance in the filters: model error of a surface point
+#: (LSM bias on curved skin, texture slipping), m².
+_COV_FLOOR = np.eye(3) * 0.002 ** 2
+
+
+def _neighbour_rates(xyz: np.ndarray, rate: np.ndarray, new_xyz: np.ndarray,
+                     radius_m: float = 0.05, k: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """Start rates (K, 3) of new points: the median filtered rate of up to ``k`` measured
+    points within ``radius_m``; their σ (K,) is 1 cm/frame there, 3 cm/frame elsewhere."""
+    out = np.zeros((len(new_xyz), 3))
+    sig = np.full(len(new_xyz), 0.03)
+    ok = np.all(np.isfinite(xyz), axis=1) & np.all(np.isfinite(rate), axis=1)
+    if ok.sum() < k:
+        return out, sig
+    tree = cKDTree(xyz[ok])
+    d, idx = tree.query(new_xyz, k=k, distance_upper_bound=radius_m)
+    have = np.isfinite(d)
+    vals = np.where(have[..., None], rate[ok][np.minimum(idx, ok.sum() - 1)], np.nan)
+    enough = have.sum(axis=1) >= 3
+    out[enough] = np.nanmedian(vals[enough], axis=1)
+    sig[enough] = 0.01
+    return out, sig
+
+
+def fill_gaps(xyz: np.ndarray, rate: np.ndarray, max_gap: int) -> np.ndarray:
+    """Fill gaps of at most ``max_gap`` frames between measured positions.
+
+    Cubic Hermite interpolation between the measured ends with the filtered rates
+    there; longer gaps and the frames after a trajectory's last measurement stay NaN.
+
+    Parameters
+    ----------
+    xyz : ndarray, shape (F, P, 3)
+        Measured positions, metres, NaN where unmeasured.
+    rate : ndarray, shape (F, P, 3)
+        Filtered rates at the measured frames, metres per frame.
+    max_gap : int
+        Longest gap to fill, frames.
+
+    Returns
+    -------
+    ndarray, shape (F, P, 3)
+    """
+    F, P, _ = xyz.shape
+    m = np.all(np.isfinite(xyz), axis=2)
+    idx = np.where(m, np.arange(F)[:, None], -1)
+    a = np.maximum.accumulate(idx, axis=0)                            # last measured <= f
+    b = np.where(m, np.arange(F)[:, None], F)
+    b = np.minimum.accumulate(b[::-1], axis=0)[::-1]                  # next measured >= f
+    gap = ~m & (a >= 0) & (b < F) & (b - a - 1 <= max_gap)
+    out = xyz.copy()
+    f, p = np.nonzero(gap)
+    if len(f) == 0:
+        return out
+    fa, fb = a[f, p], b[f, p]
+    h = (fb - fa).astype(float)
+    s = ((f - fa) / h)[:, None]
+    ra = np.nan_to_num(rate[fa, p]) * h[:, None]
+    rb = np.nan_to_num(rate[fb, p]) * h[:, None]
+    h00, h10 = 2 * s ** 3 - 3 * s ** 2 + 1, s ** 3 - 2 * s ** 2 + s
+    h01, h11 = -2 * s ** 3 + 3 * s ** 2, s ** 3 - s ** 2
+    out[f, p] = h00 * xyz[fa, p] + h10 * ra + h01 * xyz[fb, p] + h11 * rb
+    return out
 
 
 def _pad(a: np.ndarray, k: int) -> np.ndarray:

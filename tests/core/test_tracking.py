@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from core.surface import measure_surface
-from core.tracking import filter_trajectories, track
+from core.tracking import PointFilter, fill_gaps, filter_trajectories, predict_in_image, track
 from tests.core._planescene import cameras, render
 
 
@@ -47,3 +47,63 @@ def test_filters_remove_false_trajectories(rng):
     good = np.setdiff1d(np.arange(P), false)
     assert hit[false].mean() >= 0.95
     assert hit[good].mean() < 0.05
+
+
+def test_point_filter_follows_constant_velocity_and_gates_a_jump(rng):
+    P = 200
+    xyz0 = rng.uniform(-1, 1, (P, 3))
+    rate = rng.uniform(-0.02, 0.02, (P, 3))                   # m/frame
+    R = np.tile(np.eye(3) * 0.001 ** 2, (P, 1, 1))
+    kf = PointFilter.start(xyz0, R, accel_sigma=0.002)
+    rows = np.arange(P)
+    for k in range(1, 8):
+        kf.predict()
+        kf.update(xyz0 + k * rate + rng.normal(0, 0.001, (P, 3)), R, rows)
+    assert np.median(np.abs(kf.x[:, 3:] - rate)) < 0.001
+    xyz_p, cov_p = kf.predicted()
+    assert np.median(np.linalg.norm(xyz_p - (xyz0 + 8 * rate), axis=1)) < 0.004
+    kf.predict()
+    z = xyz0 + 8 * rate + rng.normal(0, 0.001, (P, 3))
+    z[:20] += 0.05                                            # a 5 cm jump: a wrong match
+    m2 = kf.mahalanobis2(z, R)
+    assert np.all(m2[:20] > 25.0) and np.mean(m2[20:] < 25.0) > 0.98
+    # Coasting widens the prediction; its projection is the camera's.
+    cam = cameras()[1]
+    before = predict_in_image(cam, kf.x[:, :3], kf.P[:, :3, :3])[1]
+    for _ in range(3):
+        kf.predict()
+    uv, sig = predict_in_image(cam, kf.x[:, :3], kf.P[:, :3, :3])
+    assert np.all(sig > before)
+    assert np.allclose(uv, cam.project(kf.x[:, :3]))
+
+
+def test_fill_gaps_bridges_short_gaps_only():
+    F, P = 12, 3
+    t = np.arange(F, dtype=float)[:, None, None]
+    v = np.array([[0.01, -0.02, 0.005]])
+    xyz = np.broadcast_to(t * v, (F, P, 3)).copy()
+    rate = np.broadcast_to(v, (F, P, 3)).copy()
+    xyz[4:6, 0] = np.nan                    # 2-frame gap: filled (exactly, linear motion)
+    xyz[3:9, 1] = np.nan                    # 6-frame gap: too long
+    xyz[9:, 2] = np.nan                     # lost at the end: stays lost
+    out = fill_gaps(xyz, rate, max_gap=3)
+    assert np.allclose(out[:, 0], t[:, 0] * v)
+    assert np.all(np.isnan(out[3:9, 1])) and np.all(np.isnan(out[9:, 2]))
+
+
+def test_occluded_frame_is_coasted_and_reacquired():
+    cams = cameras()
+    motion = np.array([0.004, 0.0, -0.003])
+    frames = [[render(c, offset=k * motion) for c in cams] for k in range(4)]
+    frames[2][1] = frames[2][2] = None      # only one camera in frame 2: no intersection
+    seeds = np.stack([c.project(np.array([[0.0, 0.0, 0.0]])) for c in cams], 1)
+    surf = measure_surface(frames[0], cams, seeds, step=6)
+    for pred in ("ekf", "linear"):
+        tr = track(lambda i: frames[i], cams, surf, 4, 25.0, regen_every=0, predict=pred,
+                   max_coast=2)
+        p0 = len(surf)
+        assert not tr.measured[2, :p0].any()
+        assert tr.measured[[0, 1, 3], :p0].all(axis=0).mean() > 0.8
+        ok = tr.measured[3, :p0]
+        err = tr.xyz[2, :p0][ok] - (surf.xyz[ok] + 2 * motion)
+        assert np.median(np.linalg.norm(err, axis=1)) < 0.001   # the bridged frame

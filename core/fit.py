@@ -100,7 +100,8 @@ class SequenceSettings:
     max_nfev: int = 20
     max_nfev_shape: int = 40
     fit: FitSettings = field(default_factory=lambda: FitSettings(members="neighbours",
-                                                                 irls_rounds=2))
+                                                                 irls_rounds=2,
+                                                                 robust="cauchy"))
 
 
 @dataclass
@@ -384,7 +385,8 @@ def observations_from_tracks(path, n_frames: int) -> list[FramePoints]:
     """Per-frame observations from a tracker's ``tracks.npz``.
 
     Reads ``xyz`` (F, P, 3) metres with NaN where a trajectory is not measured, and
-    optionally ``sigma`` (F, P) metres (default 3 mm); the trajectory id is the index P.
+    optionally ``sigma`` (F, P) or ``sigma_xyz`` (F, P, 3) metres (default 3 mm); the
+    trajectory id is the index P.
     """
     from pathlib import Path
 
@@ -401,6 +403,10 @@ def observations_from_tracks(path, n_frames: int) -> list[FramePoints]:
         raise InputError(f"{path}: 'xyz' has shape {list(xyz.shape)}, expected "
                          f"({n_frames}, P, 3)")
     sigma = np.asarray(data.get("sigma", np.full(xyz.shape[:2], 0.003)), float)
+    if "sigma" not in data and "sigma_xyz" in data:  # per-axis σ (F, P, 3): their RMS
+        sx = np.asarray(data["sigma_xyz"], float)
+        if sx.shape == xyz.shape:
+            sigma = np.sqrt(np.mean(sx**2, axis=2))
     if sigma.shape != xyz.shape[:2]:
         sigma = np.full(xyz.shape[:2], 0.003)
     ids = np.arange(xyz.shape[1])

@@ -91,7 +91,8 @@ class FitSettings:
 
     sigma_limits: float = 0.05
     sigma_radius: float = 0.05
-    robust_scale: float = 3.0  # Huber knee, in σ units of the attractor residual
+    robust_scale: float = 3.0  # knee of the robust loss, in σ units of the attractor residual
+    robust: str = "huber"  # or "cauchy" (redescending influence)
     rounds: int = 3
     polish: bool = True
     max_nfev: int = 100
@@ -139,7 +140,9 @@ class _Problem:
             att = self.attractors(f, theta, root, s, radii, centers)[2]
             w = att.inv_g / sig
             if self.cfg.robust_scale:
-                w = w * _huber_weights((att.L - LN_T) * w, self.cfg.robust_scale)
+                r = (att.L - LN_T) * w
+                w = w * (_huber_weights(r, self.cfg.robust_scale) if self.cfg.robust == "huber"
+                         else _cauchy_weights(r, self.cfg.robust_scale))
             out.append(w)
         self.frozen = out
 
@@ -200,6 +203,12 @@ class _Problem:
                 parts.append(("limit", r[0], np.diag(d[0]), *z[1:]))
             rows.append(parts)
         return rows
+
+
+def _cauchy_weights(r: np.ndarray, k: float) -> np.ndarray:
+    """Square roots of the Cauchy IRLS weights ``1 / (1 + (r/k)²)``: gross outliers
+    lose their influence (it falls like 1/r) instead of keeping a constant one."""
+    return 1.0 / np.sqrt(1.0 + (r / k) ** 2)
 
 
 def _huber_weights(r: np.ndarray, k: float) -> np.ndarray:

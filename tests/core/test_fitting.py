@@ -53,7 +53,8 @@ def test_noise_free_points_recover_pose_scales_and_radii(truth, rng):
     assert np.all(np.isfinite(res.theta_sigma))
 
 
-def test_pose_only_with_outliers_and_joint_observations(truth, rng):
+@pytest.mark.parametrize("robust", ["huber", "cauchy"])
+def test_pose_only_with_outliers_and_joint_observations(truth, rng, robust):
     skel, balls, theta, root, s, obs = truth
     n_out = len(obs.xyz) // 10
     bad = obs.xyz.copy()
@@ -63,7 +64,7 @@ def test_pose_only_with_outliers_and_joint_observations(truth, rng):
     obs2 = Observations(xyz=bad, part=obs.part, sigma=0.001, joint_idx=joints,
                         joint_xyz=x_j[joints], sigma_joint=0.005)
     res = fit(skel, balls, obs2, theta + rng.normal(0, 0.03, skel.n_dof), root + 0.01, s,
-              solve="pose", settings=FitSettings(use_limits=False, robust_scale=2.0))
+              solve="pose", settings=FitSettings(use_limits=False, robust_scale=2.0, robust=robust))
     err = np.linalg.norm(sk.joint_positions(skel, res.theta, res.root_xyz, s) - x_j, axis=-1)
     assert err.max() < 0.01  # robust: outliers move no joint by a centimetre
     assert not res.diverged and np.all(np.isfinite(res.theta_sigma))

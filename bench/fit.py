@@ -98,6 +98,10 @@ def main(argv: list[str] | None = None) -> int:
               f"{100 * m['frames_within_1pct_height']:>8.0f}%"
               f"{m['segment_orientation_rmse_deg']:>9.1f}{r['surface_mm']:>9.1f}"
               f"{r['wall_s']:>8.0f}  {r['size'][0]}x{r['size'][1]}; {r['fit_line']}; {r['pts']}")
+        print("    per joint mm: " + ", ".join(
+            f"{j} {v:.1f}" for j, v in m["per_joint_mm"].items()))
+        print("    per segment RMSE deg: " + ", ".join(
+            f"{k} {v:.1f}" for k, v in m["per_segment_rmse_deg"].items()))
     return 0
 
 

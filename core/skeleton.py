@@ -151,6 +151,7 @@ ANCHOR_SIGMA = {
     "spine_x": 0.1, "spine_y": 0.1, "spine_z": 0.1,
     "chest_x": 0.1, "chest_y": 0.1, "chest_z": 0.1,
     "neck_x": 0.15, "neck_y": 0.15, "neck_z": 0.15, "head_x": 0.2, "head_y": 0.2,
+    "l_ankle_z": 0.15, "r_ankle_z": 0.15,
 }
 
 

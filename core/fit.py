@@ -6,14 +6,23 @@ trajectory ``ids``) from any source — the tracker's ``tracks.npz``, or, for
 development, truth-derived points (:mod:`core.truth_points`).  Starting from the
 clicked frame's initial posture (:mod:`core.fit_init`):
 
-1. **shape** — the first ``shape_frames`` frames are fitted pose-only with the template
-   shape, then the shape (radii, bone scales) and their poses are solved together by
-   alternating shape and pose (:func:`core.fitting.fit`); the shape is fixed afterwards;
+1. **shape** — at the clicked frame the pose is the clicks' (bone scales ``s`` from the
+   clicks are kept); the metaball radii and centres are solved to that frame's points
+   with the pose held, the points re-segmented with the new shape and solved again;
+   the next ``shape_frames − 1`` frames are pose-fitted and join the shape solve; the
+   shape is fixed afterwards and every shape frame's pose refitted (the clicked frame
+   with the clicks as joint observations, σ ``sigma_click``);
 2. **motion** — every other frame is *predicted* (the extended Kalman filter of
    :mod:`core.ekf` over ``[θ, root]``, or constant velocity), its points are
-   *segmented* to body parts at the predicted pose (:mod:`core.segment`), the pose is
-   refined by weighted least squares with the prediction as a soft prior, the points
-   are segmented again at the refined pose and the pose refined once more;
+   *segmented* to body parts at the predicted pose (:mod:`core.segment`: points far
+   from every part or ambiguous between non-adjacent parts are left out), the pose is
+   refined by weighted least squares (attractor distances with Cauchy re-weighting)
+   with a prior on the angles — the prediction, its σ capped for stiff DOFs
+   (:data:`core.skeleton.STIFF_SIGMA`), fused with a prior towards the clicked
+   posture for DOFs a person hardly moves (:data:`core.skeleton.ANCHOR_SIGMA`); a part
+   with fewer than ``min_part_points`` points is *hidden*: its DOFs are held at the
+   previous frame's angles and drift back to the clicked posture.  The points are
+   segmented again at the refined pose and the pose refined once more;
 3. **quality** — per frame the RMS point-to-surface distance of the inlier points
    (metres), σ of every joint angle (normal matrix), converged and diverged flags.
    A frame with fewer than ``min_points`` assigned points, a non-finite solution, an

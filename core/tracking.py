@@ -312,7 +312,10 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
         # --- temporal: NCC then LSM from each camera's last measurement into i+1 ---
         if predict == "ekf":
             pred = proj
-            has_vel = np.ones((n, c), bool)
+            # a filter knows its point's velocity once the rate σ fell well below its
+            # start (0.03 m/frame): until then the first, wide box is searched
+            rate_sd = np.sqrt(np.max(np.diagonal(kf.P[:, 3:, 3:], axis1=1, axis2=2), axis=1))
+            has_vel = np.broadcast_to((rate_sd < 0.015)[:, None], (n, c))
         else:
             lin = last_uv + age[..., None] * (last_uv - prev_uv)
             has_vel = np.all(np.isfinite(lin), axis=2)

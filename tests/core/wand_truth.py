@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from core.calibrate import similarity  # noqa: F401  (re-exported for the tests)
 from core.camera import Camera
 
 
@@ -71,15 +72,3 @@ def wand_capture(cams, n=120, length=0.5, noise_px=0.05, outlier_frac=0.0, seed=
             uv[f, j, k] = rng.uniform([0, 0], [w - 1, h - 1])
             bad[f, j, k] = True
     return xyz, uv, bad
-
-
-def similarity(src, dst):
-    """Umeyama: scale s, rotation R, translation t with ``dst ≈ s R src + t``; (N, 3)."""
-    mu_s, mu_d = src.mean(0), dst.mean(0)
-    a, b = src - mu_s, dst - mu_d
-    U, S, Vt = np.linalg.svd(b.T @ a / len(src))
-    D = np.eye(3)
-    D[2, 2] = np.sign(np.linalg.det(U @ Vt))
-    R = U @ D @ Vt
-    s = np.trace(np.diag(S) @ D) / (a**2).sum(axis=1).mean()
-    return s, R, mu_d - s * R @ mu_s

@@ -7,8 +7,9 @@ import pytest
 from scipy import ndimage
 
 from bench.patches import make_pairs
+from core.batched_linalg import cholesky_solve as _cholesky_solve
 from core.camera import Camera
-from core.lsm import Status, _cholesky_solve, epipolar_lines, match, template_patches, upsample2
+from core.lsm import Status, epipolar_lines, match, template_patches, upsample2
 
 
 def _match(P, **kw):

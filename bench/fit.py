@@ -1,14 +1,22 @@
 """Benchmark of ``core fit`` + ``core evaluate`` on studio scenes.
 
-``python -m bench.fit [SCENE ...] [--frames N] [--observations truth]``
+``python -m bench.fit [SCENE ...] [--frames N] [--observations truth] [--renders DIR]``
+
+Without SCENE arguments it runs the default sample scene (``sample_scenes/walk_line3``)
+and the studio scenes of :data:`STUDIO_SCENES` (walk, dance and jumps clips of
+``../shared/data/mocap`` through the ``line3`` and ``orthogonal3`` rigs, 25 fps,
+512x384, 50 frames, true ``calibration.toml``, no wand sequence).  A SCENE argument
+is either a scene folder or one of the :data:`STUDIO_SCENES` names.  Studio scenes are
+cached under ``out/bench_fit/<name>``; a missing one is rendered first by
+``python -m sample_scenes.studio`` in a subprocess, one at a time.
 
 For each scene: runs ``python -m core fit`` (timed end to end) and ``python -m core
 evaluate --json``, measures the fitted metaball surface against the true mesh (mean
 distance of the true vertices to the fitted surface, by projection onto ``Σ f = 0.5``
-in :mod:`core.metaballs`), and the skeleton floor (the truth expressed in our
-skeleton, :mod:`core.truth_state`).  With ``--observations truth`` the fit uses
-truth-derived surface points — a development stand-in for the tracker, labelled as
-such in the table, never the pipeline's result.
+in :mod:`core.metaballs`), and prints one table row with per-joint MPJPE and
+per-segment orientation RMSE lines under it.  With ``--observations truth`` the fit
+uses truth-derived surface points — a development stand-in for the tracker, labelled
+as such in the table, never the pipeline's result.
 """
 
 from __future__ import annotations
@@ -19,16 +27,74 @@ import subprocess
 import sys
 import tempfile
 import time
+import tomllib
 from pathlib import Path
 
 import numpy as np
 
-DEFAULT = Path(__file__).resolve().parents[1] / "sample_scenes" / "walk_line3"
+ROOT = Path(__file__).resolve().parents[1]
+DEFAULT = ROOT / "sample_scenes" / "walk_line3"
+MOCAP = ROOT.parent / "shared" / "data" / "mocap"
+RENDERS = ROOT / "out" / "bench_fit"
+
+#: Studio scenes: name -> (BVH file in ``../shared/data/mocap``, rig, first BVH frame).
+#: 50 frames at 25 fps are 2 s (240 frames of the 120 fps clips).  ``01_01`` from
+#: frame 150: standing, crouch (BVH ~190-200), a forward jump (hips 0.4 m up at ~250),
+#: landing (~285) and standing again.  ``05_06`` from 120: its busiest 2 s.
+STUDIO_SCENES: dict[str, tuple[str, str, int]] = {
+    "walk_ortho3": ("02_01.bvh", "orthogonal3", 0),
+    "dance_line3": ("05_06.bvh", "line3", 120),
+    "dance_ortho3": ("05_06.bvh", "orthogonal3", 120),
+    "jumps_line3": ("01_01.bvh", "line3", 150),
+}
+FRAMES, FPS, SIZE = 50, 25.0, "512x384"
+
+
+def render_studio_scene(name: str, root: Path = RENDERS) -> tuple[Path, float | None]:
+    """Return the cached studio scene ``root/name``, rendering it first when missing.
+
+    Parameters
+    ----------
+    name : str
+        A key of :data:`STUDIO_SCENES`.
+    root : Path
+        Cache folder; the scene is ``root / name``.
+
+    Returns
+    -------
+    (Path, float or None)
+        The scene folder and the render wall time in seconds (None when cached).
+    """
+    bvh, rig, start = STUDIO_SCENES[name]
+    out = root / name
+    if (out / "scene.toml").is_file() and (out / "truth.npz").is_file():
+        return out, None
+    cmd = [sys.executable, "-m", "sample_scenes.studio", "--out", str(out),
+           "--bvh", str(MOCAP / bvh), "--rig", rig, "--start", str(start),
+           "--frames", str(FRAMES), "--fps", str(FPS), "--size", SIZE,
+           "--wand-positions", "0"]
+    print(f"rendering {name}: {' '.join(cmd[1:])}", flush=True)
+    t0 = time.perf_counter()
+    p = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
+    wall = time.perf_counter() - t0
+    if p.returncode != 0 or not (out / "truth.npz").is_file():
+        raise RuntimeError(f"studio failed for {name}: {p.stderr.strip().splitlines()[-1:]}")
+    return out, wall
 
 
 def surface_distance_mm(state, vertices: np.ndarray, frames: list[int], per_frame: int = 2000,
                         seed: int = 0) -> float:
-    """Mean distance (mm) of true mesh vertices to the fitted metaball surface."""
+    """Mean distance (mm) of true mesh vertices to the fitted metaball surface.
+
+    Parameters
+    ----------
+    state : core.state.FittedState
+        The fitted state.
+    vertices : ndarray, shape (F, V, 3)
+        True mesh vertices per frame, world metres.
+    frames : list of int
+        Frames to measure; ``per_frame`` random vertices each.
+    """
     from core import metaballs as mb
     from core.skeleton import forward
 
@@ -45,6 +111,7 @@ def surface_distance_mm(state, vertices: np.ndarray, frames: list[int], per_fram
 
 
 def run_one(scene: Path, frames: int | None, observations: str, model: str) -> dict:
+    """Fit and evaluate one scene folder; return the figures (or ``{"error": ...}``)."""
     from core.scene import load_scene
     from core.state import read_state
 
@@ -55,12 +122,14 @@ def run_one(scene: Path, frames: int | None, observations: str, model: str) -> d
         if frames:
             cmd += ["--frames", str(frames)]
         t0 = time.perf_counter()
-        p = subprocess.run(cmd, capture_output=True, text=True)
+        p = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
         wall = time.perf_counter() - t0
         if p.returncode != 0:
             return {"scene": scene.name, "error": p.stderr.strip().splitlines()[-1:]}
         ev = subprocess.run([sys.executable, "-m", "core", "evaluate", str(scene), str(out),
-                             "--json"], capture_output=True, text=True)
+                             "--json"], capture_output=True, text=True, cwd=ROOT)
+        if ev.returncode != 0:
+            return {"scene": scene.name, "error": ev.stderr.strip().splitlines()[-1:]}
         metrics = json.loads(ev.stdout.strip().splitlines()[-1])
         state = read_state(out)
         fit_line = [ln for ln in p.stdout.splitlines() if ln.startswith("seconds:")]
@@ -69,39 +138,69 @@ def run_one(scene: Path, frames: int | None, observations: str, model: str) -> d
     ok = [f for f in range(state.n_frames) if not state.quality.diverged[f]]
     surf = surface_distance_mm(state, sc.truth["vertices"], ok[:: max(1, len(ok) // 5)])
     return {"scene": scene.name, "size": sc.image_size, "frames": len(ok),
+            "n_frames": state.n_frames, "rig": sc.meta.get("source", {}).get("rig", "?"),
             "metrics": metrics, "surface_mm": surf, "wall_s": wall,
+            "s_per_frame": wall / max(state.n_frames, 1),
             "fit_line": fit_line[0] if fit_line else "", "pts": pts_line[0] if pts_line else ""}
+
+
+def _resolve(arg: str, renders: Path) -> tuple[Path, float | None]:
+    if arg in STUDIO_SCENES:
+        return render_studio_scene(arg, renders)
+    return Path(arg), None
+
+
+def _render_note(scene: Path, wall: float | None) -> str:
+    try:
+        meta = tomllib.loads((scene / "scene.toml").read_text())
+    except (OSError, tomllib.TOMLDecodeError):
+        return ""
+    spi = meta.get("seconds_per_image")
+    src = meta.get("source", {})
+    note = f"{src.get('bvh', '?')} from BVH frame {src.get('bvh_start_frame', '?')}"
+    if spi is not None:
+        note += f", {spi:.2f} s/image"
+    if wall is not None:
+        note += f", rendered now in {wall:.0f} s"
+    return note
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m bench.fit", description=__doc__.splitlines()[0])
-    ap.add_argument("scenes", nargs="*", type=Path, default=[DEFAULT])
+    ap.add_argument("scenes", nargs="*",
+                    help=f"scene folders or studio scene names {list(STUDIO_SCENES)} "
+                         "(default: walk_line3 and all studio scenes)")
     ap.add_argument("--frames", type=int, default=None)
     ap.add_argument("--observations", default="truth", choices=("truth", "tracks", "auto"))
     ap.add_argument("--model", default="complete", choices=("simplified", "complete"))
+    ap.add_argument("--renders", type=Path, default=RENDERS, help="studio scene cache folder")
     args = ap.parse_args(argv)
+    names = args.scenes or [str(DEFAULT), *STUDIO_SCENES]
+    scenes = [_resolve(a, args.renders) for a in names]  # renders first, sequentially
     label = ("TRUTH-DERIVED OBSERVATIONS (points sampled on the true mesh, 1.5 mm noise, "
              "5 % outliers) — not the image pipeline's result"
              if args.observations == "truth" else f"observations: {args.observations}")
     print(label)
-    hdr = (f"{'scene':<14}{'frames':>7}{'MPJPE mm':>10}{'max %h':>8}{'<=1% fr':>9}"
-           f"{'seg deg':>9}{'surf mm':>9}{'wall s':>8}  fit timing / points")
-    print(hdr)
-    for scene in args.scenes:
+    hdr = (f"{'scene':<14}{'rig':<12}{'frames':>7}{'MPJPE mm':>10}{'max %h':>8}{'<=1% fr':>9}"
+           f"{'seg deg':>9}{'surf mm':>9}{'s/frame':>9}  fit timing / points / source")
+    print(hdr, flush=True)
+    for scene, render_wall in scenes:
         r = run_one(scene, args.frames, args.observations, args.model)
         if "error" in r:
-            print(f"{r['scene']:<14} failed: {r['error']}")
+            print(f"{r['scene']:<14} failed: {r['error']}", flush=True)
             continue
         m = r["metrics"]
-        print(f"{r['scene']:<14}{r['frames']:>7}{m['mpjpe_mm']:>10.1f}"
+        print(f"{r['scene']:<14}{r['rig']:<12}{r['frames']:>4}/{r['n_frames']:<2}"
+              f"{m['mpjpe_mm']:>10.1f}"
               f"{m['max_joint_error_pct_height']:>8.2f}"
               f"{100 * m['frames_within_1pct_height']:>8.0f}%"
               f"{m['segment_orientation_rmse_deg']:>9.1f}{r['surface_mm']:>9.1f}"
-              f"{r['wall_s']:>8.0f}  {r['size'][0]}x{r['size'][1]}; {r['fit_line']}; {r['pts']}")
+              f"{r['s_per_frame']:>9.2f}  {r['size'][0]}x{r['size'][1]}; {r['fit_line']}; "
+              f"{r['pts']}; {_render_note(scene, render_wall)}")
         print("    per joint mm: " + ", ".join(
             f"{j} {v:.1f}" for j, v in m["per_joint_mm"].items()))
         print("    per segment RMSE deg: " + ", ".join(
-            f"{k} {v:.1f}" for k, v in m["per_segment_rmse_deg"].items()))
+            f"{k} {v:.1f}" for k, v in m["per_segment_rmse_deg"].items()), flush=True)
     return 0
 
 

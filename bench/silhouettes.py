@@ -154,6 +154,34 @@ def contour_tracking(scene_dir: Path, n_frames: int) -> None:
               f"{sum(not t.updated for t in out):11d} {dt:7.2f}")
 
 
+def fuse(scene_dir: Path, fit: Path) -> None:
+    """Points + contours: refine a point fit with contours, frame by frame."""
+    from core.contour_track import ContourTrackSettings, refine_state_with_contours
+    from core.evaluate import evaluate_state
+    from core.state import read_state
+
+    scene = load_scene(scene_dir)
+    cams = scene.calibration()
+    contours = [[] for _ in range(scene.n_frames)]
+    for cam in scene.cameras:
+        frames = np.array([scene.image(cam, i, color=True) for i in range(scene.n_frames)])
+        model = fit_background(frames)
+        for f in range(scene.n_frames):
+            contours[f].append(occluding_contours(model.foreground(frames[f]), spacing=2.0))
+    state = read_state(fit)
+    t0 = time.perf_counter()
+    cfg = ContourTrackSettings(sigma_px=3.0, huber_px=6.0, iterations=10)
+    ref = refine_state_with_contours(state, cams, contours, cfg)
+    dt = (time.perf_counter() - t0) / state.n_frames
+    a = evaluate_state(state, scene.truth)
+    b = evaluate_state(ref, scene.truth)
+    print(f"\n3b. Points + contours ({fit}): MPJPE {a.mpjpe_mm:.1f} -> {b.mpjpe_mm:.1f} mm, "
+          f"segment orientation {a.segment_orientation_rmse_deg:.1f} -> "
+          f"{b.segment_orientation_rmse_deg:.1f} deg ({dt:.1f} s/frame)")
+    print("   per joint mm: " + ", ".join(
+        f"{k} {a.per_joint_mm[k]:.0f}->{b.per_joint_mm[k]:.0f}" for k in a.per_joint_mm))
+
+
 def real_video(out: Path, scale: float = 0.25) -> None:
     if not VIDEO.is_dir():
         print(f"\n4. Real video: skipped ({VIDEO} not found)")
@@ -200,10 +228,14 @@ def main(argv=None) -> int:
     ap.add_argument("--fit", type=Path, default=None, help="fitted state of --scene")
     ap.add_argument("--skip-video", action="store_true", help="leave out the real video")
     ap.add_argument("--track-frames", type=int, default=25, help="frames of contour tracking")
+    ap.add_argument("--fuse", action="store_true",
+                    help="also fuse contours into a point fit (needs --fit)")
     args = ap.parse_args(argv)
     studio(args.scene)
     visibility(args.scene, args.fit)
     contour_tracking(args.scene, args.track_frames)
+    if args.fuse and args.fit is not None:
+        fuse(args.scene, args.fit)
     if not args.skip_video:
         real_video(args.out)
     return 0

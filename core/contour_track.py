@@ -238,3 +238,54 @@ def fit_shape_to_contours(skel: Skeleton, s: np.ndarray, balls: Metaballs, theta
         if np.max(np.abs(delta)) < 1e-5:
             break
     return balls.copy(radii=radii), th, rt, rms
+
+
+def refine_state_with_contours(state, cameras: list[Camera],
+                               contours: list[list[list[Contour]]],
+                               cfg: ContourTrackSettings | None = None,
+                               sigma_floor_theta: float = 0.02, sigma_hidden: float = 0.3,
+                               sigma_root: float = 0.005, progress: Progress | None = None):
+    """Fuse contour observations into a fitted state, frame by frame.
+
+    Each frame's pose from the point fit is the prior of an iterated information-form
+    update with that frame's contours (:func:`update_with_contours`): DOFs the points
+    determined (small σ in ``state.quality.theta_sigma``, floored at
+    ``sigma_floor_theta``) barely move; DOFs of parts the points did not see (σ NaN or
+    large — e.g. a part held at its previous angles) take their pose from the
+    silhouettes, with σ ``sigma_hidden``.  Frames marked diverged are left alone.
+
+    Returns
+    -------
+    FitState
+        A copy with refined ``theta``/``root_xyz``; the quality records the contour RMS
+        (pixels, in ``contour_rms_px``) and the cameras each part used.
+    """
+    import copy
+
+    # corrections of hidden parts can be large (0.1–0.2 rad): relinearise more often
+    cfg = cfg or ContourTrackSettings(iterations=10)
+    skel = state.skeleton
+    n = skel.n_dof
+    out = copy.deepcopy(state)
+    rays = [camera_rays(c) for c in cameras]
+    q = out.quality
+    rms_px = np.full(state.n_frames, np.nan)
+    for f in range(min(state.n_frames, len(contours))):
+        if q.diverged[f]:
+            continue
+        sig = np.asarray(q.theta_sigma[f], float).copy()
+        sig = np.where(np.isfinite(sig), np.maximum(sig, sigma_floor_theta), sigma_hidden)
+        ekf = start_filter(skel, out.theta[f], out.root_xyz[f], cfg)
+        ekf.P[:n, :n] = np.diag(sig**2)
+        ekf.P[n:n + 3, n:n + 3] = np.eye(3) * sigma_root**2
+        r = update_with_contours(ekf, skel, out.s, out.metaballs, cameras, contours[f], cfg,
+                                 rays=rays)
+        if r.updated:
+            out.theta[f], out.root_xyz[f] = r.theta, r.root
+            rms_px[f] = r.rms_px
+            q.cameras[f] = {skel.bone_names[p]: [cameras[c].name for c in np.flatnonzero(
+                r.use[p])] for p in range(len(skel.bone_names))}
+        if progress is not None:
+            progress.update(f + 1, state.n_frames, f"contour refinement: frame {f + 1}")
+    out.contour_rms_px = rms_px
+    return out

@@ -102,3 +102,31 @@ def test_a_frame_without_contours_coasts_on_the_prediction(rig):
     err = np.linalg.norm(joint_positions(skel, out[5].theta, out[5].root, s)
                          - joint_positions(skel, theta[5], root[5], s), axis=1)
     assert np.median(err) < 0.015  # recovered after the gap
+
+
+def test_contours_restore_a_part_the_points_did_not_see(rig):
+    """A fitted state whose left arm was held at a wrong angle (σ unknown: no points):
+    fusing the silhouettes moves that arm back; well-determined DOFs stay put."""
+    from core.contour_track import refine_state_with_contours
+    from core.state import FitState, Quality
+
+    skel, balls, s, cams = rig
+    theta, root = _swing(skel, 3)
+    contours = [_contours(skel, theta[f], root[f], s, balls, cams) for f in range(3)]
+    wrong = theta.copy()
+    arm = [skel.dof_index(n) for n in ("l_shoulder_x", "l_shoulder_y")]
+    wrong[:, arm] += 0.15
+    q = Quality.empty(3, skel.n_dof)
+    q.theta_sigma[:] = 0.002            # the points pinned every DOF ...
+    q.theta_sigma[:, arm] = np.nan      # ... except the unseen arm's
+    state = FitState(skel, s, balls, root.copy(), wrong, q)
+    out = refine_state_with_contours(state, cams, contours)
+    err = lambda th: np.linalg.norm(  # noqa: E731
+        joint_positions(skel, th, root, s)[:, skel.joint_index("l_wrist")]
+        - joint_positions(skel, theta, root, s)[:, skel.joint_index("l_wrist")], axis=1)
+    assert err(wrong).min() > 0.05
+    assert err(out.theta).max() < 0.015
+    # the pinned DOFs move at most about two σ floors (0.02 rad: point-fit σ are optimistic)
+    others = np.setdiff1d(np.arange(skel.n_dof), arm)
+    assert np.abs(out.theta[:, others] - wrong[:, others]).max() < 0.05
+    assert out.quality.cameras[0]["l_shoulder"]  # cameras used by the part are recorded

@@ -27,3 +27,15 @@ def test_jump_window_holds_a_jump(shared_data):
     # standing at the start, hips well above standing height in flight, forward motion
     assert up.max() - up[0] > 0.15
     assert np.linalg.norm(hips[-1, :2] - hips[0, :2]) > 0.3
+
+
+def test_default_dance_windows_start_upright(shared_data):
+    from bench.fit import DEFAULT_SET
+
+    for name in DEFAULT_SET:
+        bvh_name, _, start = STUDIO_SCENES[name]
+        if bvh_name != "05_06.bvh":
+            continue
+        bvh = read_bvh(shared_data / "mocap" / bvh_name)
+        _, xyz = bvh.sample(np.array([start * bvh.frame_time]), CMU_SCALE)
+        assert xyz[0, bvh.index("Head"), 2] - xyz[0, bvh.index("Hips"), 2] > 0.3

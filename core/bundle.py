@@ -25,8 +25,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.optimize import least_squares
 
+from .bundle_flags import (
+    FLAG_WEIGHT,
+    flag_by_intersection,
+    flag_observations,
+    intersect_targets,
+    label_swaps,
+    residual_norms,
+    robust_scale,
+)
+from .bundle_solver import normal_blocks
 from .camera import (
     INTRINSIC_NAMES,
     N_PARAMS,
@@ -36,7 +45,6 @@ from .camera import (
     project_params,
     unpack_camera,
 )
-from .intersect import triangulate
 
 #: Interior parameters free by default.
 DEFAULT_FREE = ("f", "cx", "cy", "k1", "k2")
@@ -205,236 +213,6 @@ class _Problem:
         return sp.csr_matrix((np.ones(r.size), (r, cl)), shape=(self.m, self.n))
 
 
-def _soft_l1(r2, f_scale):
-    """Robust cost ``f² · 2 (sqrt(1 + r²/f²) - 1)`` and IRLS weights per residual pair."""
-    z = r2 / f_scale**2
-    return f_scale**2 * 2.0 * (np.sqrt(1.0 + z) - 1.0), 1.0 / np.sqrt(1.0 + z)
-
-
-class _Solution:
-    def __init__(self, x, success, message, nfev):
-        self.x, self.success, self.message, self.nfev = x, success, message, nfev
-
-
-def _lm(problem, x, loss, f_scale, max_iter, tol=1e-10):
-    """Levenberg–Marquardt on the sparse normal equations, points eliminated (Schur).
-
-    Every wand location owns a 6×6 diagonal block (both targets, coupled by the
-    length condition), so the reduced system has only the camera unknowns.  A robust
-    ``soft_l1`` loss is applied by iteratively reweighting the observation pairs.
-    """
-    nc, M = problem.n_cam, problem.M
-
-    def cost_weights(r):
-        r2 = np.sum(r[: 2 * M].reshape(M, 2) ** 2, axis=1)
-        if loss == "linear":
-            rho, w = r2, np.ones(M)
-        else:
-            rho, w = _soft_l1(r2, f_scale)
-        return 0.5 * (rho.sum() + np.sum(r[2 * M:] ** 2)), np.concatenate(
-            [np.repeat(w, 2), np.ones(problem.F)])
-
-    r, J = problem.residuals(x, jacobian=True)
-    cost, w = cost_weights(r)
-    lam, nfev = 1e-3, 1
-    for it in range(max_iter):
-        Jw = sp.diags(w) @ J
-        N = (J.T @ Jw).tocsr()
-        g = -(Jw.T @ r)
-        step = _schur_solve(N, g, nc, problem.F, lam)
-        while True:
-            x_new = x + step
-            r_new = problem.residuals(x_new)
-            nfev += 1
-            cost_new, _ = cost_weights(r_new)
-            if np.isfinite(cost_new) and cost_new <= cost:
-                break
-            lam *= 10.0
-            if lam > 1e12:
-                return _Solution(x, True, "converged (no further decrease)", nfev)
-            step = _schur_solve(N, g, nc, problem.F, lam)
-        lam = max(lam / 10.0, 1e-12)
-        rel = (cost - cost_new) / max(cost, 1e-300)
-        x = x_new
-        r, J = problem.residuals(x, jacobian=True)
-        cost, w = cost_weights(r)
-        if rel < tol or np.max(np.abs(step)) < 1e-12:
-            return _Solution(x, True, f"converged after {it + 1} iterations", nfev)
-    return _Solution(x, False, f"no convergence in {max_iter} iterations", nfev)
-
-
-def _blocks(N, nc, F):
-    """Camera block (nc, nc) dense, coupling (F, 6, nc), point blocks (F, 6, 6)."""
-    Ncc = N[:nc, :nc].toarray()
-    Npc = N[nc:, :nc].toarray().reshape(F, 6, nc)
-    Npp = N[nc:, nc:].tocoo()
-    B = np.zeros((F, 6, 6))
-    B[Npp.row // 6, Npp.row % 6, Npp.col % 6] = Npp.data
-    return Ncc, Npc, B
-
-
-def _schur_solve(N, g, nc, F, lam):
-    Ncc, Npc, B = _blocks(N, nc, F)
-    Ncc = Ncc + lam * np.diag(np.diag(Ncc))
-    idx = np.arange(6)
-    B = B.copy()
-    B[:, idx, idx] *= 1.0 + lam
-    Binv = np.linalg.inv(B)
-    gc, gp = g[:nc], g[nc:].reshape(F, 6)
-    E = np.einsum("fij,fjn->fin", Binv, Npc)                    # B⁻¹ N_pc
-    S = Ncc - np.einsum("fin,fim->nm", Npc, E)
-    rhs = gc - np.einsum("fin,fi->n", E, gp)
-    dc = np.linalg.solve(S, rhs) if nc else np.zeros(0)
-    dp = np.einsum("fij,fj->fi", Binv, gp) - E @ dc
-    return np.concatenate([dc, dp.ravel()])
-
-
-def _scipy(problem, x0, loss, f_scale, jac_mode, max_nfev):
-    """``scipy.optimize.least_squares`` path (slower to converge on large problems)."""
-    kw = dict(x_scale="jac", loss=loss, f_scale=f_scale, method="trf", tr_solver="lsmr",
-              max_nfev=max_nfev, ftol=1e-12, xtol=1e-12, gtol=1e-10)
-    if jac_mode == "analytic":
-        sol = least_squares(problem.residuals, x0,
-                            jac=lambda x: problem.residuals(x, jacobian=True)[1], **kw)
-    else:
-        sol = least_squares(problem.residuals, x0, jac_sparsity=problem.sparsity(), **kw)
-    return _Solution(sol.x, bool(sol.success), str(sol.message), int(sol.nfev))
-
-
-def _solve(problem, x0, loss, f_scale, solver, max_iter):
-    if solver == "lm":
-        return _lm(problem, x0, loss, f_scale, max_iter)
-    return _scipy(problem, x0, loss, f_scale, solver.split(":")[1], max_iter)
-
-
-def _flag_by_intersection(cameras, uv, seen, thr):
-    """Bad blobs by leave-one-out forward intersection of every target.
-
-    A target seen in ≥ 3 cameras whose full intersection leaves a residual above
-    ``thr`` (px) gets the one camera flagged whose removal makes the rest fit; if no
-    single removal does, every view off the best fit is flagged.  A target seen in two
-    cameras that do not fit each other cannot tell which is wrong: both are flagged.
-
-    Parameters: ``uv`` (F, C, 2, 2), ``seen`` (F, C, 2) bool.  Returns (F, C, 2) bool.
-    """
-    F, C = uv.shape[:2]
-    pts = np.where(seen[..., None], uv, np.nan).transpose(0, 2, 1, 3).reshape(F * 2, C, 2)
-    n = np.isfinite(pts[..., 0]).sum(axis=1)
-
-    def residuals(mask_cam):
-        p = pts.copy()
-        if mask_cam is not None:
-            p[:, mask_cam] = np.nan
-        xyz = triangulate(cameras, p, iterations=5).xyz
-        pred = np.stack([c.project(xyz) for c in cameras], axis=1)
-        return np.linalg.norm(pred - pts, axis=2)                   # (G, C), NaN unseen
-
-    with np.errstate(invalid="ignore"):
-        full = residuals(None)
-        bad_full = np.nanmax(np.where(np.isfinite(full), full, -1.0), axis=1) > thr
-        flags = np.zeros((F * 2, C), dtype=bool)
-        best_rest = np.full(F * 2, np.inf)
-        best_cam = np.full(F * 2, -1)
-        loo = []
-        for j in range(C):  # one pass per camera, all targets at once
-            res_j = residuals(j)
-            rest = np.where(np.arange(C) == j, -1.0, np.where(np.isfinite(res_j), res_j, -1.0))
-            worst = rest.max(axis=1)
-            better = (n >= 3) & np.isfinite(pts[:, j, 0]) & (worst < best_rest)
-            best_rest[better], best_cam[better] = worst[better], j
-            loo.append(res_j)
-        loo = np.stack(loo, axis=1)                                   # (G, Cmask, C)
-        single = bad_full & (best_rest <= thr) & (best_cam >= 0)
-        g = np.flatnonzero(single)
-        flags[g, best_cam[g]] = True
-        rest = bad_full & ~single
-        g = np.flatnonzero(rest & (best_cam >= 0))
-        off = loo[g, best_cam[g]] > thr
-        flags[g] = off | (np.arange(C) == best_cam[g][:, None])
-        g = np.flatnonzero(rest & (best_cam < 0))
-        flags[g] = np.isfinite(pts[g, :, 0])
-    return flags.reshape(F, 2, C).transpose(0, 2, 1) & seen
-
-
-#: Weight of a flagged observation's residual pair: it stays in the adjustment, so that
-#: its residual is predicted by the other observations, with (almost) no influence.
-FLAG_WEIGHT = 1e-4
-
-
-def _intersect_targets(cameras, uv, use):
-    """Targets (F, 2, 3), metres, intersected from the observations ``use`` (F, C, 2).
-
-    NaN where fewer than two observations are used or the intersection is not ok
-    (e.g. behind a camera).
-    """
-    F, C = uv.shape[:2]
-    pts = np.where(use[..., None], uv, np.nan).transpose(0, 2, 1, 3).reshape(F * 2, C, 2)
-    with np.errstate(invalid="ignore", over="ignore"):
-        tri = triangulate(cameras, pts, iterations=5)
-    return np.where(tri.ok[:, None], tri.xyz, np.nan).reshape(F, 2, 3)
-
-
-def _residual_norms(params, xyz, uv, seen):
-    """Residual length |projection − observation| (F, C, 2), px, of every seen observation.
-
-    ``params`` (C, 15) packed cameras, ``xyz`` (F, 2, 3) targets.  NaN where not seen,
-    where the target is NaN, or where it lies behind the camera.
-    """
-    F, C = uv.shape[:2]
-    idx = np.argwhere(seen & np.all(np.isfinite(xyz), axis=-1)[:, None, :])
-    out = np.full((F, C, 2), np.nan)
-    if idx.size:
-        pred = project_params(params[idx[:, 1]], xyz[idx[:, 0], idx[:, 2]], jacobian=False)
-        out[tuple(idx.T)] = np.linalg.norm(pred - uv[tuple(idx.T)], axis=1)
-    return out
-
-
-def robust_scale(rn: np.ndarray) -> float:
-    """σ of one image coordinate from residual lengths (any shape, NaN ignored), px.
-
-    For Gaussian coordinates with σ the length is Rayleigh distributed with median
-    ``σ √(2 ln 2) = 1.1774 σ``; the median makes the estimate insensitive to bad blobs.
-    """
-    rn = rn[np.isfinite(rn)]
-    return float(np.median(rn) / np.sqrt(2.0 * np.log(2.0))) if rn.size else np.nan
-
-
-def _label_swaps(params, xyz, uv, seen, rn, cap):
-    """Images (F, C) whose A/B labels fit the adjusted targets better exchanged.
-
-    Each image with both targets measured compares ``min(r, cap)`` summed over its two
-    observations for the labels as they are (``rn``) and exchanged; the cap keeps one
-    bad blob from deciding.  Exchanged only when that is clearly better (by ``cap/2``).
-    """
-    both = np.all(seen, axis=2) & np.all(np.isfinite(rn), axis=2)
-    rs = _residual_norms(params, xyz[:, ::-1], uv, seen)
-    with np.errstate(invalid="ignore"):
-        keep = np.minimum(rn, cap).sum(axis=2)
-        swap = np.minimum(rs, cap).sum(axis=2)
-    return both & (swap < keep - 0.5 * cap)
-
-
-def flag_observations(rn: np.ndarray, seen: np.ndarray, thr: float,
-                      previous: np.ndarray) -> np.ndarray:
-    """Bad-blob flags (F, C, 2) from residual lengths ``rn`` (F, C, 2), px.
-
-    Flags are decided afresh every round, so an observation comes back as soon as its
-    residual is small again (no monotonic growth): flagged when ``rn > thr``; one
-    flagged before is re-admitted only below ``0.8 thr`` (hysteresis against
-    oscillation); a NaN residual (the target cannot be intersected in front of the
-    cameras from its views) flags the observation for this round.
-    A target seen in exactly two cameras cannot tell which of the two is wrong: when
-    either is flagged, both are (the epipolar and bar-length misfit of the location
-    is what flagged it; with more redundancy the single bad view stands out).
-    """
-    with np.errstate(invalid="ignore"):
-        new = np.where(previous, ~(rn < 0.8 * thr), rn > thr)
-    new = np.where(np.isfinite(rn), new, True) & seen
-    two = seen.sum(axis=1) == 2                                      # (F, 2) targets
-    either = np.any(new, axis=1) & two
-    return new | (either[:, None, :] & seen)
-
-
 def adjust_wand(cameras: list[Camera], uv: np.ndarray, xyz0: np.ndarray, length_m: float,
                 free: tuple[str, ...] = DEFAULT_FREE, sigma_px: float = 0.1,
                 sigma_length_m: float = 1e-4, f_scale_px: float = 1.0,
@@ -514,13 +292,13 @@ def adjust_wand(cameras: list[Camera], uv: np.ndarray, xyz0: np.ndarray, length_
     flags = np.zeros((F, C, 2), dtype=bool)
     if robust:
         thr0 = max(20.0, outlier_px or 0.0)
-        flags = _flag_by_intersection(cameras, uv, seen, thr0)
-        again = _intersect_targets(cameras, uv, seen & ~flags)
+        flags = flag_by_intersection(cameras, uv, seen, thr0)
+        again = intersect_targets(cameras, uv, seen & ~flags)
         redo = np.any(flags, axis=1)[..., None] & np.isfinite(again)
         xyz = np.where(redo, again, xyz)
 
     def solve(flags, loss):
-        rn = _residual_norms(params, xyz, uv, seen)
+        rn = residual_norms(params, xyz, uv, seen)
         # both targets seen by ≥ 2 unflagged views (else the location waits outside the
         # adjustment, its targets re-intersected every round) and in front of the cameras
         incl = (base & np.all((seen & ~flags).sum(axis=1) >= 2, axis=1)
@@ -530,7 +308,7 @@ def adjust_wand(cameras: list[Camera], uv: np.ndarray, xyz0: np.ndarray, length_
         obs = np.argwhere(seen[fidx])
         w_obs = np.where(flags[fidx][tuple(obs.T)], FLAG_WEIGHT, 1.0)
         prob = _Problem(params, xyz[fidx], uv[fidx], obs, length_m, free, w_len, w_obs)
-        sol = _solve(prob, prob.pack(params, xyz[fidx]), loss, f_scale_px, solver, max_iter)
+        sol = solve(prob, prob.pack(params, xyz[fidx]), loss, f_scale_px, solver, max_iter)
         return prob, sol, fidx
 
     def update(prob, sol, fidx, thr):
@@ -544,10 +322,10 @@ def adjust_wand(cameras: list[Camera], uv: np.ndarray, xyz0: np.ndarray, length_
         out &= base
         new = np.full((F, 2, 3), np.nan)
         if np.any(out):
-            loo = _flag_by_intersection(cams, uv[out], seen[out], thr)
-            again = _intersect_targets(cams, uv[out], seen[out] & ~loo)
+            loo = flag_by_intersection(cams, uv[out], seen[out], thr)
+            again = intersect_targets(cams, uv[out], seen[out] & ~loo)
             new[out] = np.where(np.isfinite(again), again,
-                                _intersect_targets(cams, uv[out], seen[out]))
+                                intersect_targets(cams, uv[out], seen[out]))
         new[fidx] = xyz_f
         new[~base] = np.nan
         return p, new
@@ -558,12 +336,12 @@ def adjust_wand(cameras: list[Camera], uv: np.ndarray, xyz0: np.ndarray, length_
         prob, sol, fidx = solve(flags, loss)
         nfev += sol.nfev
         params, xyz = update(prob, sol, fidx, thr or 20.0)
-        rn = _residual_norms(params, xyz, uv, seen)
-        swap = _label_swaps(params, xyz, uv, seen, rn, thr if thr else 20.0)
+        rn = residual_norms(params, xyz, uv, seen)
+        swap = label_swaps(params, xyz, uv, seen, rn, thr if thr else 20.0)
         if np.any(swap):
             uv[swap] = uv[swap][:, ::-1]
             swapped ^= swap
-            rn = _residual_norms(params, xyz, uv, seen)
+            rn = residual_norms(params, xyz, uv, seen)
         scale = robust_scale(rn[~flags])
         if outlier_px is None:
             thr = max(outlier_floor_px, outlier_sigma * scale)
@@ -589,7 +367,7 @@ def adjust_wand(cameras: list[Camera], uv: np.ndarray, xyz0: np.ndarray, length_
     sigma0 = float(np.sqrt((np.sum(r_obs[inl] ** 2) + np.sum(r[2 * prob.M:] ** 2)) / dof))
     param_sigma = np.full((C, N_PARAMS), np.nan)
     xyz_sigma = np.full((F, 2, 3), np.nan)
-    Ncc, Npc, Bp = _blocks((J.T @ J).tocsr(), prob.n_cam, prob.F)
+    Ncc, Npc, Bp = normal_blocks((J.T @ J).tocsr(), prob.n_cam, prob.F)
     try:
         Binv = np.linalg.inv(Bp)
         E = np.einsum("fij,fjn->fin", Binv, Npc)

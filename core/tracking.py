@@ -30,11 +30,8 @@ Beyond the paper, every ``regen_every`` frames the surface is grown again from t
 live points (:func:`core.surface.measure_surface`) over grid cells that no live point
 covers: lost points are regenerated and newly visible surface is seeded.
 
-:func:`filter_trajectories` applies the paper's filters afterwards: thresholds on
-velocity and acceleration, and local uniformity (velocity against the median velocity
-of the spatial neighbours over frames i-1..i+1; the median instead of the mean keeps a
-false neighbour from hiding itself); flagged trajectories are truncated before their
-first bad frame and removed when too little remains.
+:func:`filter_trajectories` (:mod:`core.track_trajectories`) applies the paper's
+filters afterwards; the point filters live in :mod:`core.track_filter`.
 """
 
 from __future__ import annotations
@@ -49,6 +46,11 @@ from .intersect import triangulate
 from .lsm import ImageStack, match
 from .ncc import search
 from .surface import Surface, measure_surface
+from .track_filter import COV_FLOOR, PointFilter, predict_in_image
+from .track_trajectories import FilterResult, derivative, fill_gaps, filter_trajectories
+
+__all__ = ["FilterResult", "PointFilter", "Tracks", "fill_gaps", "filter_trajectories",
+           "predict_in_image", "track"]
 
 
 @dataclass
@@ -86,134 +88,13 @@ class Tracks:
 
     def velocity(self) -> np.ndarray:
         """(F, P, 3) m/s by central differences (one-sided at the ends), NaN where unknown."""
-        return _derivative(self.xyz, self.fps)
+        return derivative(self.xyz, self.fps)
 
     def acceleration(self) -> np.ndarray:
         """(F, P, 3) m/s² (second differences), NaN where unknown."""
         a = np.full_like(self.xyz, np.nan)
         a[1:-1] = (self.xyz[2:] - 2 * self.xyz[1:-1] + self.xyz[:-2]) * self.fps ** 2
         return a
-
-
-def _derivative(x: np.ndarray, fps: float) -> np.ndarray:
-    v = np.full_like(x, np.nan)
-    v[1:-1] = (x[2:] - x[:-2]) * (fps / 2.0)
-    fwd = (x[1:] - x[:-1]) * fps
-    v[1:-1] = np.where(np.isfinite(v[1:-1]), v[1:-1],
-                       np.where(np.isfinite(fwd[1:]), fwd[1:], fwd[:-1]))
-    v[0], v[-1] = fwd[0], fwd[-1]
-    return v
-
-
-@dataclass
-class PointFilter:
-    """Constant-velocity Kalman filters for P independent 3-D points, batched.
-
-    State per point ``[xyz, rate]`` (metres and metres per frame); system model
-    ``xyz <- xyz + rate``, ``rate <- damping * rate`` with white acceleration noise of
-    standard deviation ``accel_sigma`` (m / frame², the discretised white-noise
-    acceleration ``Q`` of :class:`core.ekf.EKF`, per axis).  The measurement is the
-    forward intersection of the point (linear in the state), so the update is that of
-    a plain Kalman filter; the image-space prediction is its projection
-    (:func:`predict_in_image`), which is where the model becomes non-linear.
-
-    Attributes
-    ----------
-    x : ndarray, shape (P, 6)
-    P : ndarray, shape (P, 6, 6)
-    accel_sigma : float
-    damping : float
-    """
-
-    x: np.ndarray
-    P: np.ndarray
-    accel_sigma: float = 0.01
-    damping: float = 1.0
-
-    @classmethod
-    def start(cls, xyz: np.ndarray, cov: np.ndarray, rate: np.ndarray | None = None,
-              rate_sigma: np.ndarray | float = 0.03, accel_sigma: float = 0.01,
-              damping: float = 1.0) -> PointFilter:
-        """Filters at ``xyz`` (P, 3) with position covariance ``cov`` (P, 3, 3), m², and
-        rate ``rate`` (P, 3), m/frame (default 0) of standard deviation ``rate_sigma``."""
-        xyz = np.asarray(xyz, float).reshape(-1, 3)
-        n = len(xyz)
-        rate = np.zeros((n, 3)) if rate is None else np.asarray(rate, float)
-        P = np.zeros((n, 6, 6))
-        P[:, :3, :3] = cov
-        P[:, 3:, 3:] = np.eye(3) * (np.broadcast_to(rate_sigma, (n,)) ** 2)[:, None, None]
-        return cls(np.concatenate([xyz, rate], axis=1), P, float(accel_sigma), float(damping))
-
-    def __len__(self) -> int:
-        return len(self.x)
-
-    def append(self, other: PointFilter) -> None:
-        self.x = np.concatenate([self.x, other.x])
-        self.P = np.concatenate([self.P, other.P])
-
-    def _F(self) -> np.ndarray:
-        F = np.eye(6)
-        F[:3, 3:] = np.eye(3)
-        F[3:, 3:] *= self.damping
-        return F
-
-    def _Q(self) -> np.ndarray:
-        a2 = self.accel_sigma ** 2
-        return np.kron(np.array([[a2 / 4, a2 / 2], [a2 / 2, a2]]), np.eye(3))
-
-    def predicted(self) -> tuple[np.ndarray, np.ndarray]:
-        """Prediction one frame ahead without changing the filters: xyz (P, 3), cov (P, 3, 3)."""
-        F = self._F()
-        x = self.x @ F.T
-        P = F @ self.P @ F.T + self._Q()
-        return x[:, :3], P[:, :3, :3]
-
-    def predict(self) -> None:
-        """Advance every filter one frame (in place)."""
-        F = self._F()
-        self.x = self.x @ F.T
-        self.P = F @ self.P @ F.T + self._Q()
-
-    def mahalanobis2(self, z: np.ndarray, R: np.ndarray) -> np.ndarray:
-        """Squared Mahalanobis distance of measurements ``z`` (P, 3) with covariance
-        ``R`` (P, 3, 3) from the current (predicted) positions; NaN where z is NaN."""
-        d = z - self.x[:, :3]
-        S = self.P[:, :3, :3] + R
-        ok = np.all(np.isfinite(d), axis=1) & np.all(np.isfinite(S), axis=(1, 2))
-        out = np.full(len(d), np.nan)
-        if ok.any():
-            out[ok] = np.einsum("ni,ni->n", d[ok], np.linalg.solve(S[ok], d[ok][..., None])[..., 0])
-        return out
-
-    def update(self, z: np.ndarray, R: np.ndarray, rows: np.ndarray) -> None:
-        """Measurement update of the filters ``rows`` (K,) int with xyz ``z`` (K, 3), m,
-        of covariance ``R`` (K, 3, 3), m² (in place, Joseph form)."""
-        if len(rows) == 0:
-            return
-        x, P = self.x[rows], self.P[rows]
-        H = np.zeros((3, 6))
-        H[:, :3] = np.eye(3)
-        S = P[:, :3, :3] + R
-        G = np.linalg.solve(S, P[:, :3, :]).transpose(0, 2, 1)           # (K, 6, 3) = P Hᵀ S⁻¹
-        x = x + np.einsum("kij,kj->ki", G, z - x[:, :3])
-        I_GH = np.eye(6) - G @ H
-        P = I_GH @ P @ I_GH.transpose(0, 2, 1) + G @ R @ G.transpose(0, 2, 1)
-        self.x[rows], self.P[rows] = x, 0.5 * (P + P.transpose(0, 2, 1))
-
-
-def predict_in_image(cam: Camera, xyz: np.ndarray, cov: np.ndarray,
-                     eps: float = 1e-3) -> tuple[np.ndarray, np.ndarray]:
-    """Project points (P, 3) with covariance (P, 3, 3) into a camera.
-
-    Returns ``uv`` (P, 2), pixels, and the largest standard deviation of the projected
-    covariance ``J Σ Jᵀ`` (P,), pixels (``J`` by forward differences of ``eps`` metres).
-    """
-    uv = cam.project(xyz)
-    J = np.stack([(cam.project(xyz + eps * e) - uv) / eps for e in np.eye(3)], axis=-1)
-    S = J @ cov @ J.transpose(0, 2, 1)
-    a, b, d = S[:, 0, 0], S[:, 0, 1], S[:, 1, 1]
-    lam = 0.5 * (a + d) + np.sqrt(np.maximum(0.25 * (a - d) ** 2 + b * b, 0.0))
-    return uv, np.sqrt(np.maximum(lam, 0.0))
 
 
 def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: float, *,
@@ -285,7 +166,7 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
     rate_hist = [np.zeros((p0, 3))]                  # filtered rates, m/frame
     start = np.zeros(p0, int)
     aff_sp = surface.affine.copy()                   # spatial affine ref -> camera
-    kf = PointFilter.start(surface.xyz, surface.cov + _COV_FLOOR, accel_sigma=accel_sigma)
+    kf = PointFilter.start(surface.xyz, surface.cov + COV_FLOOR, accel_sigma=accel_sigma)
     seen0 = np.all(np.isfinite(surface.uv), axis=2)
     last_f = np.where(seen0, 0, -1)                  # (P, C) last measured frame
     last_uv = surface.uv.copy()                      # (P, C, 2) there
@@ -397,7 +278,7 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
                                       if fallback else ())
         for cand in cands:
             inter = triangulate(cameras, cand, sigma_px=0.3)
-            m2 = kf.mahalanobis2(inter.xyz, inter.cov + _COV_FLOOR)
+            m2 = kf.mahalanobis2(inter.xyz, inter.cov + COV_FLOOR)
             ok = (~chosen & ~dead & inter.ok & (inter.rms < max_rms_px)
                   & (np.sum(np.isfinite(cand[..., 0]), 1) >= 2))
             n_gated += int((ok & ~(m2 < gate ** 2)).sum())
@@ -405,7 +286,7 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
             uv_new[ok], xyz_new[ok], cov_new[ok] = cand[ok], inter.xyz[ok], inter.cov[ok]
             chosen |= ok
         rows = np.flatnonzero(chosen)
-        kf.update(xyz_new[rows], cov_new[rows] + _COV_FLOOR, rows)
+        kf.update(xyz_new[rows], cov_new[rows] + COV_FLOOR, rows)
         coast = np.where(chosen, 0, coast + 1)
         dead |= coast > max_coast
         got = np.all(np.isfinite(uv_new), axis=2)
@@ -437,7 +318,7 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
                 sig_hist[-1][-k:] = np.sqrt(np.abs(np.diagonal(new.cov, axis1=1, axis2=2)))
                 rate0, rsig = _neighbour_rates(xyz_new[chosen], kf.x[chosen, 3:], new.xyz)
                 rate_hist[-1][-k:] = rate0
-                kf.append(PointFilter.start(new.xyz, new.cov + _COV_FLOOR, rate0, rsig))
+                kf.append(PointFilter.start(new.xyz, new.cov + COV_FLOOR, rate0, rsig))
                 start = np.concatenate([start, np.full(k, i + 1)])
                 aff_sp = np.concatenate([aff_sp, new.affine])
                 seen_n = np.all(np.isfinite(new.uv), axis=2)
@@ -459,11 +340,6 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
                   start=start, fps=float(fps), measured=measured)
 
 
-#: Added to every point covariance in the filters: model error of a surface point
-#: (LSM bias on curved skin, texture slipping), m².
-_COV_FLOOR = np.eye(3) * 0.002 ** 2
-
-
 def _neighbour_rates(xyz: np.ndarray, rate: np.ndarray, new_xyz: np.ndarray,
                      radius_m: float = 0.05, k: int = 8) -> tuple[np.ndarray, np.ndarray]:
     """Start rates (K, 3) of new points: the median filtered rate of up to ``k`` measured
@@ -481,47 +357,6 @@ def _neighbour_rates(xyz: np.ndarray, rate: np.ndarray, new_xyz: np.ndarray,
     out[enough] = np.nanmedian(vals[enough], axis=1)
     sig[enough] = 0.01
     return out, sig
-
-
-def fill_gaps(xyz: np.ndarray, rate: np.ndarray, max_gap: int) -> np.ndarray:
-    """Fill gaps of at most ``max_gap`` frames between measured positions.
-
-    Cubic Hermite interpolation between the measured ends with the filtered rates
-    there; longer gaps and the frames after a trajectory's last measurement stay NaN.
-
-    Parameters
-    ----------
-    xyz : ndarray, shape (F, P, 3)
-        Measured positions, metres, NaN where unmeasured.
-    rate : ndarray, shape (F, P, 3)
-        Filtered rates at the measured frames, metres per frame.
-    max_gap : int
-        Longest gap to fill, frames.
-
-    Returns
-    -------
-    ndarray, shape (F, P, 3)
-    """
-    F, P, _ = xyz.shape
-    m = np.all(np.isfinite(xyz), axis=2)
-    idx = np.where(m, np.arange(F)[:, None], -1)
-    a = np.maximum.accumulate(idx, axis=0)                            # last measured <= f
-    b = np.where(m, np.arange(F)[:, None], F)
-    b = np.minimum.accumulate(b[::-1], axis=0)[::-1]                  # next measured >= f
-    gap = ~m & (a >= 0) & (b < F) & (b - a - 1 <= max_gap)
-    out = xyz.copy()
-    f, p = np.nonzero(gap)
-    if len(f) == 0:
-        return out
-    fa, fb = a[f, p], b[f, p]
-    h = (fb - fa).astype(float)
-    s = ((f - fa) / h)[:, None]
-    ra = np.nan_to_num(rate[fa, p]) * h[:, None]
-    rb = np.nan_to_num(rate[fb, p]) * h[:, None]
-    h00, h10 = 2 * s ** 3 - 3 * s ** 2 + 1, s ** 3 - 2 * s ** 2 + s
-    h01, h11 = -2 * s ** 3 + 3 * s ** 2, s ** 3 - s ** 2
-    out[f, p] = h00 * xyz[fa, p] + h10 * ra + h01 * xyz[fb, p] + h11 * rb
-    return out
 
 
 def _pad(a: np.ndarray, k: int) -> np.ndarray:
@@ -543,98 +378,3 @@ def _stack(images, cameras: list[Camera], i: int) -> _Frame:
     shape = next(im for im in images if im is not None).shape
     ims = [im if im is not None else np.zeros(shape, np.uint8) for im in images]
     return _Frame(ImageStack(ims), valid)
-
-
-@dataclass
-class FilterResult:
-    """Outcome of :func:`filter_trajectories`.
-
-    Attributes
-    ----------
-    xyz : ndarray, shape (F, P, 3)
-        Filtered trajectories (NaN after truncation / for removed ones).
-    bad : ndarray, shape (F, P) bool
-        Frames flagged by any filter.
-    removed : ndarray, shape (P,) bool
-        Trajectories removed entirely.
-    truncated : ndarray, shape (P,) bool
-        Trajectories cut before their first bad frame (and not removed).
-    """
-
-    xyz: np.ndarray
-    bad: np.ndarray
-    removed: np.ndarray
-    truncated: np.ndarray
-
-
-def filter_trajectories(xyz: np.ndarray, fps: float, *, max_speed: float = 6.0,
-                        max_accel: float = 150.0, radius_m: float = 0.05,
-                        max_dev: float = 0.3, min_neighbours: int = 3,
-                        min_length: int = 5) -> FilterResult:
-    """Velocity / acceleration thresholds and local uniformity in space and time.
-
-    Parameters
-    ----------
-    xyz : ndarray, shape (F, P, 3)
-        Trajectories, metres (NaN where unknown).
-    fps : float
-        Frame rate, frames per second.
-    max_speed, max_accel : float
-        Thresholds, m/s and m/s².
-    radius_m : float
-        Neighbourhood radius for the uniformity test, metres.
-    max_dev : float
-        Largest difference between a point's velocity and the median velocity of its
-        neighbours (over frames i-1..i+1), m/s.
-    min_length : int
-        Trajectories shorter than this after truncation are removed, frames.
-    """
-    F, P, _ = xyz.shape
-    v = _derivative(xyz, fps)
-    a = np.full_like(xyz, np.nan)
-    a[1:-1] = (xyz[2:] - 2 * xyz[1:-1] + xyz[:-2]) * fps ** 2
-    speed = np.linalg.norm(v, axis=2)
-    acc = np.linalg.norm(a, axis=2)
-    bad = (speed > max_speed) | (acc > max_accel)
-    for f in range(F):                      # loop over frames; points are batched
-        ok = np.all(np.isfinite(xyz[f]), axis=1) & np.all(np.isfinite(v[f]), axis=1)
-        idx = np.flatnonzero(ok)
-        if len(idx) < min_neighbours + 1:
-            continue
-        tree = cKDTree(xyz[f, idx])
-        nb = tree.query_ball_point(xyz[f, idx], radius_m, return_sorted=False)
-        counts = np.array([len(x) for x in nb])
-        kmax = int(counts.max())
-        table = np.full((len(idx), kmax), -1)
-        for j, x in enumerate(nb):          # ragged neighbour lists -> padded table
-            table[j, :len(x)] = x
-        # Neighbour velocities over frames f-1, f, f+1, median per component.
-        frames = [g for g in (f - 1, f, f + 1) if 0 <= g < F]
-        vals = []
-        for g in frames:
-            vg = v[g, idx]
-            nv = np.where((table >= 0)[..., None], vg[np.maximum(table, 0)], np.nan)
-            nv[table == np.arange(len(idx))[:, None]] = np.nan     # exclude the point itself
-            vals.append(nv)
-        vals = np.concatenate(vals, axis=1)
-        enough = np.sum(np.isfinite(vals[..., 0]), axis=1) >= min_neighbours * len(frames)
-        med = np.full((len(idx), 3), np.nan)
-        if enough.any():
-            med[enough] = np.nanmedian(vals[enough], axis=1)
-        dev = np.linalg.norm(v[f, idx] - med, axis=1)
-        bad[f, idx[enough & (dev > max_dev)]] = True
-    alive = np.all(np.isfinite(xyz), axis=2)
-    bad &= alive
-    out = xyz.copy()
-    removed = np.zeros(P, bool)
-    truncated = np.zeros(P, bool)
-    any_bad = bad.any(axis=0)
-    first_bad = np.where(any_bad, np.argmax(bad, axis=0), F)
-    frame_idx = np.arange(F)[:, None]
-    cut = frame_idx >= first_bad[None, :]
-    out[cut] = np.nan
-    remaining = np.sum(np.all(np.isfinite(out), axis=2), axis=0)
-    removed = any_bad & (remaining < min_length)
-    truncated = any_bad & ~removed
-    out[:, removed] = np.nan
-    return FilterResult(xyz=out, bad=bad, removed=removed, truncated=truncated)

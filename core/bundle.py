@@ -36,6 +36,7 @@ from .bundle_flags import (
     robust_scale,
 )
 from .bundle_solver import normal_blocks
+from .bundle_solver import solve as solve_problem
 from .camera import (
     INTRINSIC_NAMES,
     N_PARAMS,
@@ -308,7 +309,7 @@ def adjust_wand(cameras: list[Camera], uv: np.ndarray, xyz0: np.ndarray, length_
         obs = np.argwhere(seen[fidx])
         w_obs = np.where(flags[fidx][tuple(obs.T)], FLAG_WEIGHT, 1.0)
         prob = _Problem(params, xyz[fidx], uv[fidx], obs, length_m, free, w_len, w_obs)
-        sol = solve(prob, prob.pack(params, xyz[fidx]), loss, f_scale_px, solver, max_iter)
+        sol = solve_problem(prob, prob.pack(params, xyz[fidx]), loss, f_scale_px, solver, max_iter)
         return prob, sol, fidx
 
     def update(prob, sol, fidx, thr):

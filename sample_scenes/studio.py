@@ -29,12 +29,10 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from core import toml_write
 from core.calibration_io import write_calibration
-from core.camera import Camera
 from core.errors import InputError
 from core.landmarks import CLICK_JOINTS, JOINTS
 from core.progress import Progress
@@ -42,7 +40,19 @@ from core.progress import Progress
 from .bvh import CMU_SCALE, read_bvh
 from .retarget import Rig, retarget
 from .rigs import RIGS, frame_cameras
-from .texture import LOOKS, background_image, box_uvs, surface_texture
+from .studio_render import (
+    apply_look,
+    blender_camera,
+    bpy_module,
+    compose,
+    field_camera,
+    interlace,
+    render_rgba,
+    setup_render,
+    write_png,
+)
+from .studio_wand import render_wand
+from .texture import LOOKS, background_image
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 DEFAULT_BVH = SHARED / "mocap" / "02_01.bvh"
@@ -108,17 +118,9 @@ class Options:
 
 
 # --------------------------------------------------------------------------- bpy helpers
-def _bpy():
-    try:
-        import bpy
-    except ImportError as exc:  # pragma: no cover - the environment ships bpy
-        raise InputError("the studio needs the bpy module (Blender as a Python module)") from exc
-    return bpy
-
-
 def load_character(path: Path):
     """Open a .blend or import a .glb; return ``(armature_object, [skinned mesh objects])``."""
-    bpy = _bpy()
+    bpy = bpy_module()
     if not path.is_file():
         raise InputError(f"{path}: character file not found")
     suffix = path.suffix.lower()
@@ -186,238 +188,6 @@ def _faces(meshes) -> np.ndarray:
     return np.concatenate(out).astype(np.int32)
 
 
-def _apply_look(meshes, look: str, seed: int, engine: str) -> None:
-    bpy = _bpy()
-    tex = surface_texture(look, 1024, seed)
-    img = bpy.data.images.new(f"somacap_{look}", 1024, 1024, alpha=True)
-    rgba = np.concatenate([tex[::-1], np.ones(tex.shape[:2] + (1,), np.float32)], axis=-1)
-    img.pixels.foreach_set(rgba.ravel())
-    img.pack()
-    mat = bpy.data.materials.new(f"somacap_{look}")
-    nt = mat.node_tree
-    bsdf = next(n for n in nt.nodes if n.type == "BSDF_PRINCIPLED")
-    node = nt.nodes.new("ShaderNodeTexImage")
-    node.image = img
-    node.interpolation = "Linear"
-    nt.links.new(node.outputs["Color"], bsdf.inputs["Base Color"])
-    bsdf.inputs["Roughness"].default_value = 0.9
-    nt.nodes.active = node
-    for o in meshes:
-        me = o.data
-        M = np.array(o.matrix_world)
-        co = np.empty(len(me.vertices) * 3)
-        me.vertices.foreach_get("co", co)
-        co = co.reshape(-1, 3) @ M[:3, :3].T + M[:3, 3]
-        lv = np.empty(len(me.loops), np.int64)
-        me.loops.foreach_get("vertex_index", lv)
-        nrm = np.empty(len(me.polygons) * 3)
-        me.polygons.foreach_get("normal", nrm)
-        loop_face = np.repeat(np.arange(len(me.polygons)),
-                              [p.loop_total for p in me.polygons])
-        uv = box_uvs(co[lv], nrm.reshape(-1, 3) @ M[:3, :3].T, loop_face)
-        layer = me.uv_layers.new(name="somacap_box")
-        layer.data.foreach_set("uv", uv.ravel())
-        me.uv_layers.active = layer
-        me.materials.clear()
-        me.materials.append(mat)
-
-
-def _setup_render(options: Options) -> None:
-    bpy = _bpy()
-    sc = bpy.context.scene
-    w, h = options.size
-    r = sc.render
-    r.resolution_x, r.resolution_y, r.resolution_percentage = w, h, 100
-    r.pixel_aspect_x = r.pixel_aspect_y = 1.0
-    r.film_transparent = True
-    r.image_settings.file_format = "PNG"
-    r.image_settings.color_mode = "RGBA"
-    r.image_settings.color_depth = "8"
-    sc.view_settings.view_transform = "Standard"
-    sc.view_settings.look = "None"
-    if options.engine == "workbench":
-        r.engine = "BLENDER_WORKBENCH"
-        sh = sc.display.shading
-        sh.light = "FLAT"
-        sh.color_type = "TEXTURE"
-        sc.display.render_aa = "8"
-    elif options.engine == "cycles":
-        r.engine = "CYCLES"
-        sc.cycles.device = "CPU"
-        sc.cycles.samples = int(options.samples)
-        sc.cycles.use_denoising = False
-        sc.cycles.seed = int(options.seed)
-        world = sc.world or bpy.data.worlds.new("somacap")
-        sc.world = world
-        bg = next(n for n in world.node_tree.nodes if n.type == "BACKGROUND")
-        bg.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
-        bg.inputs["Strength"].default_value = 1.0
-    else:
-        raise InputError(f"engine must be workbench or cycles, got '{options.engine}'")
-
-
-def _blender_camera(cam: Camera):
-    """A Blender camera object equal to ``cam`` (square pixels, centred principal point)."""
-    bpy = _bpy()
-    import mathutils
-
-    data = bpy.data.cameras.new(cam.name)
-    data.sensor_fit = "HORIZONTAL"
-    data.sensor_width = 36.0
-    data.lens = float(cam.K[0, 0]) * 36.0 / cam.size[0]
-    data.clip_start, data.clip_end = 0.05, 200.0
-    obj = bpy.data.objects.new(cam.name, data)
-    bpy.context.scene.collection.objects.link(obj)
-    M = np.eye(4)
-    M[:3, :3] = cam.R.T @ np.diag([1.0, -1.0, -1.0])  # OpenCV -> Blender camera axes
-    M[:3, 3] = cam.center
-    obj.matrix_world = mathutils.Matrix(M.tolist())
-    return obj
-
-
-def _render_rgba(cam_obj, tmp: Path) -> np.ndarray:
-    """Render the scene through ``cam_obj``; RGBA float32 (H, W, 4) in [0, 1]."""
-    bpy = _bpy()
-    sc = bpy.context.scene
-    sc.camera = cam_obj
-    path = tmp / "render.png"
-    sc.render.filepath = str(path)
-    bpy.ops.render.render(write_still=True)
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    rgba = cv2.cvtColor(img, cv2.COLOR_BGRA2RGBA).astype(np.float32) / 255.0
-    return rgba
-
-
-def _compose(rgba: np.ndarray, background: np.ndarray, noise: float,
-             rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """Straight-alpha render (as PNG stores it) over a background + Gaussian noise.
-
-    ``noise`` is the standard deviation in grey levels.  Returns the 8-bit RGB image
-    (H, W, 3) and the mask ``alpha >= 0.5`` (H, W).
-    """
-    a = rgba[..., 3:]
-    img = (rgba[..., :3] * a + background * (1.0 - a)) * 255.0
-    if noise > 0:
-        img = img + rng.normal(0.0, noise, img.shape)
-    return np.clip(np.round(img), 0, 255).astype(np.uint8), rgba[..., 3] >= 0.5
-
-
-def _interlace(first: np.ndarray, second: np.ndarray) -> np.ndarray:
-    out = second.copy()
-    out[0::2] = first[0::2]
-    return out
-
-
-def _field_camera(cam: Camera) -> Camera:
-    """The odd-field (rows 0, 2, ...) camera of a full-frame camera."""
-    K = cam.K.copy()
-    K[1, 1] /= 2.0
-    K[1, 2] /= 2.0
-    w, h = cam.size
-    return Camera(cam.name, (w, (h + 1) // 2), K, cam.dist, cam.R, cam.t)
-
-
-def _write_png(path: Path, rgb: np.ndarray) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    cv2.imwrite(str(path), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_PNG_COMPRESSION, 9])
-
-
-# --------------------------------------------------------------------------- wand
-def wand_positions(cams: list[Camera], lo: np.ndarray, hi: np.ndarray, n: int, length: float,
-                   radius_px: float, rng: np.random.Generator) -> np.ndarray:
-    """Random bar positions ``(n, 2, 3)`` (target world positions, metres).
-
-    Centres uniform in the box ``lo..hi``, directions uniform on the sphere; kept only
-    when both targets fall inside every image (with a margin) and their blobs do not
-    touch in any view.
-    """
-    out = []
-    tries = 0
-    while len(out) < n:
-        tries += 1
-        if tries > 2000:
-            raise InputError("cannot place the wand inside every camera; widen the rig")
-        m = 4 * n
-        c = lo + (hi - lo) * rng.random((m, 3))
-        d = rng.normal(size=(m, 3))
-        d /= np.linalg.norm(d, axis=1, keepdims=True)
-        xyz = np.stack([c - d * length / 2, c + d * length / 2], axis=1)
-        ok = np.ones(m, bool)
-        for cam in cams:
-            uv = cam.project(xyz)
-            w, h = cam.size
-            pad = radius_px + 2
-            ok &= np.all((uv[..., 0] > pad) & (uv[..., 0] < w - 1 - pad)
-                         & (uv[..., 1] > pad) & (uv[..., 1] < h - 1 - pad), axis=1)
-            ok &= np.linalg.norm(uv[:, 0] - uv[:, 1], axis=1) > 4 * radius_px + 2
-        out.extend(xyz[ok])
-    return np.array(out[:n])
-
-
-def _render_wand(cams, cam_objs, hide, options: Options, lo, hi, out: Path, tmp: Path,
-                 rng, progress=None) -> tuple[int, float]:
-    bpy = _bpy()
-    sc = bpy.context.scene
-    for o in hide:
-        o.hide_render = True
-    dist = np.mean([np.linalg.norm(c.center - (lo + hi) / 2) for c in cams])
-    f = np.mean([c.K[0, 0] for c in cams])
-    radius_px = float(np.clip(options.size[1] / 150, 1.5, 3.0))
-    radius = radius_px * dist / f
-    xyz = wand_positions(cams, lo, hi, options.wand_positions, options.wand_length, radius_px,
-                         rng)
-    mat = bpy.data.materials.new("somacap_wand")
-    nt = mat.node_tree
-    for n in list(nt.nodes):
-        if n.type != "OUTPUT_MATERIAL":
-            nt.nodes.remove(n)
-    em = nt.nodes.new("ShaderNodeEmission")
-    em.inputs["Strength"].default_value = 1.0
-    nt.links.new(em.outputs["Emission"], nt.nodes["Material Output"].inputs["Surface"])
-    targets = []
-    for k in range(2):
-        me = bpy.data.meshes.new(f"wand_target_{k}")
-        import bmesh
-
-        bm = bmesh.new()
-        bmesh.ops.create_uvsphere(bm, u_segments=24, v_segments=12, radius=radius)
-        bm.to_mesh(me)
-        bm.free()
-        for p in me.polygons:
-            p.use_smooth = True
-        me.materials.append(mat)
-        obj = bpy.data.objects.new(f"wand_target_{k}", me)
-        obj.color = (1.0, 1.0, 1.0, 1.0)
-        sc.collection.objects.link(obj)
-        targets.append(obj)
-    if options.engine == "workbench":
-        sc.display.shading.color_type = "OBJECT"
-    black = np.zeros((options.size[1], options.size[0], 3), np.float32)
-    t0, renders = time.perf_counter(), 0
-    for i, pair in enumerate(xyz):
-        for k in range(2):
-            targets[k].location = pair[k].tolist()
-        for cam, obj in zip(cams, cam_objs, strict=True):
-            rgb, _ = _compose(_render_rgba(obj, tmp), black, options.noise, rng)
-            _write_png(out / "wand" / cam.name / f"{i:06d}.png", rgb)
-            renders += 1
-        if progress is not None:
-            progress.update(i + 1, len(xyz), f"rendered wand position {i + 1}/{len(xyz)}")
-    for o in targets:
-        o.hide_render = True
-    if options.engine == "workbench":
-        sc.display.shading.color_type = "TEXTURE"
-    for o in hide:
-        o.hide_render = False
-    toml_write.dump({"length_m": float(options.wand_length), "positions": int(len(xyz)),
-                     "target_radius_m": float(radius), "truth": "wand_truth.npz"},
-                    out / "wand.toml")
-    np.savez_compressed(out / "wand_truth.npz", xyz=xyz.astype(np.float64),
-                        doc=np.array("xyz (N, 2, 3): world positions of the two targets per "
-                                     "wand position, metres"))
-    return renders, time.perf_counter() - t0
-
-
 # --------------------------------------------------------------------------- main entry
 def render_scene(out_dir: str | Path, progress=None, **options) -> Path:
     """Render a scene folder into ``out_dir`` in this process (needs bpy); return the path.
@@ -451,7 +221,7 @@ def render_scene(out_dir: str | Path, progress=None, **options) -> Path:
                          f"{1 / bvh.frame_time:g} fps, too few for frames {opt.start}.. "
                          f"+{opt.frames} at {opt.fps:g} fps")
     rng = np.random.default_rng(opt.seed)
-    bpy = _bpy()
+    bpy = bpy_module()
     arm, meshes = load_character(char_path)
     rig = character_rig(arm)
     sample_times = times if not opt.interlace else np.concatenate([times, times + 0.5 / opt.fps])
@@ -477,18 +247,18 @@ def render_scene(out_dir: str | Path, progress=None, **options) -> Path:
     step = max(1, verts.shape[1] // 3000)
     cams = frame_cameras(opt.rig, verts[:, ::step].reshape(-1, 3).astype(float),
                          mats[:len(times), rig.names.index("Hips"), :2, 3], opt.size)
-    cam_objs = [_blender_camera(c) for c in cams]
-    out_cams = [_field_camera(c) for c in cams] if opt.interlace else cams
+    cam_objs = [blender_camera(c) for c in cams]
+    out_cams = [field_camera(c) for c in cams] if opt.interlace else cams
 
     out.mkdir(parents=True, exist_ok=True)
-    _setup_render(opt)
-    _apply_look(meshes, opt.look, opt.seed, opt.engine)
+    setup_render(opt)
+    apply_look(meshes, opt.look, opt.seed, opt.engine)
     lo = verts.reshape(-1, 3).min(axis=0).astype(float)
     hi = verts.reshape(-1, 3).max(axis=0).astype(float)
     timing = {}
     with tempfile.TemporaryDirectory() as td:
         tmp = Path(td)
-        renders, secs = _render_wand(cams, cam_objs, meshes, opt, lo, hi, out, tmp, rng,
+        renders, secs = render_wand(cams, cam_objs, meshes, opt, lo, hi, out, tmp, rng,
                                      progress)
         timing["wand_seconds_per_image"] = secs / max(renders, 1)
         if not opt.wand_only:
@@ -518,17 +288,17 @@ def _render_frames(opt, arm, rig, rt, cams, cam_objs, out, tmp, rng, progress):
         shots = []
         for k in passes:
             _set_pose(arm, rig.names, rt.basis[k])
-            _bpy().context.view_layer.update()
-            shots.append([_render_rgba(obj, tmp) for obj in cam_objs])
+            bpy_module().context.view_layer.update()
+            shots.append([render_rgba(obj, tmp) for obj in cam_objs])
             renders += len(cam_objs)
         for c, cam in enumerate(cams):
             if opt.interlace:
-                rgba = _interlace(shots[0][c], shots[1][c])
+                rgba = interlace(shots[0][c], shots[1][c])
             else:
                 rgba = shots[0][c]
-            rgb, mask = _compose(rgba, backgrounds[c], opt.noise, rng)
+            rgb, mask = compose(rgba, backgrounds[c], opt.noise, rng)
             masks[c, i] = mask[0::2] if opt.interlace else mask
-            _write_png(out / "images" / cam.name / f"{i:06d}.png", rgb)
+            write_png(out / "images" / cam.name / f"{i:06d}.png", rgb)
         if progress is not None:
             progress.update(i + 1, n, f"rendered frame {i + 1}/{n}")
     return masks, time.perf_counter() - t0, renders

@@ -108,29 +108,38 @@ def relative_pose(K1, K2, uv1, uv2, length_m, thr_px=2.0):
 def relabel(cameras: list[Camera], uv: np.ndarray) -> np.ndarray:
     """Which images' A/B labels to exchange so that all cameras agree, (F, C) bool.
 
-    In every location the first camera that sees both targets is the reference; every
-    other camera takes the labelling with the smaller epipolar (Sampson) distance to
-    it, from the cameras' relative orientation (distortion ignored).
+    Every pair of cameras that sees both targets of a location scores both ways of
+    pairing the targets by their epipolar (Sampson) distances, from the cameras'
+    relative orientation (distortion ignored); each location takes the labelling of all
+    its cameras at once with the smallest total.  A bar imaged along an epipolar line
+    of one pair cannot be labelled from that pair, but the other pairs decide.  The
+    first camera that sees both targets keeps its labels.  All ``2^(C-1)`` labellings
+    are scored, so this is meant for rigs of up to a dozen cameras.
     """
     F, C = uv.shape[:2]
     both = np.all(np.isfinite(uv), axis=(2, 3))
-    ref = np.where(both.any(axis=1), np.argmax(both, axis=1), -1)
-    flip = np.zeros((F, C), dtype=bool)
-    for r in range(C):  # reference camera
-        for j in range(r + 1, C):
-            sel = (ref == r) & both[:, j]
+    combos = (np.arange(2 ** (C - 1))[:, None] >> np.arange(C - 1)) & 1
+    combos = np.concatenate([np.zeros((len(combos), 1), int), combos], axis=1)  # (B, C)
+    cost = np.zeros((F, len(combos)))
+    for i in range(C):
+        for j in range(i + 1, C):
+            sel = both[:, i] & both[:, j]
             if not np.any(sel):
                 continue
-            R = cameras[j].R @ cameras[r].R.T
-            t = cameras[j].t - R @ cameras[r].t
+            R = cameras[j].R @ cameras[i].R.T
+            t = cameras[j].t - R @ cameras[i].t
             tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
             E = tx @ R
-            x1 = _normalise(cameras[r].K, uv[sel, r])
+            x1 = _normalise(cameras[i].K, uv[sel, i])
             x2 = _normalise(cameras[j].K, uv[sel, j])
             same = _sampson(E, x1[:, 0], x2[:, 0]) + _sampson(E, x1[:, 1], x2[:, 1])
             cross = _sampson(E, x1[:, 0], x2[:, 1]) + _sampson(E, x1[:, 1], x2[:, 0])
-            flip[np.flatnonzero(sel), j] = cross < same
-    return flip
+            differ = combos[:, i] != combos[:, j]                               # (B,)
+            cost[sel] += np.where(differ[None, :], cross[:, None], same[:, None])
+    flip = combos[np.argmin(cost, axis=1)].astype(bool)                        # (F, C)
+    ref = np.argmax(both, axis=1)
+    flip ^= flip[np.arange(F), ref][:, None]
+    return flip & both
 
 
 def initial_orientation(uv: np.ndarray, sizes: list[tuple[int, int]], length_m: float,

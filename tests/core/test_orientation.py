@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from core.errors import InputError
-from core.orientation import initial_orientation
+from core.orientation import initial_orientation, relabel
 from tests.core.wand_truth import rig, similarity, wand_capture
 
 
@@ -31,3 +31,20 @@ def test_too_few_common_locations_is_an_input_error():
     uv[5:, 1] = np.nan
     with pytest.raises(InputError, match="fewer than 8 wand locations"):
         initial_orientation(uv, [c.size for c in cams], 0.5)
+
+
+def test_relabel_uses_every_camera_pair():
+    """A bar imaged along an epipolar line of one pair is labelled by the other pairs."""
+    cams = rig("line3")
+    _, uv, _ = wand_capture(cams, n=150, noise_px=0.05, seed=3)
+    both = np.all(np.isfinite(uv), axis=(2, 3))
+    # (seed 3 holds locations whose bar camera 3 sees along an epipolar line of
+    # camera 1, which the pairwise rule labelled wrongly)
+    rng = np.random.default_rng(1)
+    swap = rng.random(uv.shape[:2]) < 0.5
+    swap &= both
+    uv[swap] = uv[swap][:, ::-1]
+    flip = relabel(cams, uv)
+    ref = np.argmax(both, axis=1)
+    expected = swap ^ swap[np.arange(len(uv)), ref][:, None]
+    np.testing.assert_array_equal(flip & both, expected & both)

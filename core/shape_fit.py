@@ -1,0 +1,458 @@
+"""Body shape from dense surface points: metaball radii and centres with the pose held.
+
+The shape step of paper 1 (§4, eq. 15) solves the metaball radii so that every 3-D
+surface point ``x`` lies on the body surface ``Σ f_m(x) = 0.5``.  Here that is done
+for the *whole-body* surface — the iso-surface that is rendered, measured and built
+in Blender — over the points of several frames at once (poses held, e.g. from the
+pose fit or the truth), by weighted least squares on two observation types and a
+prior:
+
+* **data points** (eq. 15): the signed distance ``e(x) = (ln Σ f − ln 0.5)/|∇ ln Σ f|``
+  of each observed point to the surface (:mod:`core.attractor`), over its σ, with
+  Cauchy re-weighting against outliers.  The sum runs over the ``k_members`` metaballs
+  of strongest field at the point (the far ones add nothing measurable);
+* **model points** (the penalty against bulging where there are no points): points
+  sampled on the current model surface that the cameras see (z-buffered against the
+  model's own rendering, :func:`core.model_render.render_parts`, in ``min_views``
+  cameras, as the data points were) must lie on the data: the residual is
+  ``e(x_s) + n·(x_s − y)`` with ``y`` the median normal offset of the nearest data
+  points — zero when the surface has moved along its normal ``n`` onto the data.  A
+  metaball growing into space where a camera sees nothing is pulled back; a region
+  no camera sees is left to the prior;
+* **symmetry** (soft, ``σ_symmetry``): a left metaball and its right partner have the
+  same radii and mirror-image centres (about the skeleton's rest-pose sagittal plane),
+  and a metaball of the trunk or head is centred on that plane.  The studio's
+  ``line3`` rig sees the walker's right side in no frame: without this its shape is
+  left to the prior;
+* **prior** towards the start shape (the template): ``(radii − radii0)/σ_radius``,
+  ``(centres − centres0)/σ_center``.
+
+Unknowns: radii (M, 3) and, when ``free_centers``, the centres (M, 3) in their bones'
+frames (metres before scaling).  Levenberg–Marquardt on the normal equations
+(:func:`core.fitting._levenberg_marquardt`) inside re-weighting rounds: each round
+re-selects the members, re-samples and re-tests the model points and freezes the
+weights, so the Jacobian within a round is exact.
+
+Arrays: ``xyz`` (N, 3) world metres; ``theta`` (F, n) radians; ``root_xyz`` (F, 3)
+metres; ``s`` (G,) bone scales.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .attractor import LN_T, attractor, attractor_jacobians, scatter
+from .camera import Camera
+from .fitting import _levenberg_marquardt
+from .metaballs import VISIBLE, Metaballs, sample_surface, world_frames
+from .model_render import render_parts
+from .skeleton import Skeleton, bone_frames, forward, joint_positions
+
+
+@dataclass
+class ShapeSettings:
+    """Weights and solver settings of :func:`fit_shape` (lengths in metres)."""
+
+    sigma_point: float = 0.003  # σ of a data point's distance (when none is given)
+    sigma_model: float = 0.004  # σ of a seen model point's distance to the data
+    sigma_radius: float = 0.03  # prior towards the start radii
+    sigma_center: float = 0.02  # prior towards the start centres
+    sigma_symmetry: float = 0.003  # left/right symmetry of radii and centres (0: off)
+    free_centers: bool = True
+    model_points: bool = True  # the penalty against bulging (needs cameras)
+    k_members: int = 8  # metaballs in a point's field
+    samples_per_ball: int = 40  # model points drawn per metaball and frame
+    min_views: int = 2  # cameras that must see a model point
+    depth_tol: float = 0.02  # z-buffer tolerance of the model points
+    neighbours: int = 5  # data points whose median normal offset a model point uses
+    max_offset: float = 0.05  # cap of a model point's offset
+    robust_scale: float = 3.0  # Cauchy knee of the data points, in σ
+    rounds: int = 8
+    max_nfev: int = 15
+    tol: float = 1e-4
+    round_tol: float = 2e-4  # stop when no radius or centre moved more than this
+    min_radius: float = 0.005
+    min_points: int = 20  # a frame with fewer data points is left out (flagged)
+
+
+@dataclass
+class ShapeFit:
+    """Result of :func:`fit_shape`.
+
+    Attributes
+    ----------
+    metaballs : the fitted metaballs (radii, and centres when free)
+    rms_m : (F,) RMS distance of each frame's data points to the surface (Cauchy
+        inliers, i.e. within the last round's knee), NaN for a frame left out
+    model_rms_m : (F,) RMS offset of the seen model points to the data
+    n_points : (F,) data points used; n_model : (F,) model points used
+    frame_ok : (F,) False for a frame left out (too few points)
+    converged : the last round moved no unknown by more than ``round_tol``
+    message : what happened, in words
+    """
+
+    metaballs: Metaballs
+    rms_m: np.ndarray
+    model_rms_m: np.ndarray
+    n_points: np.ndarray
+    n_model: np.ndarray
+    frame_ok: np.ndarray
+    converged: bool
+    message: str
+
+
+def nearest_members(xyz: np.ndarray, Rw: np.ndarray, cw: np.ndarray, radii: np.ndarray,
+                    k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The ``k`` metaballs of strongest field at each point.
+
+    Parameters
+    ----------
+    xyz : (N, 3) world points; Rw (M, 3, 3), cw (M, 3), radii (M, 3) metaball frames
+
+    Returns
+    -------
+    idx : (N, K) int metaball indices, K = min(k, M); valid : (N, K) bool (all True)
+    """
+    y = np.einsum("mji,nmj->nmi", Rw, np.asarray(xyz, float)[:, None, :] - cw[None])
+    d = np.sum((y / radii[None]) ** 2, axis=-1)  # (N, M)
+    k = min(int(k), len(radii))
+    idx = np.argpartition(d, k - 1, axis=1)[:, :k] if k < len(radii) else \
+        np.broadcast_to(np.arange(len(radii)), d.shape).copy()
+    return idx, np.ones(idx.shape, bool)
+
+
+def seen_by(cameras: list[Camera], xyz: np.ndarray, Rw: np.ndarray, cw: np.ndarray,
+            radii: np.ndarray, bone: np.ndarray, depth_tol: float) -> np.ndarray:
+    """How many cameras see each point of the model surface (N,) int.
+
+    A point is seen when it projects into the image and lies no farther than
+    ``depth_tol`` metres behind the model's own rendering there (the lone visible
+    ellipsoids of :func:`core.model_render.render_parts`).
+    """
+    views = np.zeros(len(xyz), int)
+    for cam in cameras:
+        w, h = cam.size
+        ren = render_parts(cam, cw, Rw, radii * VISIBLE, bone)
+        with np.errstate(all="ignore"):
+            uv = cam.project(xyz)
+        ok = np.all(np.isfinite(uv), axis=1)
+        iu = np.round(np.where(ok, uv[:, 0], -1)).astype(int)
+        iv = np.round(np.where(ok, uv[:, 1], -1)).astype(int)
+        ok &= (iu >= 0) & (iu < w) & (iv >= 0) & (iv < h)
+        depth = np.linalg.norm(xyz - cam.center, axis=1)
+        zb = ren.depth[np.clip(iv, 0, h - 1), np.clip(iu, 0, w - 1)]
+        views += ok & (depth <= zb + depth_tol)
+    return views
+
+
+@dataclass
+class Symmetry:
+    """Left/right pairing of metaballs (see :func:`mirror_pairs`).
+
+    Attributes
+    ----------
+    left, right : (P,) int paired metaballs (left side, right side)
+    axis_map : (P, 3) int — the right metaball's axis matching each left axis
+    centre : (C,) int metaballs on the mid-plane (trunk, head)
+    A : (M, 3, 3) rest-pose bone rotation times scale: world offset ``A @ center0``
+    lateral : (3,) unit world axis across the body at rest
+    """
+
+    left: np.ndarray
+    right: np.ndarray
+    axis_map: np.ndarray
+    centre: np.ndarray
+    A: np.ndarray
+    lateral: np.ndarray
+
+
+def mirror_pairs(skel: Skeleton, balls: Metaballs, s: np.ndarray) -> Symmetry:
+    """Pair every ``l_*`` bone's metaballs with the ``r_*`` bone's, in order.
+
+    The mirror plane is the rest pose's (θ = 0) mid-plane, normal to ``l_hip − r_hip``.
+    Bones without a partner count as mid-plane bones when they are not sided.
+    """
+    pose = forward(skel, np.zeros(skel.n_dof), np.zeros(3), s)
+    Rb, _ = bone_frames(skel, pose)
+    Rb = Rb[0]
+    scale = np.where(balls.group >= 0, np.asarray(s, float)[np.maximum(balls.group, 0)], 1.0)
+    A = Rb[balls.bone] * scale[:, None, None]
+    jl, jr = skel.joint_index("l_hip"), skel.joint_index("r_hip")
+    xj = joint_positions(skel, np.zeros(skel.n_dof), np.zeros(3), s)
+    lateral = xj[jl] - xj[jr]
+    lateral /= np.linalg.norm(lateral)
+    mirror = np.eye(3) - 2.0 * np.outer(lateral, lateral)
+    Rw = Rb[balls.bone] @ balls.rot
+    left, right, amap, centre = [], [], [], []
+    names = skel.bone_names
+    for b, name in enumerate(names):
+        on = np.flatnonzero(balls.bone == b)
+        if name.startswith("r_"):
+            continue
+        if not name.startswith("l_"):
+            centre.extend(on)
+            continue
+        other = "r_" + name[2:]
+        if other not in names:
+            continue
+        on_r = np.flatnonzero(balls.bone == names.index(other))
+        for m, mr in zip(on, on_r, strict=False):
+            left.append(m)
+            right.append(mr)
+            amap.append(np.argmax(np.abs(Rw[mr].T @ mirror @ Rw[m]), axis=0))
+    return Symmetry(np.array(left, int), np.array(right, int),
+                    np.array(amap, int).reshape(-1, 3), np.array(centre, int), A, lateral)
+
+
+def _symmetry_rows(sym: Symmetry, M: int, n_c: int, w: float, radii, centers):
+    """Residuals and Jacobian (rows, 3M + n_c) of the symmetry prior."""
+    P, C = len(sym.left), len(sym.centre)
+    mirror = np.eye(3) - 2.0 * np.outer(sym.lateral, sym.lateral)
+    rows = np.arange(3 * P)
+    r = [(radii[sym.right[:, None], sym.axis_map] - radii[sym.left]).ravel() * w]
+    J = np.zeros((3 * P, 3 * M + n_c))
+    J[rows, (3 * sym.right[:, None] + sym.axis_map).ravel()] = w
+    J[rows, (3 * sym.left[:, None] + np.arange(3)).ravel()] -= w
+    Js = [J]
+    if n_c:
+        o = np.einsum("mij,mj->mi", sym.A, centers)
+        r.append((o[sym.right] - o[sym.left] @ mirror.T).ravel() * w)
+        r.append(o[sym.centre] @ sym.lateral * w)
+        Jc = np.zeros((3 * P + C, 3 * M + n_c))
+        for k, (m, mr) in enumerate(zip(sym.left, sym.right, strict=True)):
+            Jc[3 * k:3 * k + 3, 3 * M + 3 * mr:3 * M + 3 * mr + 3] = sym.A[mr] * w
+            Jc[3 * k:3 * k + 3, 3 * M + 3 * m:3 * M + 3 * m + 3] = -(mirror @ sym.A[m]) * w
+        for k, m in enumerate(sym.centre):
+            Jc[3 * P + k, 3 * M + 3 * m:3 * M + 3 * m + 3] = sym.lateral @ sym.A[m] * w
+        Js.append(Jc)
+    return np.concatenate(r), np.concatenate(Js, axis=0)
+
+
+class _Frame:
+    """One frame's data and model points, with the weights frozen for a round."""
+
+    def __init__(self, pose, xyz, sigma):
+        self.pose, self.xyz, self.sigma = pose, xyz, sigma
+        self.idx = self.valid = self.w = None
+        self.knee = np.inf
+        self.xs = self.sidx = self.svalid = self.soff = self.sinv = None
+
+
+def _cauchy(r: np.ndarray, c: float) -> np.ndarray:
+    """Square roots of the Cauchy IRLS weights ``1 / (1 + (r/c)²)``."""
+    return 1.0 / np.sqrt(1.0 + (r / c) ** 2)
+
+
+class ShapeProblem:
+    """Residuals and Jacobian of the shape fit (the unknowns packed as ``x``).
+
+    ``x`` = radii (3M) then, when ``free_centers``, centres (3M).  :meth:`freeze`
+    fixes the members, weights and model points at a given ``x``; :meth:`system`
+    returns the residual vector and its exact Jacobian for those frozen choices.
+    """
+
+    def __init__(self, skel: Skeleton, balls: Metaballs, s: np.ndarray, poses: list,
+                 points: list[np.ndarray], sigma: list[np.ndarray],
+                 cameras: list[Camera] | None, cfg: ShapeSettings, seed: int = 0):
+        self.skel, self.balls, self.s, self.cfg = skel, balls, np.asarray(s, float), cfg
+        self.cameras = cameras
+        self.anc = skel.ancestors()
+        self.M = len(balls)
+        self.n_c = 3 * self.M if cfg.free_centers else 0
+        self.radii0, self.centers0 = balls.radii.copy(), balls.center0.copy()
+        self.frames = [_Frame(p, x, sg) for p, x, sg in zip(poses, points, sigma, strict=True)]
+        self.sym = mirror_pairs(skel, balls, s) if cfg.sigma_symmetry > 0 else None
+        self.rng = np.random.default_rng(seed)
+
+    def pack(self, radii: np.ndarray, centers: np.ndarray) -> np.ndarray:
+        return np.concatenate([np.ravel(radii)] + ([np.ravel(centers)] if self.n_c else []))
+
+    def unpack(self, x: np.ndarray):
+        """``(radii (M, 3), centres (M, 3))`` of a packed vector."""
+        radii = x[:3 * self.M].reshape(self.M, 3)
+        centers = x[3 * self.M:].reshape(self.M, 3) if self.n_c else self.centers0
+        return radii, centers
+
+    def geometry(self, fr: _Frame, radii, centers):
+        b = Metaballs(self.balls.bone, centers, self.balls.group, self.balls.rot, radii)
+        Rw, cw = world_frames(self.skel, fr.pose, b, self.s)
+        return b, Rw[0], cw[0]
+
+    def freeze(self, x: np.ndarray) -> None:
+        """Per frame: members, Cauchy weights of the data points, and the seen model
+        points with their normal offsets to the data, at ``x``."""
+        cfg = self.cfg
+        radii, centers = self.unpack(x)
+        for fr in self.frames:
+            b, Rw, cw = self.geometry(fr, radii, centers)
+            fr.idx, fr.valid = nearest_members(fr.xyz, Rw, cw, radii, cfg.k_members)
+            att = attractor(fr.xyz, fr.idx, fr.valid, Rw, cw, radii)
+            dist = np.where(np.isfinite(att.dist), att.dist, 1.0)
+            mad = 1.4826 * float(np.median(np.abs(dist - np.median(dist))))
+            fr.knee = max(cfg.robust_scale * float(np.median(fr.sigma)), 3.0 * mad)
+            fr.w = att.inv_g / fr.sigma * _cauchy(dist, fr.knee)
+            fr.xs = None
+            if self.cameras is None:
+                continue
+            xs, ok = sample_surface(self.skel, fr.pose, b, self.s,
+                                    per_ball=cfg.samples_per_ball,
+                                    seed=int(self.rng.integers(2**31)))
+            xs = xs[ok]
+            seen = seen_by(self.cameras, xs, Rw, cw, radii, b.bone, cfg.depth_tol)
+            xs = xs[seen >= cfg.min_views]
+            if not len(xs):
+                continue
+            sidx, svalid = nearest_members(xs, Rw, cw, radii, cfg.k_members)
+            satt = attractor(xs, sidx, svalid, Rw, cw, radii)
+            fr.xs, fr.sidx, fr.svalid = xs, sidx, svalid
+            fr.soff = model_offsets(xs, -satt.grad, fr.xyz, cfg.neighbours, cfg.max_offset)
+            fr.sinv = satt.inv_g
+
+    def _rows(self, fr, b, Rw, cw, radii, x, idx, valid, w, off=None):
+        att = attractor(x, idx, valid, Rw, cw, radii)
+        jac = attractor_jacobians(self.skel, fr.pose, b, self.s, x, idx, att, radii,
+                                  self.anc, shape=True)
+        e = att.L - LN_T
+        scale = w if off is None else w * off[1]
+        r = e * scale if off is None else (e * off[1] + off[0]) * w
+        J = [scatter(jac[3], idx, valid, self.M) * scale[:, None]]
+        if self.n_c:
+            J.append(scatter(jac[4], idx, valid, self.M) * scale[:, None])
+        return r, np.concatenate(J, axis=1)
+
+    def system(self, x: np.ndarray):
+        """Residuals (m,) and Jacobian (m, len(x)) at ``x`` (weights as frozen)."""
+        cfg, M, n_c = self.cfg, self.M, self.n_c
+        radii, centers = self.unpack(x)
+        res, jac = [], []
+        for fr in self.frames:
+            b, Rw, cw = self.geometry(fr, radii, centers)
+            r, J = self._rows(fr, b, Rw, cw, radii, fr.xyz, fr.idx, fr.valid, fr.w)
+            res.append(r)
+            jac.append(J)
+            if fr.xs is not None:
+                r, J = self._rows(fr, b, Rw, cw, radii, fr.xs, fr.sidx, fr.svalid,
+                                  np.full(len(fr.xs), 1.0 / cfg.sigma_model),
+                                  off=(fr.soff, fr.sinv))
+                res.append(r)
+                jac.append(J)
+        w = 1.0 / cfg.sigma_radius
+        res.append((radii - self.radii0).ravel() * w)
+        jac.append(np.hstack([np.eye(3 * M) * w, np.zeros((3 * M, n_c))]))
+        if n_c:
+            w = 1.0 / cfg.sigma_center
+            res.append((centers - self.centers0).ravel() * w)
+            jac.append(np.hstack([np.zeros((n_c, 3 * M)), np.eye(n_c) * w]))
+        if self.sym is not None:
+            r, J = _symmetry_rows(self.sym, M, n_c, 1.0 / cfg.sigma_symmetry, radii, centers)
+            res.append(r)
+            jac.append(J)
+        return np.concatenate(res), np.concatenate(jac, axis=0)
+
+
+def model_offsets(xs: np.ndarray, outward: np.ndarray, data: np.ndarray, k: int,
+                  cap: float) -> np.ndarray:
+    """Signed offsets (S,) of model surface points from the data along their normals.
+
+    Parameters
+    ----------
+    xs : (S, 3) model surface points; outward : (S, 3) outward directions (any length)
+    data : (N, 3) observed points; k : nearest data points whose median is taken
+    cap : offsets are clipped to ``[-cap, cap]`` metres
+
+    Returns
+    -------
+    (S,) metres, positive where the model surface lies outside the data.
+    """
+    n = outward / np.maximum(np.linalg.norm(outward, axis=1, keepdims=True), 1e-12)
+    k = max(1, min(int(k), len(data)))
+    _, nb = cKDTree(data).query(xs, k=k)
+    nb = np.asarray(nb).reshape(len(xs), k)
+    off = np.median(np.einsum("nki,ni->nk", xs[:, None, :] - data[nb], n), axis=1)
+    return np.clip(off, -cap, cap)
+
+
+def fit_shape(skel: Skeleton, balls: Metaballs, s: np.ndarray, theta: np.ndarray,
+              root_xyz: np.ndarray, points: list[np.ndarray],
+              cameras: list[Camera] | None = None,
+              sigma: list[np.ndarray] | None = None,
+              settings: ShapeSettings | None = None, seed: int = 0) -> ShapeFit:
+    """Fit the metaball radii (and centres) to surface points of F frames, pose held.
+
+    Parameters
+    ----------
+    skel, balls, s : the body; ``balls`` is the start (and prior) shape
+    theta : (F, n) radians; root_xyz : (F, 3) metres — the held poses
+    points : list (F) of (N_f, 3) surface points, world metres (outliers allowed)
+    cameras : the scene's cameras, for the model-point penalty (without them only the
+        data points, the symmetry and the prior act)
+    sigma : list (F) of (N_f,) a-priori σ of the points, metres (default
+        ``settings.sigma_point``)
+    seed : seeds the model points' sampling
+
+    Returns
+    -------
+    ShapeFit — a frame with fewer than ``min_points`` finite points is left out and
+    flagged; with no usable frame the start shape is returned, flagged.
+    """
+    cfg = settings or ShapeSettings()
+    theta = np.atleast_2d(np.asarray(theta, float))
+    root_xyz = np.asarray(root_xyz, float).reshape(-1, 3)
+    nf = len(points)
+    if theta.shape != (nf, skel.n_dof) or root_xyz.shape != (nf, 3):
+        raise ValueError(f"{nf} frames of points need theta ({nf}, {skel.n_dof}) and "
+                         f"root_xyz ({nf}, 3), got {theta.shape} and {root_xyz.shape}")
+    s = np.asarray(s, float)
+    keep, poses, xyzs, sigs = np.zeros(nf, bool), [], [], []
+    for f in range(nf):
+        xyz = np.asarray(points[f], float).reshape(-1, 3)
+        sig = np.full(len(xyz), cfg.sigma_point) if sigma is None else \
+            np.broadcast_to(np.asarray(sigma[f], float), (len(xyz),)).copy()
+        good = np.all(np.isfinite(xyz), axis=1) & np.isfinite(sig) & (sig > 0)
+        if good.sum() < cfg.min_points:
+            continue
+        keep[f] = True
+        poses.append(forward(skel, theta[f][None], root_xyz[f][None], s))
+        xyzs.append(xyz[good])
+        sigs.append(sig[good])
+    nan = np.full(nf, np.nan)
+    if not keep.any():
+        return ShapeFit(balls.copy(), nan, nan.copy(), np.zeros(nf, int), np.zeros(nf, int),
+                        keep, False, "no frame has enough points: the start shape is kept")
+    use_cams = cameras if (cfg.model_points and cameras is not None
+                           and len(cameras) >= cfg.min_views) else None
+    prob = ShapeProblem(skel, balls, s, poses, xyzs, sigs, use_cams, cfg, seed)
+    x = prob.pack(prob.radii0, prob.centers0)
+    lo = np.full(len(x), -np.inf)
+    lo[:3 * prob.M] = cfg.min_radius
+    x = np.maximum(x, lo)
+    converged, msg = False, f"not converged in {cfg.rounds} rounds"
+    for _ in range(cfg.rounds):
+        prob.freeze(x)
+        sol = _levenberg_marquardt(prob.system, x, lo, cfg.max_nfev, cfg.tol, max_step=0.02)
+        moved = float(np.abs(sol.x - x).max(initial=0.0))
+        x = sol.x
+        if moved < cfg.round_tol:
+            converged, msg = True, "converged"
+            break
+    radii, centers = prob.unpack(x)
+    out = Metaballs(balls.bone.copy(), np.array(centers, float), balls.group.copy(),
+                    balls.rot.copy(), np.array(radii, float))
+    prob.freeze(x)
+    rms, mrms = nan.copy(), nan.copy()
+    n_pts, n_mod = np.zeros(nf, int), np.zeros(nf, int)
+    for f, fr in zip(np.flatnonzero(keep), prob.frames, strict=True):
+        _, Rw, cw = prob.geometry(fr, radii, centers)
+        dist = attractor(fr.xyz, fr.idx, fr.valid, Rw, cw, radii).dist
+        inl = np.abs(dist) <= fr.knee
+        rms[f] = float(np.sqrt(np.mean(dist[inl] ** 2))) if inl.any() else np.nan
+        n_pts[f] = len(fr.xyz)
+        if fr.xs is not None:
+            mrms[f] = float(np.sqrt(np.mean(fr.soff ** 2)))
+            n_mod[f] = len(fr.xs)
+    if not keep.all():
+        msg += f"; {int((~keep).sum())} frame(s) with fewer than {cfg.min_points} points left out"
+    return ShapeFit(out, rms, mrms, n_pts, n_mod, keep, converged, msg)

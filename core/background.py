@@ -239,3 +239,57 @@ def _mad_sigma(stack, colour, min_sigma, weights=None):
     # a little spatial pooling keeps single noisy estimates from making holes
     sigma = cv2.blur(sigma.astype(np.float32), (5, 5))
     return np.maximum(sigma, min_sigma).astype(np.float32)
+
+
+def with_reference(model: BackgroundModel, frames: np.ndarray, reference: np.ndarray,
+                   tol: float = 20.0, min_support: float = 0.1, min_diff: float = 25.0,
+                   sigma_floor: float = 4.0, open_px: int = 2) -> BackgroundModel:
+    """Repair a temporal-median background with an image of the empty scene.
+
+    A person who holds one pose for more than half of the take burns into the median
+    (their torso then never shows as foreground).  Where ``reference`` (the empty scene
+    from the same camera, e.g. a calibration photo; brightness matched per channel by
+    the median ratio) differs from the model by more than ``min_diff`` grey levels in a
+    compact region (thin edges from a sub-pixel misregistration are removed by an
+    opening of ``open_px``), *and* at least ``min_support`` of the frames agree with the
+    reference there (within ``tol`` grey levels — so a person present only in the
+    reference is not copied in), the reference colour replaces the median and the noise
+    level is raised to at least ``sigma_floor`` (two exposures differ).
+
+    Parameters
+    ----------
+    model : BackgroundModel
+        From :func:`fit_background` on ``frames``.
+    frames : ndarray, shape (N, H, W, 3) or (N, H, W), uint8
+    reference : ndarray, shape (H, W, 3) or (H, W), uint8
+        The empty scene, registered to the frames.
+
+    Returns
+    -------
+    BackgroundModel
+        A repaired copy (``known`` set where the reference was taken).
+    """
+    ref = _as_rgb(np.asarray(reference)).astype(np.float32)
+    if ref.shape[:2] != model.shape:
+        raise InputError(f"reference image of size {ref.shape[1]}x{ref.shape[0]} does not "
+                         f"match the background model {model.shape[1]}x{model.shape[0]}")
+    frames = np.asarray(frames)
+    if frames.ndim == 3:
+        frames = np.repeat(frames[..., None], 3, axis=3)
+    gain = np.median(ref / (model.colour + 1.0), axis=(0, 1))
+    ref = np.clip(ref / gain, 0.0, 255.0)
+    diff = np.linalg.norm(ref - model.colour, axis=2) > min_diff
+    if open_px > 0:
+        k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * open_px + 1, 2 * open_px + 1))
+        diff = cv2.morphologyEx(diff.astype(np.uint8), cv2.MORPH_OPEN, k).astype(bool)
+    if not diff.any():
+        return BackgroundModel(model.colour.copy(), model.sigma.copy(), model.known.copy())
+    vv, uu = np.nonzero(diff)
+    d = np.linalg.norm(frames[:, vv, uu].astype(np.float32) - ref[None, vv, uu], axis=2)
+    take = np.mean(d < tol, axis=0) >= min_support
+    colour, sigma, known = model.colour.copy(), model.sigma.copy(), model.known.copy()
+    vv, uu = vv[take], uu[take]
+    colour[vv, uu] = ref[vv, uu]
+    sigma[vv, uu] = np.maximum(sigma[vv, uu], sigma_floor)
+    known[vv, uu] = True
+    return BackgroundModel(colour, sigma, known)

@@ -1,0 +1,516 @@
+"""Body fit on real video, checked in a held-out camera: ``python -m bench.realvideo_fit``.
+
+Data: ``../shared/data/video/pose2sim_single`` (4 synchronised portrait cameras, 100
+frames at 60 fps, a person with bare skin doing a balance/lunge movement in a cluttered
+room; Qualisys calibration).  There is no joint truth, so the check is the silhouette
+overlap in a camera the fit never saw.
+
+Cameras: the body is fitted with **cam02, cam03, cam04** — front, back-left and
+back-right of the person (azimuths about 12°, 135° and 206° around the person; the
+largest gap between neighbours is 166°) — and **cam01** (front-left, -38°) is held out.
+
+1. **Initialisation** from ``bench/data/pose2sim_clicks.json``: 15 key joints clicked by
+   eye at frame 0 in the three fitting cameras (full-resolution pixels), forward
+   intersected; posture and bone scales from :func:`core.fit_init.initialise`.
+2. **Foreground** of every camera (:func:`core.background.fit_background`, robust
+   temporal median over the take) at ``--mask-scale`` (quarter resolution,
+   272 × 480 px); the person's mask is the foreground components touching a region
+   around the clicked joints projected into that camera (other people and clutter
+   in the room are left out); occluding contours (:func:`core.contours.occluding_contours`)
+   of the three fitting cameras.
+3. Three fits of the same frames, side by side:
+
+   * **texture only** — LSM surface points (Wallis pre-filter, half resolution,
+     :func:`core.surface.measure_surface` seeded by NCC along epipolar lines from
+     points between the clicked joints in cam03, tracked by :func:`core.tracking.track`)
+     fitted by :func:`core.fit.fit_sequence`;
+   * **contours only** — metaball radii from frame 0's silhouettes
+     (:func:`core.contour_track.fit_shape_to_contours`), then the EKF contour tracker
+     with per-part camera selection (:func:`core.contour_track.track_contours`);
+   * **texture + contours** — every frame of the texture fit refined with that frame's
+     contours (:func:`core.contour_track.refine_state_with_contours`, per-part camera
+     selection); frames the texture fit marked diverged take the contour track's pose.
+
+4. **Check**: each fitted body rendered into cam01
+   (:func:`core.silhouette_check.body_masks`) and compared with the person's foreground
+   mask there (IoU per frame: mean, median, 10th percentile).  Overlays of a few frames
+   (fitted outlines over cam01) and the four cameras' masks go to ``--out``.
+
+Run: ``python -m bench.realvideo_fit [--frames 100] [--out out/realvideo_fit]``
+(about 4–6 minutes on 2 cores for 100 frames; tracking is cached in ``--out``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from bench.realvideo import epipolar_seeds, scale_camera, wallis
+from core.background import fit_background, with_reference
+from core.camera import Camera
+from core.contours import occluding_contours
+from core.errors import InputError
+from core.formats import read_qca
+
+REPO = Path(__file__).resolve().parents[1]
+DATA = REPO.parent / "shared" / "data" / "video" / "pose2sim_single"
+CLICKS = Path(__file__).resolve().parent / "data" / "pose2sim_clicks.json"
+FIT_CAMS = ("cam02", "cam03", "cam04")
+CHECK_CAM = "cam01"
+FPS = 60.0
+#: Seeds for the LSM surface in the reference camera, as (joint a, joint b, weight of b):
+#: points between clicked joints on the back, the buttocks/thighs and the upper arms.
+SEED_PAIRS = (("neck", "pelvis", 0.3), ("neck", "pelvis", 0.55), ("l_shoulder", "r_hip", 0.5),
+              ("r_shoulder", "l_hip", 0.5), ("l_hip", "l_knee", 0.4), ("r_hip", "r_knee", 0.4),
+              ("l_shoulder", "l_elbow", 0.4), ("r_shoulder", "r_elbow", 0.4),
+              ("l_knee", "l_ankle", 0.35), ("r_knee", "r_ankle", 0.35))
+
+
+# -- input ----------------------------------------------------------------------------------
+def load_clicks(path: Path, cameras: list[str]) -> dict:
+    """``clicks.json`` (SPEC.md layout) as ``{"frame": int, "joints": {joint: {cam: uv}}}``.
+
+    Raises
+    ------
+    InputError
+        The file is missing, not JSON, or names a camera not in ``cameras`` or a
+        position that is not ``[u, v]``.
+    """
+    if not path.is_file():
+        raise InputError(f"{path}: clicks file not found")
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{path}: not valid JSON ({exc})") from exc
+    if not isinstance(data, dict) or not isinstance(data.get("joints"), dict):
+        raise InputError(f"{path}: needs a 'joints' object")
+    joints = {}
+    for joint, per_cam in data["joints"].items():
+        if not isinstance(per_cam, dict):
+            raise InputError(f"{path}: joint '{joint}' must map camera names to [u, v]")
+        joints[joint] = {}
+        for cam, uv in per_cam.items():
+            if cam not in cameras:
+                raise InputError(f"{path}: joint '{joint}' names unknown camera '{cam}'")
+            uv = np.asarray(uv, float)
+            if uv.shape != (2,) or not np.all(np.isfinite(uv)):
+                raise InputError(f"{path}: joint '{joint}' in {cam} is not [u, v]")
+            joints[joint][cam] = uv
+    return {"frame": int(data.get("frame", 0)), "joints": joints}
+
+
+def read_video(path: Path, size: tuple[int, int], n_frames: int, grey_scale: float | None,
+               colour_scale: float) -> tuple[np.ndarray | None, np.ndarray]:
+    """Decode one camera once: Wallis-filtered grey frames and RGB frames.
+
+    Frames narrower than the calibrated ``size`` (cam01/cam02: 1080 of 1088 px) are
+    padded on the right, so pixel coordinates are unchanged.
+
+    Returns
+    -------
+    grey : ndarray, shape (F, h, w), uint8, or None when ``grey_scale`` is None
+        Wallis-filtered (:func:`bench.realvideo.wallis`) at ``grey_scale``.
+    rgb : ndarray, shape (F, h', w', 3), uint8
+        Colour frames at ``colour_scale``.
+    """
+    cap = cv2.VideoCapture(str(path))
+    if not cap.isOpened():
+        raise InputError(f"{path}: cannot be opened as a video")
+    w, h = size
+    grey, rgb = [], []
+    while len(rgb) < n_frames:
+        ok, f = cap.read()
+        if not ok:
+            break
+        if f.shape[0] > h or f.shape[1] > w:
+            raise InputError(f"{path}: frame {f.shape[1]}x{f.shape[0]} is larger than the "
+                             f"calibration {w}x{h}")
+        f = cv2.copyMakeBorder(f, 0, h - f.shape[0], 0, w - f.shape[1], cv2.BORDER_REPLICATE)
+        if grey_scale is not None:
+            g = cv2.resize(cv2.cvtColor(f, cv2.COLOR_BGR2GRAY),
+                           (round(w * grey_scale), round(h * grey_scale)),
+                           interpolation=cv2.INTER_AREA)
+            grey.append(wallis(g))
+        c = cv2.resize(f, (round(w * colour_scale), round(h * colour_scale)),
+                       interpolation=cv2.INTER_AREA)
+        rgb.append(cv2.cvtColor(c, cv2.COLOR_BGR2RGB))
+    cap.release()
+    if len(rgb) < n_frames:
+        raise InputError(f"{path}: has {len(rgb)} frames, {n_frames} requested")
+    return (np.stack(grey) if grey_scale is not None else None), np.stack(rgb)
+
+
+def read_empty_scene(data: Path, name: str, size: tuple[int, int],
+                     scale: float) -> np.ndarray | None:
+    """The calibration photo of camera ``name`` (``calibration/extrinsics/<name>_ext.png``)
+    registered to the video frames, RGB at ``scale``; None when absent.
+
+    The photos are all 1088 px wide; those of the 1080-px-wide videos (cam01, cam02) were
+    stretched horizontally to that width (phase correlation against the video's median
+    background: 0.6–1 px shift at quarter resolution before undoing the stretch, ≤ 0.35
+    px after), so they are squeezed back and padded like the video frames.
+    """
+    path = data / "calibration" / "extrinsics" / f"{name}_ext.png"
+    img = cv2.imread(str(path))
+    if img is None:
+        return None
+    cap = cv2.VideoCapture(str(data / "videos" / f"{name}.mp4"))
+    vw = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH))
+    cap.release()
+    w, h = size
+    if img.shape[1] != w or img.shape[0] != h:
+        raise InputError(f"{path}: is {img.shape[1]}x{img.shape[0]}, the calibration {w}x{h}")
+    if 0 < vw < w:
+        img = cv2.resize(img, (vw, h), interpolation=cv2.INTER_AREA)
+        img = cv2.copyMakeBorder(img, 0, 0, 0, w - vw, cv2.BORDER_REPLICATE)
+    img = cv2.resize(img, (round(w * scale), round(h * scale)), interpolation=cv2.INTER_AREA)
+    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+# -- foreground ---------------------------------------------------------------------------
+def person_region(camera: Camera, xyz: np.ndarray, grow: tuple[float, float] = (0.6, 0.25)
+                  ) -> tuple[int, int, int, int]:
+    """Image box ``(u0, v0, u1, v1)`` around 3-D joints ``xyz`` (K, 3) projected into
+    ``camera``, widened by ``grow`` (fractions of the box's width, height) on each side."""
+    uv = camera.project(xyz)
+    uv = uv[np.all(np.isfinite(uv), axis=1)]
+    lo, hi = uv.min(axis=0), uv.max(axis=0)
+    ext = (hi - lo) * np.asarray(grow)
+    w, h = camera.size
+    u0, v0 = np.maximum(lo - ext, 0).astype(int)
+    u1, v1 = np.minimum(hi + ext, (w - 1, h - 1)).astype(int)
+    return int(u0), int(v0), int(u1), int(v1)
+
+
+def keep_in_region(masks: np.ndarray, box: tuple[int, int, int, int]) -> np.ndarray:
+    """Keep the connected components of each mask (F, H, W) that touch ``box``."""
+    u0, v0, u1, v1 = box
+    out = np.zeros_like(masks)
+    for f, m in enumerate(masks):
+        n, lab = cv2.connectedComponents(m.astype(np.uint8), connectivity=8)
+        if n <= 1:
+            continue
+        hit = np.unique(lab[v0:v1 + 1, u0:u1 + 1])
+        keep = np.zeros(n, bool)
+        keep[hit[hit > 0]] = True
+        out[f] = keep[lab]
+    return out
+
+
+# -- fits ---------------------------------------------------------------------------------
+def texture_tracks(grey: dict, cams: list[Camera], clicks: dict, cams_full: list[Camera],
+                   n_frames: int, scale: float, cache: Path, ref: int = 1):
+    """LSM surface points at frame 0 tracked through ``n_frames`` (cached in ``cache``).
+
+    Returns ``(xyz (F, P, 3) metres, sigma_xyz (F, P, 3) metres, info dict)``.
+    """
+    names = [c.name for c in cams]
+    key = f"{','.join(names)}|{n_frames}|{scale}"
+    if cache.is_file():
+        with np.load(cache, allow_pickle=False) as z:
+            if str(z["key"]) == key:
+                return z["xyz"], z["sigma_xyz"], json.loads(str(z["info"]))
+    from core.lsm import ImageStack
+    from core.surface import measure_surface
+    from core.tracking import track
+
+    t0 = time.perf_counter()
+    j = clicks["joints"]
+    ref_name = names[ref]
+    uv_ref = np.array([(1 - w) * j[a][ref_name] + w * j[b][ref_name] for a, b, w in SEED_PAIRS
+                       if ref_name in j.get(a, {}) and ref_name in j.get(b, {})])
+    uv_ref = (uv_ref + 0.5) * scale - 0.5
+    st0 = ImageStack([grey[n][0] for n in names])
+    seeds = epipolar_seeds(st0, cams, ref, uv_ref)
+    if len(seeds) == 0:
+        raise InputError("no LSM seed matched along the epipolar lines")
+    surf = measure_surface(st0, cams, seeds, ref=ref, step=2)
+    t1 = time.perf_counter()
+    tr = track(lambda i: [grey[n][i] for n in names], cams, surf, n_frames, FPS, step=2,
+               regen_every=5)
+    t2 = time.perf_counter()
+    alive = tr.alive
+    info = {"seeds": int(len(seeds)), "seed_candidates": int(len(uv_ref)),
+            "surface_points": int(len(surf)), "surface_s": t1 - t0, "tracking_s": t2 - t1,
+            "alive_per_frame_median": float(np.median(alive.sum(axis=1))),
+            "frame0_through": int(alive[:, :len(surf)].all(axis=0).sum()),
+            "trajectories": int(tr.xyz.shape[1])}
+    cache.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(cache, xyz=tr.xyz, sigma_xyz=tr.sigma_xyz, key=key,
+                        info=json.dumps(info))
+    return tr.xyz, tr.sigma_xyz, info
+
+
+def frame_points(xyz: np.ndarray, sigma_xyz: np.ndarray):
+    """Per-frame :class:`core.fit.FramePoints` from tracks (trajectory index as id)."""
+    from core.fit import FramePoints
+
+    sig = np.sqrt(np.mean(sigma_xyz**2, axis=2))
+    sig = np.where(np.isfinite(sig) & (sig > 0), sig, 0.005)
+    ids = np.arange(xyz.shape[1])
+    out = []
+    for f in range(len(xyz)):
+        ok = np.all(np.isfinite(xyz[f]), axis=1)
+        out.append(FramePoints(xyz=xyz[f, ok], sigma=sig[f, ok], ids=ids[ok]))
+    return out
+
+
+def fused_fit(state_tex, theta_con: np.ndarray, root_con: np.ndarray, cams: list[Camera],
+              contours: list, cfg):
+    """Texture fit refined with contours; its diverged frames take the contour track's
+    pose (the texture fit kept only a prediction there), then are refined likewise."""
+    import copy
+
+    from core.contour_track import refine_state_with_contours
+
+    st = copy.deepcopy(state_tex)
+    div = st.quality.diverged.copy()
+    st.theta[div], st.root_xyz[div] = theta_con[div], root_con[div]
+    st.quality.diverged[:] = False
+    out = refine_state_with_contours(st, cams, contours, cfg)
+    out.quality.diverged[:] = div  # the texture fit's verdict, for the report
+    return out, div
+
+
+# -- drawing ------------------------------------------------------------------------------
+def _outline(img: np.ndarray, mask: np.ndarray, colour, thick: int = 1) -> None:
+    cs, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    cv2.drawContours(img, cs, -1, colour, thick, cv2.LINE_AA)
+
+
+def draw_check(rgb: np.ndarray, person: np.ndarray, bodies: dict, path: Path,
+               zoom: int = 2) -> None:
+    """The held-out image with the person's mask (green, tinted) and each fitted body's
+    outline (colours per label), written as PNG."""
+    img = rgb.copy()
+    img[person] = (0.6 * img[person] + 0.4 * np.array([0, 255, 0])).astype(np.uint8)
+    img = cv2.resize(img, None, fx=zoom, fy=zoom, interpolation=cv2.INTER_LINEAR)
+    big = lambda m: cv2.resize(m.astype(np.uint8), None, fx=zoom, fy=zoom,  # noqa: E731
+                               interpolation=cv2.INTER_NEAREST)
+    _outline(img, big(person), (0, 200, 0), 1)
+    y = 18
+    for label, (mask, colour) in bodies.items():
+        _outline(img, big(mask), colour, 2)
+        cv2.putText(img, label, (8, y), cv2.FONT_HERSHEY_SIMPLEX, 0.55, colour, 2, cv2.LINE_AA)
+        y += 22
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(path), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+
+
+def draw_masks(rgb: dict, masks: dict, frames: list[int], path: Path) -> None:
+    """Grid: one row per camera, one column per frame, the person's mask tinted red."""
+    rows = []
+    for name in rgb:
+        tiles = []
+        for f in frames:
+            img = rgb[name][f].copy()
+            m = masks[name][f]
+            img[m] = (0.5 * img[m] + 0.5 * np.array([255, 0, 0])).astype(np.uint8)
+            _outline(img, m, (255, 255, 0), 1)
+            cv2.putText(img, f"{name} f{f}", (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45,
+                        (255, 255, 255), 1, cv2.LINE_AA)
+            tiles.append(img)
+        rows.append(np.hstack(tiles))
+    w = min(r.shape[1] for r in rows)
+    grid = np.vstack([r[:, :w] for r in rows])
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(path), cv2.cvtColor(grid, cv2.COLOR_RGB2BGR))
+
+
+def _stats(x: np.ndarray) -> str:
+    x = x[np.isfinite(x)]
+    if not len(x):
+        return "      n/a"
+    return f"{x.mean():6.3f} {np.median(x):6.3f} {np.percentile(x, 10):6.3f}"
+
+
+# -- main ---------------------------------------------------------------------------------
+def main(argv=None) -> int:
+    from core.contour_track import ContourTrackSettings, fit_shape_to_contours, track_contours
+    from core.fit import SequenceSettings, fit_sequence
+    from core.fit_init import initialise
+    from core.model_render import camera_rays
+    from core.silhouette_check import body_masks, mask_iou
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", type=Path, default=DATA)
+    ap.add_argument("--clicks", type=Path, default=CLICKS)
+    ap.add_argument("--frames", type=int, default=100, help="frames to fit")
+    ap.add_argument("--bg-frames", type=int, default=100,
+                    help="frames the background models are estimated from")
+    ap.add_argument("--fit-cams", default=",".join(FIT_CAMS))
+    ap.add_argument("--check", default=CHECK_CAM)
+    ap.add_argument("--scale", type=float, default=0.5, help="LSM tracking resolution")
+    ap.add_argument("--mask-scale", type=float, default=0.25,
+                    help="resolution of masks, contours and the check")
+    ap.add_argument("--model", choices=("simplified", "complete"), default="simplified")
+    ap.add_argument("--gross-px", type=float, default=20.0,
+                    help="click consistency threshold, full-resolution pixels")
+    ap.add_argument("--out", type=Path, default=REPO / "out" / "realvideo_fit")
+    ap.add_argument("--no-empty", action="store_true",
+                    help="do not repair the backgrounds with the empty-scene photos")
+    ap.add_argument("--overlay-frames", default="0,30,60,99")
+    a = ap.parse_args(argv)
+    t_all = time.perf_counter()
+    calib = a.data / "calibration" / "Calib.qca.txt"
+    if not calib.is_file():
+        raise InputError(f"{calib}: not found (the pose2sim_single data set is needed)")
+    allc = {c.name: c for c in read_qca(calib)}
+    names = a.fit_cams.split(",")
+    if a.check in names or len(set(names)) != len(names) or any(
+            n not in allc for n in names + [a.check]):
+        raise InputError(f"{calib}: --fit-cams {a.fit_cams} / --check {a.check} must be "
+                         f"distinct cameras among {sorted(allc)}")
+    nf = int(a.frames)
+    if nf < 2:
+        raise InputError("--frames must be at least 2")
+    a.out.mkdir(parents=True, exist_ok=True)
+    cams_full = [allc[n] for n in names]
+    cams_t = [scale_camera(c, a.scale) for c in cams_full]
+    cams_q = [scale_camera(c, a.mask_scale) for c in cams_full]
+    cam_chk = scale_camera(allc[a.check], a.mask_scale)
+
+    # 1. clicks -> initial body
+    clicks = load_clicks(a.clicks, list(allc))
+    t0 = time.perf_counter()
+    init = initialise(clicks, cams_full, model=a.model, gross_px=a.gross_px, path=str(a.clicks))
+    print(f"clicks {a.clicks.name}: {len(init.clicks.names)} joints, reprojection RMS median "
+          f"{np.median(init.clicks.rms_px):.1f} px (full resolution); initial posture joint "
+          f"RMSE {1000 * init.joint_rmse_m:.1f} mm ({time.perf_counter() - t0:.1f} s)")
+    for m in init.clicks.messages():
+        print(f"  note: {m}")
+
+    # 2. video, foreground, contours
+    t0 = time.perf_counter()
+    grey, rgb = {}, {}
+    n_read = max(nf, a.bg_frames)
+    for n in names + [a.check]:
+        g, c = read_video(a.data / "videos" / f"{n}.mp4", allc[n].size, n_read,
+                          a.scale if n in names else None, a.mask_scale)
+        if g is not None:
+            grey[n] = g[:nf]
+        rgb[n] = c
+    t_read = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    masks = {}
+    for n in [a.check] + names:
+        cam = cam_chk if n == a.check else cams_q[names.index(n)]
+        model = fit_background(rgb[n])
+        empty = read_empty_scene(a.data, n, allc[n].size, a.mask_scale)
+        if empty is not None and not a.no_empty:
+            model = with_reference(model, rgb[n], empty)
+        fg = np.stack([model.foreground(f, threshold=6.0) for f in rgb[n][:nf]])
+        masks[n] = keep_in_region(fg, person_region(cam, init.clicks.xyz))
+        rgb[n] = rgb[n][:nf]
+    contours = [[occluding_contours(masks[n][f], spacing=2.0) for n in names]
+                for f in range(nf)]
+    t_fg = time.perf_counter() - t0
+    h, w = masks[a.check].shape[1:]
+    print(f"video: {n_read} frames x {len(rgb)} cameras decoded in {t_read:.1f} s; tracking at "
+          f"{cams_t[0].size[0]}x{cams_t[0].size[1]} px, masks/contours/check at {w}x{h} px; "
+          f"foreground + contours {1000 * t_fg / (nf * len(rgb)):.0f} ms per camera-frame; "
+          "person area " + ", ".join(f"{n} {100 * masks[n].mean():.1f} %" for n in masks))
+    n_con = np.array([[sum(len(c) for c in fc) for fc in fr] for fr in contours])
+    print(f"contour points per frame (fitting cameras): median {int(np.median(n_con.sum(1)))}")
+    rays_chk = camera_rays(cam_chk)
+    person = masks[a.check]
+    results = {}
+
+    # 3a. texture only
+    xyz, sxyz, info = texture_tracks(grey, cams_t, clicks, cams_full, nf, a.scale,
+                                     a.out / "tracks.npz")
+    obs = frame_points(xyz, sxyz)
+    npts = np.array([len(o.xyz) for o in obs])
+    print(f"LSM: {info['seeds']} of {info['seed_candidates']} seeds, {info['surface_points']} "
+          f"surface points at frame 0 ({info['surface_s']:.1f} s); tracking "
+          f"{info['tracking_s'] / nf:.2f} s/frame; 3-D points per frame median "
+          f"{int(np.median(npts))} (min {npts.min()}, max {npts.max()}); frame-0 points "
+          f"through all frames {info['frame0_through']}")
+    t0 = time.perf_counter()
+    res = fit_sequence(obs, init, SequenceSettings(), fps=FPS, source_scene=str(a.data),
+                       metaball_model=a.model)
+    t_tex = (time.perf_counter() - t0) / nf
+    st_tex = res.state
+    div_tex = st_tex.quality.diverged
+    results["texture only"] = (st_tex.s, st_tex.metaballs, st_tex.theta, st_tex.root_xyz,
+                               t_tex, f"{int(div_tex.sum())} diverged")
+
+    # 3b. contours only (shape from frame 0's silhouettes, EKF with camera selection)
+    rays_q = [camera_rays(c) for c in cams_q]
+    t0 = time.perf_counter()
+    tight = ContourTrackSettings(q_sigma_theta=0.05, q_sigma_root=0.01)
+    balls_c, th0, rt0, rms0 = fit_shape_to_contours(init.skeleton, init.s, init.metaballs,
+                                                    init.theta, init.root_xyz, cams_q,
+                                                    contours[0], tight, rays=rays_q)
+    t_shape = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    tracks = track_contours(init.skeleton, init.s, balls_c, th0, rt0, cams_q, contours,
+                            ContourTrackSettings(select=True))
+    t_con = (time.perf_counter() - t0) / nf
+    th_c = np.array([t.theta for t in tracks])
+    rt_c = np.array([t.root for t in tracks])
+    n_upd = sum(t.updated for t in tracks)
+    results["contours only"] = (init.s, balls_c, th_c, rt_c, t_con,
+                                f"{nf - n_upd} not updated")
+    print(f"contour shape at frame 0: RMS {rms0:.2f} px ({t_shape:.1f} s); contour EKF "
+          f"matches per frame median {int(np.median([t.n_matches for t in tracks]))}")
+
+    # 3c. texture + contours
+    t0 = time.perf_counter()
+    cfg = ContourTrackSettings(iterations=10, sigma_px=1.5, huber_px=3.0)
+    st_fu, div = fused_fit(st_tex, th_c, rt_c, cams_q, contours, cfg)
+    t_fu = (time.perf_counter() - t0) / nf + t_tex
+    rms_fu = st_fu.contour_rms_px
+    results["texture + contours"] = (st_fu.s, st_fu.metaballs, st_fu.theta, st_fu.root_xyz,
+                                     t_fu, f"{int(np.sum(~np.isfinite(rms_fu)))} not updated")
+
+    # 4. check in the held-out camera
+    t0 = time.perf_counter()
+    ious, bodies = {}, {}
+    for label, (s, balls, th, rt, _, _) in results.items():
+        bodies[label] = body_masks(init.skeleton, s, balls, th, rt, cam_chk, rays=rays_chk)
+        ious[label] = mask_iou(bodies[label], person)
+    t_chk = (time.perf_counter() - t0) / (nf * len(results))
+    init_body = body_masks(init.skeleton, init.s, init.metaballs, init.theta[None],
+                           init.root_xyz[None], cam_chk, rays=rays_chk)
+    print(f"\nHeld-out {a.check} ({w}x{h} px), fitted with {', '.join(names)}, {nf} frames; "
+          f"clicked pose at frame 0: IoU {float(mask_iou(init_body[0], person[0])):.3f}")
+    print(f"{'fit':20s} {'IoU mean':>8s} {'median':>6s} {'p10':>6s}  {'frame 0':>7s} "
+          f"{'last':>6s}  {'s/frame':>7s}  flags")
+    for label, (_, _, _, _, spf, flags) in results.items():
+        i = ious[label]
+        print(f"{label:20s} {_stats(i)}  {i[0]:7.3f} {i[-1]:6.3f}  {spf:7.2f}  {flags}")
+    steps = list(range(0, nf, max(1, nf // 10)))
+    print("IoU per frame " + " ".join(f"{f:5d}" for f in steps))
+    for label in results:
+        print(f"  {label:18s}" + " ".join(f"{ious[label][f]:5.2f}" for f in steps))
+    win = ious["texture + contours"] - ious["texture only"]
+    print(f"texture + contours minus texture only: better in {int(np.sum(win > 0))} of {nf} "
+          f"frames, mean {np.nanmean(win):+.3f}")
+    print(f"speed: texture fit {t_tex:.2f} s/frame ({int(np.median(npts))} points/frame); "
+          f"contour EKF {t_con:.2f} s/frame ({int(np.median(n_con.sum(1)))} contour points, "
+          f"3 cameras at {w}x{h}); check render {1000 * t_chk:.0f} ms/frame")
+
+    # overlays
+    picks = [f for f in (int(x) for x in a.overlay_frames.split(",")) if 0 <= f < nf]
+    colours = {"texture only": (60, 120, 255), "contours only": (255, 160, 0),
+               "texture + contours": (255, 0, 0)}
+    for f in picks:
+        draw_check(rgb[a.check][f], person[f],
+                   {f"{k} IoU {ious[k][f]:.2f}": (bodies[k][f], colours[k]) for k in results},
+                   a.out / f"check_{a.check}_f{f:03d}.png")
+    draw_masks(rgb, masks, picks, a.out / "masks_4cams.png")
+    np.savez_compressed(a.out / "iou.npz", **{k.replace(" ", "_").replace("+", "and"): v
+                                             for k, v in ious.items()})
+    print(f"wrote {len(picks)} overlays check_{a.check}_f*.png and masks_4cams.png to {a.out}; "
+          f"total {time.perf_counter() - t_all:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -43,21 +43,21 @@ def spd_inverse(N: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """
     n, k, _ = N.shape
     ok = np.isfinite(N).all(axis=(1, 2))
-    dg = np.sqrt(np.maximum(np.einsum("nii->ni", N), 1e-30))
-    dg[~ok] = 1.0
-    Ns = N / dg[:, :, None] / dg[:, None, :]
+    r = 1.0 / np.sqrt(np.maximum(np.einsum("nii->ni", N), 1e-30))
+    r[~ok] = 1.0
+    scale = r[:, :, None] @ r[:, None, :]          # (outer products: fast small loops)
+    Ns = N * scale
     Ns[~ok] = np.eye(k)
-    eye = np.broadcast_to(np.eye(k), N.shape)
     try:
         L = np.linalg.cholesky(Ns)
-        Li = np.linalg.solve(L, eye) if n < 64 else lower_inverse(L)
+        Li = np.linalg.solve(L, np.broadcast_to(np.eye(k), N.shape)) if n < 64 else \
+            lower_inverse(L)
         inv = np.matmul(Li.transpose(0, 2, 1), Li)
         pd = np.all(np.einsum("nii->ni", L) > 1e-6, axis=1)
     except np.linalg.LinAlgError:
-        inv, pd = cholesky_solve(Ns, eye.copy())
+        inv, pd = cholesky_solve(Ns, np.broadcast_to(np.eye(k), N.shape).copy())
     ok &= pd
-    inv = inv / dg[:, :, None] / dg[:, None, :]
-    return inv, ok
+    return inv * scale, ok
 
 
 def lower_inverse(L: np.ndarray) -> np.ndarray:
@@ -65,7 +65,7 @@ def lower_inverse(L: np.ndarray) -> np.ndarray:
     n, k, _ = L.shape
     X = np.zeros_like(L)
     for i in range(k):
-        rhs = -np.einsum("nj,njm->nm", L[:, i, :i], X[:, :i, :]) if i else np.zeros((n, k))
+        rhs = -(L[:, i:i + 1, :i] @ X[:, :i, :])[:, 0] if i else np.zeros((n, k))
         rhs[:, i] += 1.0
         X[:, i, :] = rhs / L[:, i, i, None]
     return X

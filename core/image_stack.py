@@ -10,6 +10,8 @@ around the patches when that is smaller.  Pixel coordinates as in :mod:`core.cam
 
 from __future__ import annotations
 
+import functools
+
 import cv2
 import numpy as np
 
@@ -155,59 +157,147 @@ class ImageStack:
         return view[np.asarray(index, np.int64), v0, u0].astype(np.float32)
 
 
+_TAP_MARGIN = len(_HALF_TAPS) // 2 - 1     # input pixels beyond a window that its taps read
+
+
+@functools.lru_cache(maxsize=16)
+def _half_matrix(wr: int) -> np.ndarray:
+    """Transposed 1-D upsampling matrix (ws, 4 wr + 1) of a window of ``ws = 2 (wr + m) + 1``
+    pixels (m = ``_TAP_MARGIN``): output ``2k`` is input ``m + k``, output ``2k + 1`` the
+    cubic-spline value half-way to input ``m + k + 1``."""
+    m = _TAP_MARGIN
+    n = len(_HALF_TAPS) // 2
+    C = np.zeros((4 * wr + 1, 2 * (wr + m) + 1), np.float32)
+    for k in range(2 * wr + 1):
+        C[2 * k, m + k] = 1.0
+        if k < 2 * wr:
+            C[2 * k + 1, m + k - n + 1:m + k + n + 1] = _HALF_TAPS
+    return np.ascontiguousarray(C.T)
+
+
+def _windows(stack: ImageStack, index: np.ndarray, u0: np.ndarray, v0: np.ndarray,
+             ws: int, transposed: bool = False) -> np.ndarray:
+    """Windows ``ws`` × ``ws`` with top-left pixels ``(u0, v0)`` (N,), float32 (N, ws, ws)
+    (row = v, or row = u when ``transposed``); pixels outside the image repeat its border."""
+    _, h, w = stack.shape
+    n = len(index)
+    out = np.empty((n, ws, ws), np.float32)
+    inside = (u0 >= 0) & (v0 >= 0) & (u0 + ws <= w) & (v0 + ws <= h)
+    k = np.flatnonzero(inside)
+    if k.size:
+        view = np.lib.stride_tricks.sliding_window_view(stack.images, (ws, ws), axis=(1, 2))
+        if transposed:
+            view = view.swapaxes(3, 4)
+        out[k] = view[index[k], v0[k], u0[k]]
+    k = np.flatnonzero(~inside)
+    if k.size:
+        r = np.arange(ws)
+        iu = np.clip(u0[k, None] + r, 0, w - 1)
+        iv = np.clip(v0[k, None] + r, 0, h - 1)
+        g = stack.images[index[k, None, None], iv[:, :, None], iu[:, None, :]]
+        out[k] = g.swapaxes(1, 2) if transposed else g
+    return out
+
+
+def _upsample_windows(win_t: np.ndarray, wr: int) -> np.ndarray:
+    """Cubic-spline 2× upsampling of the centres of transposed windows.
+
+    ``win_t`` (N, ws, ws) with row = u, ``ws = 2 (wr + m) + 1``: returns (N, 4 wr + 1,
+    4 wr + 1) float32 (row = v) covering the central ``2 wr + 1`` pixels, the same
+    values as :func:`upsample2` (two GEMMs with the banded half-pixel matrix).
+    """
+    n, ws, _ = win_t.shape
+    C = _half_matrix(wr)
+    size = C.shape[1]
+    x = (win_t.reshape(n * ws, ws) @ C).reshape(n, ws, size)          # (n, u, v')
+    x = np.ascontiguousarray(x.transpose(0, 2, 1)).reshape(n * size, ws)  # (n, v', u)
+    return (x @ C).reshape(n, size, size)
+
+
 class PatchSource:
     """Bilinear sampling of 2× upsampled images for N patches.
 
-    A position ``(u, v)`` of patch k's image lies at ``(bu[k] + 2u, bv[k] + 2v)`` in
-    ``up``: either the stack's whole upsampled mosaic, or a mosaic of upsampled
-    windows around each patch (when that is smaller).  ``lo``/``hi`` (N, 2) bound
-    the positions whose samples are valid (inside the window), pixels.
+    A position ``(u, v)`` of patch k's image lies at ``(bu[k] + f u, bv[k] + f v)``
+    (``f`` = 2 upsampled, 1 not) in the image ``chunk_image(chunk[k])``: either the
+    stack's whole (upsampled) mosaic, or a stack of small windows around the
+    patches, upsampled only where they are sampled (when that is smaller).
+    ``lo``/``hi`` (N, 2) bound the positions whose samples are valid (inside the
+    window), pixels.
+
+    Parameters
+    ----------
+    stack : ImageStack
+    index : ndarray, shape (N,), int
+        Image of each patch.
+    centre : ndarray, shape (N, 2)
+        Centres of the windows, pixels (NaN: a dummy window at (0, 0)).
+    reach : float or ndarray, shape (N,)
+        Largest distance from the centre (per axis) at which a patch is sampled, px.
+    upsample : bool
+        Sample the 2× cubic-spline upsampled images (default) or the originals.
     """
 
-    MARGIN = 6
+    MAX_ROWS = 32000           # cv2.remap: images and maps below 32767 rows
 
     def __init__(self, stack: ImageStack, index: np.ndarray, centre: np.ndarray,
                  reach: np.ndarray | float, upsample: bool = True):
         n = len(index)
-        f = 2.0 if upsample else 1.0
-        self.f = f
+        f = 2 if upsample else 1
+        self.f = float(f)
         m, h, w = stack.shape
         reach = np.broadcast_to(np.asarray(reach, float), (n,))
-        # Windows: the reach plus the spline taps that a window border spoils.
-        wh = int(np.ceil(reach.max())) + self.MARGIN if n else 0
-        ws = 2 * wh + 1
-        full = (n == 0 or ws > min(h, w)
-                or n * ws * ws >= m * (h + 2 * stack.GAP) * (w + 2 * stack.GAP))
-        if full:
+        # Valid region: ±wr px around the rounded centre, one sample of the grid in.
+        wr = int(np.ceil(reach.max() + 1.0)) if n else 0
+        size = 2 * f * wr + 1                           # samples per window side
+        cached = stack._up if upsample else stack._mosaic
+        if n == 0 or cached is not None or n * size * size >= (
+                f * f * m * (h + 2 * stack.GAP) * (w + 2 * stack.GAP)):
             self.up = stack.up if upsample else stack.mosaic
+            self.rows_per_chunk = max(n, 1)
             self.bu = f * stack.origin_u[index].astype(np.float64)
             self.bv = f * stack.origin_v[index].astype(np.float64)
             self.lo = np.full((n, 2), -1e9)
             self.hi = np.full((n, 2), 1e9)
+            self._whole = True
             return
+        self._whole = False
         c = np.rint(np.where(np.isfinite(centre), centre, 0.0)).astype(np.int64)
-        u0 = np.clip(c[:, 0] - wh, 0, w - ws)
-        v0 = np.clip(c[:, 1] - wh, 0, h - ws)
-        mos, ou, ov = _tile(stack.windows(index, u0, v0, ws), 0, narrow=True)
-        self.up = upsample2(mos) if upsample else mos
-        self.bu = f * (ou - u0).astype(np.float64)
-        self.bv = f * (ov - v0).astype(np.float64)
-        # Valid positions: MARGIN px inside the window (or up to the image border).
-        mg = self.MARGIN
-        self.lo = np.stack([np.where(u0 > 0, u0 + mg, -1e9), np.where(v0 > 0, v0 + mg, -1e9)], 1)
-        self.hi = np.stack([np.where(u0 + ws < w, u0 + ws - 1 - mg, 1e9),
-                            np.where(v0 + ws < h, v0 + ws - 1 - mg, 1e9)], 1)
+        mg = _TAP_MARGIN if upsample else 0
+        win = _windows(stack, index, c[:, 0] - wr - mg, c[:, 1] - wr - mg,
+                       2 * (wr + mg) + 1, transposed=upsample)
+        if upsample:
+            win = _upsample_windows(win, wr)
+        self.up = win.reshape(n * size, size)
+        self.rows_per_chunk = max(1, self.MAX_ROWS // size)
+        k = np.arange(n)
+        self.bu = -f * (c[:, 0] - wr).astype(np.float64)
+        self.bv = ((k % self.rows_per_chunk) * size - f * (c[:, 1] - wr)).astype(np.float64)
+        self.size = size
+        self.lo = (c - wr + 0.5).astype(np.float64)
+        self.hi = (c + wr - 0.5).astype(np.float64)
 
-    def sample(self, pu: np.ndarray, pv: np.ndarray):
-        """Values at mosaic positions ``pu``, ``pv`` (n_a, P) float32 of patches ``rows``.
+    def sample(self, pu: np.ndarray, pv: np.ndarray, rows: np.ndarray | None = None):
+        """Values at positions ``pu``, ``pv`` (n_a, P) float32 of patches ``rows``.
 
-        Returns values and the rounding ``(du, dv)`` of ``cv2.remap`` (1/32 px of the
-        sampled image) in pixels of the original image.
+        ``rows`` (n_a,) ascending indices of the patches (default all, in order);
+        positions are ``(bu + f u, bv + f v)`` of those patches.  Returns the values
+        (n_a, P) float32.
         """
-        vals = remap_bilinear(self.up, pu, pv)
-        du = (pu - np.rint(pu * 32.0) * (1 / 32.0)) * (1.0 / self.f)
-        dv = (pv - np.rint(pv * 32.0) * (1 / 32.0)) * (1.0 / self.f)
-        return vals, du, dv
+        if self._whole:
+            return remap_bilinear(self.up, pu, pv)
+        na = len(pu)
+        rows = np.arange(na) if rows is None else rows
+        ch = rows // self.rows_per_chunk
+        if na == 0 or ch[0] == ch[-1]:
+            return self._remap_chunk(ch[0] if na else 0, pu, pv)
+        cuts = np.flatnonzero(np.diff(ch)) + 1
+        parts = np.split(np.arange(na), cuts)
+        return np.concatenate([self._remap_chunk(ch[p[0]], pu[p], pv[p]) for p in parts])
+
+    def _remap_chunk(self, ch: int, pu: np.ndarray, pv: np.ndarray) -> np.ndarray:
+        r0 = ch * self.rows_per_chunk * self.size
+        img = self.up[r0:r0 + self.rows_per_chunk * self.size]
+        return cv2.remap(img, pu, pv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
 
 def remap_bilinear(img: np.ndarray, mu: np.ndarray, mv: np.ndarray) -> np.ndarray:

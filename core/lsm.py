@@ -48,8 +48,9 @@ from enum import IntEnum
 import numpy as np
 
 from .batched_linalg import line_update, spd_inverse
+from .blas_threads import single_blas_thread
 from .camera import Camera
-from .image_stack import ImageStack, PatchSource, remap_bilinear, upsample2
+from .image_stack import ImageStack, PatchSource, upsample2
 
 __all__ = ["ImageStack", "LSMResult", "Status", "epipolar_lines", "match", "template_patches",
            "upsample2"]
@@ -137,36 +138,60 @@ def template_patches(images, uv: np.ndarray, half: int = 6, index=None,
     uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
     n = len(uv)
     idx = np.zeros(n, np.int64) if index is None else np.asarray(index, np.int64)
-    x, y = _grid(half, 1)
+    x, y = _grid(half, _B)
     c = np.rint(uv)
     frac = uv - c
     if np.all(np.abs(frac) < 1e-9):
         _, h, w = stack.shape
-        k = 2 * half + 3
+        k = 2 * (half + _B) + 1
         if k <= min(h, w):
-            ci = c.astype(np.int64) - half - 1
+            ci = c.astype(np.int64) - half - _B
             P = stack.windows(idx, np.clip(ci[:, 0], 0, w - k), np.clip(ci[:, 1], 0, h - k), k)
         else:
             P = stack.pixels(idx[:, None, None], c[:, 0, None, None] + x,
                              c[:, 1, None, None] + y)
     else:
-        src = PatchSource(stack, idx, uv, half + 2, upsample)
+        src = PatchSource(stack, idx, uv, half + _B + 1, upsample)
         pu = (src.bu[:, None, None] + src.f * (uv[:, 0, None, None] + x)).astype(np.float32)
         pv = (src.bv[:, None, None] + src.f * (uv[:, 1, None, None] + y)).astype(np.float32)
         s = pu.shape
-        vals, du, dv = src.sample(pu.reshape(n, -1), pv.reshape(n, -1))
-        P = vals.reshape(s)
+        P = src.sample(pu.reshape(n, -1), pv.reshape(n, -1)).reshape(s)
+        du = (pu - np.rint(pu * 32.0) * (1 / 32.0)) * (1.0 / src.f)
+        dv = (pv - np.rint(pv * 32.0) * (1 / 32.0)) * (1.0 / src.f)
         gu, gv = _gradients(P)
         P = P.copy()
-        P[:, 1:-1, 1:-1] += gu * du.reshape(s)[:, 1:-1, 1:-1] + gv * dv.reshape(s)[:, 1:-1, 1:-1]
+        b = _B
+        P[:, b:-b, b:-b] += gu * du.reshape(s)[:, b:-b, b:-b] + gv * dv.reshape(s)[:, b:-b, b:-b]
     gu, gv = _gradients(P)
-    return P[:, 1:-1, 1:-1], gu, gv
+    b = _B
+    return P[:, b:-b, b:-b], gu, gv
+
+
+def _spline_derivative_taps(n: int = 5) -> np.ndarray:
+    """Weights ``w_1 .. w_n`` of the cubic-spline derivative at a pixel:
+    ``f'(m) = Σ_d w_d (f[m + d] - f[m - d])`` (the cardinal spline's slope at ``d``)."""
+    z = np.sqrt(3.0) - 2.0
+    d = np.arange(1, n + 1)
+    # η'(d) = √3 Σ_j z^|j| β³'(d - j), β³'(±1) = ∓1/2: only j = d ± 1 contribute.
+    w = -np.sqrt(3.0) * 0.5 * (z ** np.abs(d - 1) - z ** (d + 1))
+    return -w
+
+
+_DERIV = _spline_derivative_taps(4)
+_B = len(_DERIV)
 
 
 def _gradients(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Central differences of patches with a 1-px border: (n, s, s) -> 2 x (n, s-2, s-2)."""
-    return (0.5 * (P[:, 1:-1, 2:] - P[:, 1:-1, :-2]),
-            0.5 * (P[:, 2:, 1:-1] - P[:, :-2, 1:-1]))
+    """Cubic-spline derivatives of patches with a border of ``_B`` px:
+    (n, s, s) -> 2 x (n, s - 2B, s - 2B)."""
+    b = _B
+    s = P.shape[1]
+    gu = np.zeros((P.shape[0], s - 2 * b, s - 2 * b), np.float32)
+    gv = np.zeros_like(gu)
+    for d, wd in enumerate(_DERIV, start=1):
+        gu += wd * (P[:, b:s - b, b + d:s - b + d] - P[:, b:s - b, b - d:s - b - d])
+        gv += wd * (P[:, b + d:s - b + d, b:s - b] - P[:, b - d:s - b - d, b:s - b])
+    return gu, gv
 
 
 # -- linear algebra -------------------------------------------------------------------
@@ -213,6 +238,7 @@ def _normal_matrix(T: np.ndarray, gx: np.ndarray, gy: np.ndarray, xs: np.ndarray
     return N
 
 
+@single_blas_thread()
 def match(template_images, search_images, uv_template, uv_search, *, half: int = 6,
           affine=None, template_index=None, search_index=None, upsample: bool = True,
           tol_px: float = 0.01, max_iter: int = 20, max_shift_px: float = 4.0,
@@ -298,7 +324,10 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
     T = T.reshape(n, npx)
     gx = tx.reshape(n, npx)
     gy = ty.reshape(n, npx)
-    # Normal matrix of the inverse compositional step, factorised once per patch.
+    t_mean = T.mean(axis=1, dtype=np.float64)
+    t_sd = np.sqrt(np.maximum(np.einsum("np,np->n", T, T, dtype=np.float64) / npx
+                              - t_mean ** 2, 0.0))
+    # Normal matrix of the inverse compositional step, inverted once per patch.
     xg, yg = _grid(half)
     xs = xg.ravel().astype(np.float32)
     ys = yg.ravel().astype(np.float32)
@@ -307,7 +336,7 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
         wpx = np.ones(npx, np.float32)
     else:
         wpx = np.exp(-(xs * xs + ys * ys) / (2.0 * weight_sigma ** 2)).astype(np.float32)
-    basis_w = basis * wpx
+    basis_w = np.ascontiguousarray((basis * wpx).T)             # (P, 3)
     N = _normal_matrix(T, gx, gy, xs, ys, wpx)
     N2 = N if weight_sigma is None else _normal_matrix(T, gx, gy, xs, ys, wpx * wpx)
     sw = float(wpx.sum())
@@ -318,11 +347,12 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
     status[finite & t_in & (texture < min_texture)] = Status.WEAK_TEXTURE
     N[status != Status.NOT_CONVERGED] = np.eye(8)
     Ninv, pd = spd_inverse(N)
-    # Shifts and radiometry only (the first iterations, until the shift settles to
-    # 0.5 px, at most 3): the affine part of a far-off start would diverge.
+    # Shifts and radiometry only in the first iteration (and until the shift settles
+    # below 1 px, at most 3): the affine part of a far-off start would diverge.
+    # ``Ncur`` holds the inverse in use per patch.
     sub = [0, 3, 6, 7]
-    Ninv_s = np.zeros_like(Ninv)
-    Ninv_s[:, np.ix_(sub, sub)[0], np.ix_(sub, sub)[1]] = spd_inverse(N[:, sub][:, :, sub])[0]
+    Ncur = np.zeros_like(Ninv)
+    Ncur[:, np.ix_(sub, sub)[0], np.ix_(sub, sub)[1]] = spd_inverse(N[:, sub][:, :, sub])[0]
     shift_only = np.ones(n, bool)
     # Redundancy: tr W - tr(N⁻¹ JᵀW²J) (= n - u for uniform weights).
     if weight_sigma is None:
@@ -336,8 +366,9 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
         ln_n = np.asarray(lines[0], float).reshape(n, 2)
         ln_d = np.asarray(lines[1], float).reshape(n)
         w_line = (sigma_grey / sigma_line_px) ** 2
-    corners = np.array([[-half, -half], [half, -half], [-half, half], [half, half]], float)
     _, h_img, w_img = sstack.shape
+    img_lo = np.array([1.0, 1.0])
+    img_hi = np.array([w_img - 2.0, h_img - 2.0])
     bu = np.zeros(n)
     bv = np.zeros(n)
     lo = np.zeros((n, 2))
@@ -347,56 +378,70 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
 
     todo = np.flatnonzero(status == Status.NOT_CONVERGED)
     while todo.size:
-        # Search windows around the current positions: the patch footprint and 2 px of
-        # drift; patches that walk out of their window (within max_shift_px) get a new
-        # one in the next round.
-        reach = half * np.max(np.abs(A[todo]).sum(axis=2), axis=1) + 2.0
+        # Search windows around the current positions: the patch footprint, 10 % of
+        # affine growth and 1.5 px of drift; patches that walk out of their window
+        # (within max_shift_px) get a new one in the next round.
+        reach = half * 1.1 * np.max(np.abs(A[todo]).sum(axis=2), axis=1) + 1.5
         src = PatchSource(sstack, si[todo], uv[todo], reach, upsample)
         f = src.f
         bu[todo], bv[todo], lo[todo], hi[todo] = src.bu, src.bv, src.lo, src.hi
-        active = todo
+        # Working set: the patches still iterating in this window round, with their
+        # template arrays; compacted when it has shrunk by a quarter.
+        wk, wrow = todo, np.arange(len(todo))
+        if len(todo) == n:
+            Tw, gxw, gyw = T, gx, gy
+        else:
+            Tw, gxw, gyw = T[todo], gx[todo], gy[todo]
+        act = wrow
         rewindow = []
-        while active.size:
-            a = active
+        while act.size:
+            if act.size <= 0.75 * len(wk):
+                wk, wrow, Tw, gxw, gyw = wk[act], wrow[act], Tw[act], gxw[act], gyw[act]
+                act = np.arange(len(wk))
+            if act.size == len(wk):
+                Ta, gxa, gya = Tw, gxw, gyw
+            else:
+                Ta, gxa, gya = Tw[act], gxw[act], gyw[act]
+            a = wk[act]
             na = len(a)
             Aa = A[a]
             # Sampling positions in the source: one GEMM each for u and v.
+            # cv2.remap samples at positions rounded to 1/32 px of its source: the warp
+            # is snapped to that grid (offset and slopes multiples of 1/32, so that
+            # every sample position is exact in float32 and for cv2), and the update
+            # below starts from the snapped warp actually sampled.
             Mu = np.stack([bu[a] + f * uv[a, 0], f * Aa[:, 0, 0], f * Aa[:, 0, 1]], axis=1)
             Mv = np.stack([bv[a] + f * uv[a, 1], f * Aa[:, 1, 0], f * Aa[:, 1, 1]], axis=1)
+            Mu = np.rint(Mu * 32.0) * (1 / 32.0)
+            Mv = np.rint(Mv * 32.0) * (1 / 32.0)
+            uv_s = np.stack([Mu[:, 0] - bu[a], Mv[:, 0] - bv[a]], axis=1) / f
+            A_s = np.stack([Mu[:, 1:], Mv[:, 1:]], axis=1) / f
             pu = Mu.astype(np.float32) @ basis
             pv = Mv.astype(np.float32) @ basis
-            S = remap_bilinear(src.up, pu, pv)
-            Ta, gxa, gya = T[a], gx[a], gy[a]
+            S = src.sample(pu, pv, wrow[act])
             new = fresh[a]
             if new.any():
                 # Radiometric start: match the mean and spread of the grey levels.
                 k = a[new]
-                sd_s = S[new].std(axis=1, dtype=np.float64)
-                g0 = np.where(sd_s > 1e-6, T[k].std(axis=1) / np.maximum(sd_s, 1e-6), 1.0)
+                s_mean, s_sd = _mean_sd(S[new] if not new.all() else S)
+                g0 = np.where(s_sd > 1e-6, t_sd[k] / np.maximum(s_sd, 1e-6), 1.0)
                 gain[k] = g0
-                offset[k] = T[k].mean(axis=1) - g0 * S[new].mean(axis=1, dtype=np.float64)
+                offset[k] = t_mean[k] - g0 * s_mean
                 fresh[k] = False
-            e = S * gain[a, None].astype(np.float32)
-            e += offset[a, None].astype(np.float32)
-            e -= Ta                                                 # e = r1 S + r0 - T
-            # cv2.remap samples at positions rounded to 1/32 px of the source: the mean
-            # rounding over the patch is a shift of the sampled patch, taken out of the
-            # update below (what varies from pixel to pixel acts as < 0.1 grey level noise).
-            ru = np.rint(pu * 32.0).mean(axis=1, dtype=np.float64)
-            rv = np.rint(pv * 32.0).mean(axis=1, dtype=np.float64)
-            shift_r = np.stack([Mu[:, 0] - ru / 32.0, Mv[:, 0] - rv / 32.0], axis=1) / f
-            # b = Jᵀe by moments: one GEMM (4 n_a, P) @ (P, 3).
+            # b = Jᵀe by moments: one GEMM (5 n_a, P) @ (P, 3), e = r1 S + r0 - T.
             Q = np.empty((5, na, npx), np.float32)
+            e = Q[2]
+            np.multiply(S, gain[a, None].astype(np.float32), out=e)
+            e += offset[a, None].astype(np.float32)
+            e -= Ta
             np.multiply(gxa, e, out=Q[0])
             np.multiply(gya, e, out=Q[1])
-            Q[2] = e
             np.multiply(Ta, e, out=Q[3])
             np.multiply(e, e, out=Q[4])
-            M = (Q.reshape(5 * na, npx) @ basis_w.T).reshape(5, na, 3).astype(np.float64)
+            M = (Q.reshape(5 * na, npx) @ basis_w).reshape(5, na, 3).astype(np.float64)
             b = np.concatenate([M[0], M[1], M[2, :, :1], M[3, :, :1]], axis=1)   # (n_a, 8)
             vv = M[4, :, 0]                                         # vᵀWv
-            so = shift_only[a]
-            Ninv_a = np.where(so[:, None, None], Ninv_s[a], Ninv[a])
+            Ninv_a = Ncur[a]
             if lines is not None:
                 Ninv_a, jv, mis = line_update(Ninv_a, Aa, ln_n[a], ln_d[a], uv[a], w_line)
                 b = b + (w_line * mis)[:, None] * jv
@@ -405,13 +450,10 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
             ok_step = np.isfinite(dq).all(axis=1)
             dq[~ok_step] = 0.0
             # Compose W <- W ∘ ΔW⁻¹ with ΔW(x) = Δt + (I + ΔA) x; radiometry likewise.
-            m00, m01, m10, m11 = 1 + dq[:, 1], dq[:, 2], dq[:, 4], 1 + dq[:, 5]
-            dd = m00 * m11 - m01 * m10
-            dd = np.where(np.abs(dd) > 1e-6, dd, 1.0)
-            Minv = np.stack([np.stack([m11, -m01], 1), np.stack([-m10, m00], 1)], 1)
-            An = Aa @ (Minv / dd[:, None, None])
-            step = np.einsum("nij,nj->ni", An, dq[:, [0, 3]]) + shift_r
-            uv[a] -= step
+            An, step = _compose_inverse(A_s, dq)
+            uv_new = uv_s - step
+            change = uv_new - uv[a]              # of the estimate since the last iteration
+            uv[a] = uv_new
             A[a] = An
             den = 1.0 + dq[:, 7]
             den = np.where(np.abs(den) > 1e-6, den, 1.0)
@@ -421,16 +463,21 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
             it_left[a] -= 1
             # Precision from this linearisation: σ0² = vᵀv / (n - u), Σ = σ0² N⁻¹.
             vtv = vv - np.einsum("ni,ni->n", dq, b)
-            s0 = np.sqrt(np.maximum(vtv, 0.0) / dof[a])
-            sigma0[a] = s0
+            sigma0[a] = np.sqrt(np.maximum(vtv, 0.0) / dof[a])
 
-            conv = np.all(np.abs(step) < tol_px, axis=1) & ~so
-            shift_only[a[so & (np.all(np.abs(step) < 0.5, axis=1) | (iters[a] >= 3))]] = False
+            so = shift_only[a]
+            conv = np.all(np.abs(change) < tol_px, axis=1) & ~so
+            leave = so & (np.all(np.abs(change) < 1.0, axis=1) | (iters[a] >= 3))
+            if leave.any():
+                k = a[leave]
+                shift_only[k] = False
+                Ncur[k] = Ninv[k]
             drift = np.hypot(*(uv[a] - uv_s0[a]).T) > max_shift_px
-            cp = uv[a, None, :] + np.einsum("nij,kj->nki", An, corners)     # (n_a, 4, 2)
-            in_img = np.all((cp[..., 0] >= 1.0) & (cp[..., 1] >= 1.0)
-                            & (cp[..., 0] <= w_img - 2.0) & (cp[..., 1] <= h_img - 2.0), axis=1)
-            in_win = np.all((cp >= lo[a, None]) & (cp <= hi[a, None]), axis=(1, 2))
+            # Footprint of the warped patch: half-extent per axis, pixels.
+            ext = half * np.abs(An).sum(axis=2)
+            ua = uv[a]
+            in_img = np.all((ua - ext >= img_lo) & (ua + ext <= img_hi), axis=1)
+            in_win = np.all((ua - ext >= lo[a]) & (ua + ext <= hi[a]), axis=1)
             sc = np.abs(An[:, 0, 0] * An[:, 1, 1] - An[:, 0, 1] * An[:, 1, 0])
             g = gain[a]
             degen = ~ok_step | (sc < 0.25) | (sc > 4.0) | (g < 0.1) | (g > 10.0)
@@ -444,17 +491,15 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
                 # Report the radiometry as the symmetric fit T ≈ r1 S + r0 (spread
                 # ratio): the inverse compositional r1 regresses T on S, biased by noise.
                 k = a[conv]
-                sd_s = S[conv].std(axis=1, dtype=np.float64)
-                g1 = np.where(sd_s > 1e-6, T[k].std(axis=1, dtype=np.float64)
-                              / np.maximum(sd_s, 1e-6), gain[k])
-                offset[k] = T[k].mean(axis=1, dtype=np.float64) - g1 * S[conv].mean(
-                    axis=1, dtype=np.float64)
+                s_mean, s_sd = _mean_sd(S[conv])
+                g1 = np.where(s_sd > 1e-6, t_sd[k] / np.maximum(s_sd, 1e-6), gain[k])
+                offset[k] = t_mean[k] - g1 * s_mean
                 gain[k] = g1
             going = st == Status.NOT_CONVERGED
-            out_win = going & ~in_win
-            rewindow.append(a[out_win & (it_left[a] > 0)])
-            active = a[going & in_win & (it_left[a] > 0)]
-        todo = np.concatenate(rewindow)
+            left = it_left[a] > 0
+            rewindow.append(a[going & ~in_win & left])
+            act = act[going & in_win & left]
+        todo = np.sort(np.concatenate(rewindow))
 
     # Covariance of the matched point: Σ = σ0² N⁻¹ (shifts), mapped by the affine part.
     done = np.flatnonzero(np.isfinite(sigma0))
@@ -474,6 +519,32 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
     status[big] = Status.LARGE_SIGMA
     return LSMResult(uv=uv, affine=A, gain=gain, offset=offset, sigma0=sigma0, cov_uv=cov,
                      iterations=iters, status=status, texture=texture)
+
+
+def _mean_sd(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and standard deviation of each row of S (n, P) float32, float64 (n,)."""
+    m = S.mean(axis=1, dtype=np.float64)
+    d = S - m[:, None].astype(np.float32)
+    return m, np.sqrt(np.einsum("np,np->n", d, d, dtype=np.float64) / S.shape[1])
+
+
+def _compose_inverse(A: np.ndarray, dq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``W ∘ ΔW⁻¹`` for the affine parts A (n, 2, 2) and updates dq (n, 8) (a0, a1, a2,
+    b0, b1, b2, …): the new affine part and the shift step ``A ΔM⁻¹ Δt`` (n, 2)."""
+    m00, m01, m10, m11 = 1 + dq[:, 1], dq[:, 2], dq[:, 4], 1 + dq[:, 5]
+    dd = m00 * m11 - m01 * m10
+    dd = np.where(np.abs(dd) > 1e-6, dd, 1.0)
+    i00, i01, i10, i11 = m11 / dd, -m01 / dd, -m10 / dd, m00 / dd
+    An = np.empty_like(A)
+    An[:, 0, 0] = A[:, 0, 0] * i00 + A[:, 0, 1] * i10
+    An[:, 0, 1] = A[:, 0, 0] * i01 + A[:, 0, 1] * i11
+    An[:, 1, 0] = A[:, 1, 0] * i00 + A[:, 1, 1] * i10
+    An[:, 1, 1] = A[:, 1, 0] * i01 + A[:, 1, 1] * i11
+    step = np.stack([An[:, 0, 0] * dq[:, 0] + An[:, 0, 1] * dq[:, 3],
+                     An[:, 1, 0] * dq[:, 0] + An[:, 1, 1] * dq[:, 3]], axis=1)
+    return An, step
+
+
 # -- geometric constraint -------------------------------------------------------------
 
 def epipolar_lines(cam_template: Camera, cam_search: Camera, uv_template: np.ndarray,

@@ -45,6 +45,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -53,6 +54,7 @@ import numpy as np
 from bench.realvideo import epipolar_seeds, scale_camera, wallis
 from core.background import fit_background, with_reference
 from core.camera import Camera
+from core.contour_track import ContourTrackSettings
 from core.contours import occluding_contours
 from core.errors import InputError
 from core.formats import read_qca
@@ -63,6 +65,12 @@ CLICKS = Path(__file__).resolve().parent / "data" / "pose2sim_clicks.json"
 FIT_CAMS = ("cam02", "cam03", "cam04")
 CHECK_CAM = "cam01"
 FPS = 60.0
+#: Contour tracking settings (quarter-resolution pixels): per-part cameras chosen by the
+#: visibility index (≥ 0.2) alone — adding the motion ranking lost the arms within 5
+#: frames on this take (``--compare-selection`` prints it) — relinearised 8 times per
+#: frame, contour ↔ rim pairs up to 20 px apart (fast arm swings at 60 fps).
+CONTOUR_CFG = ContourTrackSettings(select=True, observability=False, iterations=8,
+                                   max_dist_px=20.0)
 #: Seeds for the LSM surface in the reference camera, as (joint a, joint b, weight of b):
 #: points between clicked joints on the back, the buttocks/thighs and the upper arms.
 SEED_PAIRS = (("neck", "pelvis", 0.3), ("neck", "pelvis", 0.55), ("l_shoulder", "r_hip", 0.5),
@@ -203,14 +211,14 @@ def keep_in_region(masks: np.ndarray, box: tuple[int, int, int, int]) -> np.ndar
 
 
 # -- fits ---------------------------------------------------------------------------------
-def texture_tracks(grey: dict, cams: list[Camera], clicks: dict, cams_full: list[Camera],
-                   n_frames: int, scale: float, cache: Path, ref: int = 1):
+def texture_tracks(grey: dict, cams: list[Camera], clicks: dict, n_frames: int, scale: float,
+                   cache: Path, ref: int = 1):
     """LSM surface points at frame 0 tracked through ``n_frames`` (cached in ``cache``).
 
     Returns ``(xyz (F, P, 3) metres, sigma_xyz (F, P, 3) metres, info dict)``.
     """
     names = [c.name for c in cams]
-    key = f"{','.join(names)}|{n_frames}|{scale}"
+    key = f"{','.join(names)}|{n_frames}|{scale}|{ref}"
     if cache.is_file():
         with np.load(cache, allow_pickle=False) as z:
             if str(z["key"]) == key:
@@ -330,107 +338,70 @@ def _stats(x: np.ndarray) -> str:
 
 
 # -- main ---------------------------------------------------------------------------------
-def main(argv=None) -> int:
-    from core.contour_track import ContourTrackSettings, fit_shape_to_contours, track_contours
+def reference_camera(cams: list[Camera]) -> int:
+    """The reference camera for LSM: one of the two fitting cameras whose optical axes
+    are closest in angle (LSM needs similar views; the other cameras join by NCC)."""
+    best, ref = -2.0, 0
+    for i in range(len(cams)):
+        for j in range(i + 1, len(cams)):
+            c = float(cams[i].R[2] @ cams[j].R[2])
+            if c > best:
+                best, ref = c, i
+    return ref
+
+
+def run_config(names: list[str], check: str, allc: dict, clicks: dict, video: dict,
+               fg: dict, a, nf: int) -> dict:
+    """Initialise, fit three ways and check in the held-out camera; prints a table.
+
+    ``video[name] = (grey (F, h, w) at a.scale, rgb (F, h', w', 3) at a.mask_scale)``,
+    ``fg[name]`` the foreground masks (F, h', w') of every camera.
+    """
+    from core.contour_track import fit_shape_to_contours, track_contours
     from core.fit import SequenceSettings, fit_sequence
     from core.fit_init import initialise
     from core.model_render import camera_rays
-    from core.silhouette_check import body_masks, mask_iou
+    from core.silhouette_check import body_masks, mask_iou, shift_iou
 
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", type=Path, default=DATA)
-    ap.add_argument("--clicks", type=Path, default=CLICKS)
-    ap.add_argument("--frames", type=int, default=100, help="frames to fit")
-    ap.add_argument("--bg-frames", type=int, default=100,
-                    help="frames the background models are estimated from")
-    ap.add_argument("--fit-cams", default=",".join(FIT_CAMS))
-    ap.add_argument("--check", default=CHECK_CAM)
-    ap.add_argument("--scale", type=float, default=0.5, help="LSM tracking resolution")
-    ap.add_argument("--mask-scale", type=float, default=0.25,
-                    help="resolution of masks, contours and the check")
-    ap.add_argument("--model", choices=("simplified", "complete"), default="simplified")
-    ap.add_argument("--gross-px", type=float, default=20.0,
-                    help="click consistency threshold, full-resolution pixels")
-    ap.add_argument("--out", type=Path, default=REPO / "out" / "realvideo_fit")
-    ap.add_argument("--no-empty", action="store_true",
-                    help="do not repair the backgrounds with the empty-scene photos")
-    ap.add_argument("--overlay-frames", default="0,30,60,99")
-    a = ap.parse_args(argv)
-    t_all = time.perf_counter()
-    calib = a.data / "calibration" / "Calib.qca.txt"
-    if not calib.is_file():
-        raise InputError(f"{calib}: not found (the pose2sim_single data set is needed)")
-    allc = {c.name: c for c in read_qca(calib)}
-    names = a.fit_cams.split(",")
-    if a.check in names or len(set(names)) != len(names) or any(
-            n not in allc for n in names + [a.check]):
-        raise InputError(f"{calib}: --fit-cams {a.fit_cams} / --check {a.check} must be "
-                         f"distinct cameras among {sorted(allc)}")
-    nf = int(a.frames)
-    if nf < 2:
-        raise InputError("--frames must be at least 2")
-    a.out.mkdir(parents=True, exist_ok=True)
+    tag = f"{''.join(n[-1] for n in names)}_{check}"
+    out = a.out / tag
+    print(f"\n=== fit with {', '.join(names)}; held out {check} ===")
     cams_full = [allc[n] for n in names]
     cams_t = [scale_camera(c, a.scale) for c in cams_full]
     cams_q = [scale_camera(c, a.mask_scale) for c in cams_full]
-    cam_chk = scale_camera(allc[a.check], a.mask_scale)
-
-    # 1. clicks -> initial body
-    clicks = load_clicks(a.clicks, list(allc))
+    cam_chk = scale_camera(allc[check], a.mask_scale)
     t0 = time.perf_counter()
     init = initialise(clicks, cams_full, model=a.model, gross_px=a.gross_px, path=str(a.clicks))
-    print(f"clicks {a.clicks.name}: {len(init.clicks.names)} joints, reprojection RMS median "
+    print(f"clicks: {len(init.clicks.names)} joints, reprojection RMS median "
           f"{np.median(init.clicks.rms_px):.1f} px (full resolution); initial posture joint "
           f"RMSE {1000 * init.joint_rmse_m:.1f} mm ({time.perf_counter() - t0:.1f} s)")
     for m in init.clicks.messages():
         print(f"  note: {m}")
-
-    # 2. video, foreground, contours
-    t0 = time.perf_counter()
-    grey, rgb = {}, {}
-    n_read = max(nf, a.bg_frames)
-    for n in names + [a.check]:
-        g, c = read_video(a.data / "videos" / f"{n}.mp4", allc[n].size, n_read,
-                          a.scale if n in names else None, a.mask_scale)
-        if g is not None:
-            grey[n] = g[:nf]
-        rgb[n] = c
-    t_read = time.perf_counter() - t0
-    t0 = time.perf_counter()
+    # the person's masks: foreground components near the clicked joints
     masks = {}
-    for n in [a.check] + names:
-        cam = cam_chk if n == a.check else cams_q[names.index(n)]
-        model = fit_background(rgb[n])
-        empty = read_empty_scene(a.data, n, allc[n].size, a.mask_scale)
-        if empty is not None and not a.no_empty:
-            model = with_reference(model, rgb[n], empty)
-        fg = np.stack([model.foreground(f, threshold=6.0) for f in rgb[n][:nf]])
-        masks[n] = keep_in_region(fg, person_region(cam, init.clicks.xyz))
-        rgb[n] = rgb[n][:nf]
+    for n in names + [check]:
+        cam = cam_chk if n == check else cams_q[names.index(n)]
+        masks[n] = keep_in_region(fg[n], person_region(cam, init.clicks.xyz))
     contours = [[occluding_contours(masks[n][f], spacing=2.0) for n in names]
                 for f in range(nf)]
-    t_fg = time.perf_counter() - t0
-    h, w = masks[a.check].shape[1:]
-    print(f"video: {n_read} frames x {len(rgb)} cameras decoded in {t_read:.1f} s; tracking at "
-          f"{cams_t[0].size[0]}x{cams_t[0].size[1]} px, masks/contours/check at {w}x{h} px; "
-          f"foreground + contours {1000 * t_fg / (nf * len(rgb)):.0f} ms per camera-frame; "
-          "person area " + ", ".join(f"{n} {100 * masks[n].mean():.1f} %" for n in masks))
-    n_con = np.array([[sum(len(c) for c in fc) for fc in fr] for fr in contours])
-    print(f"contour points per frame (fitting cameras): median {int(np.median(n_con.sum(1)))}")
-    rays_chk = camera_rays(cam_chk)
-    person = masks[a.check]
+    n_con = np.array([sum(len(c) for c in fc) for fc in contours])
+    h, w = masks[check].shape[1:]
+    print("person area " + ", ".join(f"{n} {100 * masks[n].mean():.1f} %" for n in masks)
+          + f"; contour points per frame (fitting cameras) median {int(np.median(n_con))}")
+    person = masks[check]
     results = {}
 
-    # 3a. texture only
-    xyz, sxyz, info = texture_tracks(grey, cams_t, clicks, cams_full, nf, a.scale,
-                                     a.out / "tracks.npz")
+    # texture only
+    ref = reference_camera(cams_full)
+    xyz, sxyz, info = texture_tracks({n: video[n][0] for n in names}, cams_t, clicks, nf,
+                                     a.scale, out / "tracks.npz", ref=ref)
     obs = frame_points(xyz, sxyz)
     npts = np.array([len(o.xyz) for o in obs])
-    print(f"LSM: {info['seeds']} of {info['seed_candidates']} seeds, {info['surface_points']} "
-          f"surface points at frame 0 ({info['surface_s']:.1f} s); tracking "
-          f"{info['tracking_s'] / nf:.2f} s/frame; 3-D points per frame median "
-          f"{int(np.median(npts))} (min {npts.min()}, max {npts.max()}); frame-0 points "
-          f"through all frames {info['frame0_through']}")
+    print(f"LSM (reference {names[ref]}): {info['seeds']} of {info['seed_candidates']} seeds, "
+          f"{info['surface_points']} surface points at frame 0 ({info['surface_s']:.1f} s); "
+          f"tracking {info['tracking_s'] / nf:.2f} s/frame; 3-D points per frame median "
+          f"{int(np.median(npts))} (max {npts.max()}); frame-0 points through all frames "
+          f"{info['frame0_through']}")
     t0 = time.perf_counter()
     res = fit_sequence(obs, init, SequenceSettings(), fps=FPS, source_scene=str(a.data),
                        metaball_model=a.model)
@@ -438,77 +409,159 @@ def main(argv=None) -> int:
     st_tex = res.state
     div_tex = st_tex.quality.diverged
     results["texture only"] = (st_tex.s, st_tex.metaballs, st_tex.theta, st_tex.root_xyz,
-                               t_tex, f"{int(div_tex.sum())} diverged")
+                               t_tex, f"{int(div_tex.sum())} diverged (pose held)")
 
-    # 3b. contours only (shape from frame 0's silhouettes, EKF with camera selection)
+    # contours only: shape from frame 0's silhouettes, EKF with per-part camera selection
     rays_q = [camera_rays(c) for c in cams_q]
     t0 = time.perf_counter()
-    tight = ContourTrackSettings(q_sigma_theta=0.05, q_sigma_root=0.01)
-    balls_c, th0, rt0, rms0 = fit_shape_to_contours(init.skeleton, init.s, init.metaballs,
-                                                    init.theta, init.root_xyz, cams_q,
-                                                    contours[0], tight, rays=rays_q)
+    balls_c, th0, rt0, rms0 = fit_shape_to_contours(
+        init.skeleton, init.s, init.metaballs, init.theta, init.root_xyz, cams_q, contours[0],
+        ContourTrackSettings(q_sigma_theta=0.05, q_sigma_root=0.01), rays=rays_q)
     t_shape = time.perf_counter() - t0
     t0 = time.perf_counter()
-    tracks = track_contours(init.skeleton, init.s, balls_c, th0, rt0, cams_q, contours,
-                            ContourTrackSettings(select=True))
-    t_con = (time.perf_counter() - t0) / nf
-    th_c = np.array([t.theta for t in tracks])
-    rt_c = np.array([t.root for t in tracks])
-    n_upd = sum(t.updated for t in tracks)
-    results["contours only"] = (init.s, balls_c, th_c, rt_c, t_con,
-                                f"{nf - n_upd} not updated")
-    print(f"contour shape at frame 0: RMS {rms0:.2f} px ({t_shape:.1f} s); contour EKF "
-          f"matches per frame median {int(np.median([t.n_matches for t in tracks]))}")
+    variants = {"contours only": CONTOUR_CFG}
+    if a.compare_selection:
+        variants["contours, motion-ranked"] = replace(CONTOUR_CFG, observability=True)
+        variants["contours, all fused"] = replace(CONTOUR_CFG, select=False)
+    for label, cfg in variants.items():
+        t0 = time.perf_counter()
+        tracks = track_contours(init.skeleton, init.s, balls_c, th0, rt0, cams_q, contours, cfg)
+        spf = (time.perf_counter() - t0) / nf
+        th, rt = np.array([t.theta for t in tracks]), np.array([t.root for t in tracks])
+        n_upd = sum(t.updated for t in tracks)
+        use = np.array([t.use for t in tracks])  # (F, P, C) cameras used per part
+        results[label] = (init.s, balls_c, th, rt, spf,
+                          f"{nf - n_upd} not updated; {use.sum(axis=2).mean():.2f} cameras "
+                          "per part")
+        if label == "contours only":
+            th_c, rt_c, t_con = th, rt, spf
+            print(f"contour shape at frame 0: RMS {rms0:.2f} px ({t_shape:.1f} s); contour "
+                  f"EKF matches per frame median {int(np.median([t.n_matches for t in tracks]))}"
+                  f", residual RMS median {np.nanmedian([t.rms_px for t in tracks]):.2f} px")
 
-    # 3c. texture + contours
+    # texture + contours
     t0 = time.perf_counter()
-    cfg = ContourTrackSettings(iterations=10, sigma_px=1.5, huber_px=3.0)
-    st_fu, div = fused_fit(st_tex, th_c, rt_c, cams_q, contours, cfg)
+    cfg = replace(CONTOUR_CFG, iterations=10, sigma_px=1.5, huber_px=3.0)
+    st_fu, _ = fused_fit(st_tex, th_c, rt_c, cams_q, contours, cfg)
     t_fu = (time.perf_counter() - t0) / nf + t_tex
-    rms_fu = st_fu.contour_rms_px
+    n_ref = int(np.sum(np.isfinite(st_fu.contour_rms_px)))
     results["texture + contours"] = (st_fu.s, st_fu.metaballs, st_fu.theta, st_fu.root_xyz,
-                                     t_fu, f"{int(np.sum(~np.isfinite(rms_fu)))} not updated")
+                                     t_fu, f"{n_ref} of {nf} refined; "
+                                     f"{int(div_tex.sum())} from the contour track")
 
-    # 4. check in the held-out camera
+    # check in the held-out camera
+    rays_chk = camera_rays(cam_chk)
     t0 = time.perf_counter()
-    ious, bodies = {}, {}
-    for label, (s, balls, th, rt, _, _) in results.items():
-        bodies[label] = body_masks(init.skeleton, s, balls, th, rt, cam_chk, rays=rays_chk)
+    ious, bodies, shifted = {}, {}, {}
+    for label, (s_, balls, th, rt, _, _) in results.items():
+        bodies[label] = body_masks(init.skeleton, s_, balls, th, rt, cam_chk, rays=rays_chk)
         ious[label] = mask_iou(bodies[label], person)
+        shifted[label] = shift_iou(bodies[label], person, max_shift_px=16)
     t_chk = (time.perf_counter() - t0) / (nf * len(results))
     init_body = body_masks(init.skeleton, init.s, init.metaballs, init.theta[None],
                            init.root_xyz[None], cam_chk, rays=rays_chk)
-    print(f"\nHeld-out {a.check} ({w}x{h} px), fitted with {', '.join(names)}, {nf} frames; "
-          f"clicked pose at frame 0: IoU {float(mask_iou(init_body[0], person[0])):.3f}")
+    print(f"held-out {check} ({w}x{h} px), {nf} frames; the clicked pose at frame 0: IoU "
+          f"{float(mask_iou(init_body[0], person[0])):.3f}")
     print(f"{'fit':20s} {'IoU mean':>8s} {'median':>6s} {'p10':>6s}  {'frame 0':>7s} "
-          f"{'last':>6s}  {'s/frame':>7s}  flags")
+          f"{'last':>6s}  {'shifted mean':>12s} {'(du, dv) px':>11s}  {'s/frame':>7s}  notes")
     for label, (_, _, _, _, spf, flags) in results.items():
         i = ious[label]
-        print(f"{label:20s} {_stats(i)}  {i[0]:7.3f} {i[-1]:6.3f}  {spf:7.2f}  {flags}")
+        sh, si = shifted[label]
+        print(f"{label:20s} {_stats(i)}  {i[0]:7.3f} {i[-1]:6.3f}  {np.nanmean(si):12.3f} "
+              f"{str(tuple(int(x) for x in sh)):>11s}  {spf:7.2f}  {flags}")
     steps = list(range(0, nf, max(1, nf // 10)))
-    print("IoU per frame " + " ".join(f"{f:5d}" for f in steps))
+    print("IoU per frame       " + " ".join(f"{f:5d}" for f in steps))
     for label in results:
         print(f"  {label:18s}" + " ".join(f"{ious[label][f]:5.2f}" for f in steps))
     win = ious["texture + contours"] - ious["texture only"]
-    print(f"texture + contours minus texture only: better in {int(np.sum(win > 0))} of {nf} "
-          f"frames, mean {np.nanmean(win):+.3f}")
-    print(f"speed: texture fit {t_tex:.2f} s/frame ({int(np.median(npts))} points/frame); "
-          f"contour EKF {t_con:.2f} s/frame ({int(np.median(n_con.sum(1)))} contour points, "
-          f"3 cameras at {w}x{h}); check render {1000 * t_chk:.0f} ms/frame")
+    print(f"texture + contours vs texture only: better in {int(np.sum(win > 0))} of {nf} "
+          f"frames, mean difference {np.nanmean(win):+.3f}")
+    print(f"speed: texture fit {t_tex:.2f} s/frame ({int(np.median(npts))} points/frame, "
+          f"tracking {info['tracking_s'] / nf:.2f} s/frame at {cams_t[0].size[0]}x"
+          f"{cams_t[0].size[1]}); contour EKF {t_con:.2f} s/frame and refinement "
+          f"{t_fu - t_tex:.2f} s/frame ({int(np.median(n_con))} contour points, 3 cameras at "
+          f"{w}x{h}); check render {1000 * t_chk:.0f} ms/frame")
 
-    # overlays
     picks = [f for f in (int(x) for x in a.overlay_frames.split(",")) if 0 <= f < nf]
     colours = {"texture only": (60, 120, 255), "contours only": (255, 160, 0),
-               "texture + contours": (255, 0, 0)}
+               "texture + contours": (255, 0, 0), "contours, motion-ranked": (200, 0, 200),
+               "contours, all fused": (0, 200, 200)}
     for f in picks:
-        draw_check(rgb[a.check][f], person[f],
+        draw_check(video[check][1][f], person[f],
                    {f"{k} IoU {ious[k][f]:.2f}": (bodies[k][f], colours[k]) for k in results},
-                   a.out / f"check_{a.check}_f{f:03d}.png")
-    draw_masks(rgb, masks, picks, a.out / "masks_4cams.png")
-    np.savez_compressed(a.out / "iou.npz", **{k.replace(" ", "_").replace("+", "and"): v
-                                             for k, v in ious.items()})
-    print(f"wrote {len(picks)} overlays check_{a.check}_f*.png and masks_4cams.png to {a.out}; "
-          f"total {time.perf_counter() - t_all:.0f} s")
+                   out / f"check_{check}_f{f:03d}.png")
+    draw_masks({n: video[n][1] for n in sorted(masks)}, {n: masks[n] for n in sorted(masks)},
+               picks, out / "masks_4cams.png")
+    np.savez_compressed(out / "iou.npz", **{k.replace(" ", "_").replace("+", "and"): v
+                                           for k, v in ious.items()})
+    print(f"wrote {len(picks)} overlays check_{check}_f*.png and masks_4cams.png to {out}")
+    return ious
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", type=Path, default=DATA)
+    ap.add_argument("--clicks", type=Path, default=CLICKS)
+    ap.add_argument("--frames", type=int, default=100, help="frames to fit")
+    ap.add_argument("--bg-frames", type=int, default=100,
+                    help="frames the background models are estimated from")
+    ap.add_argument("--configs", default=f"{','.join(FIT_CAMS)}:{CHECK_CAM}",
+                    help="';'-separated FIT,CAMS:CHECK configurations, e.g. "
+                         "'cam02,cam03,cam04:cam01;cam01,cam02,cam04:cam03'")
+    ap.add_argument("--scale", type=float, default=0.5, help="LSM tracking resolution")
+    ap.add_argument("--mask-scale", type=float, default=0.25,
+                    help="resolution of masks, contours and the check")
+    ap.add_argument("--model", choices=("simplified", "complete"), default="simplified")
+    ap.add_argument("--gross-px", type=float, default=20.0,
+                    help="click consistency threshold, full-resolution pixels")
+    ap.add_argument("--no-empty", action="store_true",
+                    help="do not repair the backgrounds with the empty-scene photos")
+    ap.add_argument("--out", type=Path, default=REPO / "out" / "realvideo_fit")
+    ap.add_argument("--compare-selection", action="store_true",
+                    help="also track contours with motion-ranked camera selection and with "
+                         "all cameras fused")
+    ap.add_argument("--overlay-frames", default="0,30,60,99")
+    a = ap.parse_args(argv)
+    t_all = time.perf_counter()
+    calib = a.data / "calibration" / "Calib.qca.txt"
+    if not calib.is_file():
+        raise InputError(f"{calib}: not found (the pose2sim_single data set is needed)")
+    allc = {c.name: c for c in read_qca(calib)}
+    configs = []
+    for spec in a.configs.split(";"):
+        fit_s, _, check = spec.partition(":")
+        names = fit_s.split(",")
+        if (not check or check in names or len(set(names)) != len(names)
+                or any(n not in allc for n in names + [check])):
+            raise InputError(f"{calib}: --configs '{spec}' must name distinct fitting cameras "
+                             f"and one held-out camera among {sorted(allc)}")
+        configs.append((names, check))
+    nf = int(a.frames)
+    if nf < 2:
+        raise InputError("--frames must be at least 2")
+    a.out.mkdir(parents=True, exist_ok=True)
+    clicks = load_clicks(a.clicks, list(allc))
+    used = sorted({n for names, check in configs for n in names + [check]})
+    t0 = time.perf_counter()
+    n_read = max(nf, a.bg_frames)
+    video, fg = {}, {}
+    for n in used:
+        grey, rgb = read_video(a.data / "videos" / f"{n}.mp4", allc[n].size, n_read, a.scale,
+                               a.mask_scale)
+        video[n] = (grey[:nf], rgb[:nf])
+        model = fit_background(rgb)
+        empty = read_empty_scene(a.data, n, allc[n].size, a.mask_scale)
+        if empty is not None and not a.no_empty:
+            model = with_reference(model, rgb, empty)
+        fg[n] = np.stack([model.foreground(f, threshold=6.0) for f in rgb[:nf]])
+    t_fg = time.perf_counter() - t0
+    print(f"video: {n_read} frames x {len(used)} cameras decoded, background models "
+          f"{'with' if not a.no_empty else 'without'} the empty-scene photos, foreground of "
+          f"{nf} frames: {t_fg:.0f} s ({1000 * t_fg / (n_read * len(used)):.0f} ms per "
+          f"camera-frame)")
+    for names, check in configs:
+        run_config(names, check, allc, clicks, video, fg, a, nf)
+    print(f"\ntotal {time.perf_counter() - t_all:.0f} s")
     return 0
 
 

@@ -46,6 +46,7 @@ class ContourTrackSettings:
     huber_px: float = 2.0            # Huber threshold on contour residuals [px]
     iterations: int = 4              # relinearisations of the update per frame
     select: bool = True              # per-part camera selection (False: all fused)
+    observability: bool = True       # ... ranked by predicted motion (False: visibility only)
     max_dist_px: float = 12.0        # largest contour ↔ rim pairing distance [px]
     min_matches: int = 40            # fewer contour matches: frame not updated
     q_sigma_theta: float = 0.05      # initial σ of the clicked pose [rad]
@@ -115,7 +116,8 @@ def update_with_contours(ekf: EKF, skel: Skeleton, s: np.ndarray, balls: Metabal
     for _ in range(max(1, cfg.iterations)):
         theta, root = x_i[:n], x_i[n:m]
         obs = contour_observations(skel, theta, root, s, balls, cameras, contours,
-                                   theta_rate=rate if cfg.select else None,
+                                   theta_rate=rate if cfg.select and cfg.observability
+                                   else None,
                                    sigma_px=cfg.sigma_px, max_dist_px=cfg.max_dist_px,
                                    select=cfg.select, rays=rays)
         if len(obs) < cfg.min_matches:

@@ -5,7 +5,7 @@ import pytest
 
 from core import metaballs as mb
 from core import skeleton as sk
-from core.silhouette_check import body_masks, mask_iou
+from core.silhouette_check import body_masks, mask_iou, shift_iou
 from tests.core._bodyscene import look_at
 
 
@@ -48,3 +48,17 @@ def test_body_masks_follow_the_pose():
     np.testing.assert_allclose(np.diff(cols), [600 * 0.1 / 4.0, 600 * 0.2 / 4.0], rtol=0.1)
     iou = mask_iou(m[:3], np.repeat(m[:1], 3, axis=0))
     assert iou[0] == 1.0 and 1.0 > iou[1] > iou[2]
+
+
+def test_shift_iou_recovers_a_constant_offset(rng):
+    h, w = 60, 80
+    image = np.zeros((5, h, w), bool)
+    for f in range(5):  # blobs of varying position and size, like a moving person
+        v, u = rng.integers(15, 40), rng.integers(15, 55)
+        image[f, v:v + rng.integers(8, 18), u:u + rng.integers(5, 12)] = True
+    model = np.zeros_like(image)
+    model[:, :h - 2, :w - 3] = image[:, 2:, 3:]  # the model drawn 3 px left, 2 px up
+    shift, iou = shift_iou(model, image, max_shift_px=6)
+    np.testing.assert_array_equal(shift, [3, 2])
+    np.testing.assert_allclose(iou, 1.0)
+    assert np.all(mask_iou(model, image) < 0.8)

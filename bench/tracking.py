@@ -3,10 +3,13 @@
 ``python -m bench.tracking [--scene sample_scenes/walk_line3] [--frames N]``
 
 Prints: surface points at frame 0 from 5 clicked seeds and their distance to the true
-mesh; tracking survival of the frame-0 points (measured in every frame, and with short
-gaps bridged by the point filters) and the live count; tracked positions
-against the same material point carried by the true mesh (barycentric coordinates on
-the nearest triangle of the mesh at the trajectory's first frame); the filters on 5 %
+mesh; tracking survival of the frame-0 points (measured in every frame, and through
+every frame counting the gaps bridged where a dormant point was re-acquired — those
+frames are flagged as not measured) and the live count; how many points were
+re-acquired and re-anchored; tracked positions against the same material point
+carried by the true mesh (barycentric coordinates on the nearest triangle of the mesh
+at the trajectory's first frame), over all, measured and bridged point-frames
+separately; the filters on 5 %
 injected false trajectories; speed in frames/s with the point count; the temporal
 success rate with the 3-D Kalman (EKF) prediction against the 2-D linear prediction at
 the same small search box (``--compare-frames`` frames, no regeneration; the first
@@ -66,6 +69,13 @@ def main(argv=None) -> int:
     ap.add_argument("--compare-radius", type=int, default=3)
     ap.add_argument("--predict", choices=("ekf", "linear"), default="ekf",
                     help="prediction of the main tracking run")
+    ap.add_argument("--no-anchor", action="store_true",
+                    help="no re-anchoring on key templates (frame-to-frame matching only)")
+    ap.add_argument("--max-dormant", type=int, default=None,
+                    help="frames a lost point stays dormant for re-acquisition "
+                         "(default: core.tracking.track's)")
+    ap.add_argument("--no-compare", action="store_true",
+                    help="skip the EKF-vs-linear prediction comparison")
     args = ap.parse_args(argv)
     sc = load_scene(args.scene)
     cams = sc.calibration()
@@ -84,15 +94,26 @@ def main(argv=None) -> int:
         return [sc.image(c, i) for c in sc.cameras]
 
     t1 = time.perf_counter()
-    tr = track(frames, cams, surf, nf, sc.fps, predict=args.predict)
+    kw = {"anchor": not args.no_anchor}
+    if args.max_dormant is not None:
+        kw["max_dormant"] = args.max_dormant
+    log: list = []
+    tr = track(frames, cams, surf, nf, sc.fps, predict=args.predict, log=log, **kw)
     dt = time.perf_counter() - t1
     alive = tr.alive
     p0 = len(surf)
-    print(f"tracking {nf} frames ({args.predict} prediction): frame-0 points measured in "
+    m0 = tr.measured[:, :p0]
+    back = alive[:, :p0].all(axis=0) & ~m0.all(axis=0)
+    print(f"tracking {nf} frames ({args.predict} prediction, {kw}): frame-0 points measured in "
           f"every frame {100 * tr.measured[:, :p0].all(axis=0).mean():.1f} %, through every "
           f"frame with gaps bridged {100 * alive[:, :p0].all(axis=0).mean():.1f} %; live at "
           f"last frame {int(alive[-1].sum())} = "
           f"{100 * alive[-1].sum() / alive[0].sum():.1f} % of the first ({int(alive[0].sum())})")
+    print(f"re-acquisition: {sum(s.get('reacquired_dormant', 0) for s in log)} re-acquisitions "
+          f"of dormant points in all; {int(back.sum())} frame-0 points are complete only with "
+          f"bridged frames ({int((alive[:, :p0] & ~m0).sum())} bridged point-frames); "
+          f"re-anchored temporal matches {sum(s.get('anchored', 0) for s in log)} of "
+          f"{sum(s.get('temporal_ok', 0) for s in log)}")
     print(f"speed: {(nf - 1) / dt:.3f} frames/s with {int(alive.sum(axis=1).mean())} points "
           f"per frame on average")
     truth = material_truth(tr.xyz, tr.start, V[:nf], faces)
@@ -105,13 +126,13 @@ def main(argv=None) -> int:
         print(f"tracked 3-D vs material truth, {name}: median {1000 * np.median(e):.2f} mm, "
               f"95% {1000 * np.percentile(e, 95):.2f} mm over {e.size} point-frames")
     ncmp = min(args.compare_frames, nf)
-    for pred in ("ekf", "linear"):
+    for pred in () if args.no_compare else ("ekf", "linear"):
         log: list = []
         # the first step has no velocity for either predictor: both get the wide box
         # there, then the same small fixed box; counted from frame 2 on
         tc = track(frames, cams, surf, ncmp, sc.fps, predict=pred, adaptive=False,
                    ncc_radius=args.compare_radius, first_radius=14,
-                   regen_every=0, log=log)
+                   regen_every=0, log=log, **kw)
         seen = sum(s.get("seen", 0) for s in log[2:])
         ok = sum(s.get("temporal_ok", 0) for s in log[2:])
         print(f"prediction {pred:6s} at a fixed {2 * args.compare_radius + 1} px box, "

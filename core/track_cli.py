@@ -8,7 +8,8 @@ Arrays written to the ``.npz`` (F frames, P points, C cameras):
 * ``sigma_xyz`` (F, P, 3) float — standard deviations from the forward intersection, m
 * ``start`` (P,) int — first frame of each trajectory (0 = measured at frame 0)
 * ``measured`` (F, P) bool — measured by forward intersection in that frame (False
-  where a short gap was bridged, see ``--max-coast``, or not tracked)
+  where a gap was bridged after a re-acquisition, see ``--max-dormant`` and
+  ``--max-coast``, or not tracked)
 * ``removed`` (P,) bool, ``truncated`` (P,) bool — outcome of the filters
 * ``camera_names`` (C,) str, ``fps`` () float
 """
@@ -39,7 +40,12 @@ def add_arguments(parser) -> None:
     parser.add_argument("--predict", choices=("ekf", "linear"), default="ekf",
                         help="search prediction: 3-D Kalman filter or 2-D linear")
     parser.add_argument("--max-coast", type=int, default=0,
-                        help="frames a point may go unmeasured and be re-acquired")
+                        help="frames a point may coast on its Kalman prediction")
+    parser.add_argument("--max-dormant", type=int, default=None,
+                        help="frames a lost point stays dormant and may be re-acquired "
+                             "from its key templates (0: never)")
+    parser.add_argument("--no-anchor", action="store_true",
+                        help="no re-anchoring of temporal matches on key templates")
 
 
 def run(args) -> int:
@@ -60,7 +66,8 @@ def run(args) -> int:
     t1 = time.perf_counter()
     tr = track(lambda i: [scene.image(c, i) for c in scene.cameras], cams, surf, n, scene.fps,
                step=args.step, regen_every=args.regen_every, predict=args.predict,
-               max_coast=args.max_coast, progress=progress)
+               max_coast=args.max_coast, anchor=not args.no_anchor, progress=progress,
+               **({} if args.max_dormant is None else {"max_dormant": args.max_dormant}))
     dt = time.perf_counter() - t1
     flt = filter_trajectories(tr.xyz, scene.fps)
     out = Path(args.output)

@@ -69,6 +69,49 @@ def fill_gaps(xyz: np.ndarray, rate: np.ndarray, max_gap: int) -> np.ndarray:
     return out
 
 
+def bridge_gaps(xyz: np.ndarray, pred: np.ndarray) -> np.ndarray:
+    """Fill the gaps of re-acquired trajectories from per-frame predictions.
+
+    A gap between measured frames ``a`` and ``b`` is filled where a prediction exists
+    in every frame ``a < g <= b`` (the dormant point's neighbour-motion prediction,
+    :func:`core.track_reacquire.neighbour_motion`): ``pred[g]`` plus the discrepancy
+    at the re-acquisition ``xyz[b] - pred[b]`` spread linearly over the gap (zero at
+    ``a``, where the prediction starts from the measured position).
+
+    Parameters
+    ----------
+    xyz : ndarray, shape (F, P, 3)
+        Measured positions, metres, NaN where unmeasured.
+    pred : ndarray, shape (F, P, 3)
+        Predicted positions in the frames where each point was dormant, metres, NaN
+        elsewhere.
+
+    Returns
+    -------
+    ndarray, shape (F, P, 3)
+    """
+    F = xyz.shape[0]
+    m = np.all(np.isfinite(xyz), axis=2)
+    have = np.all(np.isfinite(pred), axis=2)
+    fr = np.arange(F)[:, None]
+    a = np.maximum.accumulate(np.where(m, fr, -1), axis=0)               # last measured <= f
+    b = np.minimum.accumulate(np.where(m, fr, F)[::-1], axis=0)[::-1]    # next measured >= f
+    # predictions missing since the last measurement: count them up to each frame
+    miss = np.cumsum(~have & ~m, axis=0)
+    miss_a = np.take_along_axis(miss, np.maximum(a, 0), axis=0)
+    gap = ~m & (a >= 0) & (b < F)
+    f, p = np.nonzero(gap)
+    out = xyz.copy()
+    if len(f) == 0:
+        return out
+    fa, fb = a[f, p], b[f, p]
+    complete = (miss[fb, p] - miss_a[f, p] == 0) & have[fb, p]
+    f, p, fa, fb = f[complete], p[complete], fa[complete], fb[complete]
+    s = ((f - fa) / (fb - fa))[:, None]
+    out[f, p] = pred[f, p] + s * (xyz[fb, p] - pred[fb, p])
+    return out
+
+
 @dataclass
 class FilterResult:
     """Outcome of :func:`filter_trajectories`.

@@ -9,7 +9,10 @@ cameras at once:
    paper's 2-D linear prediction ``uv_i + (uv_i - uv_{i-1})`` with a fixed box is
    kept as ``predict="linear"``;
 2. NCC search in the box (template: the camera's last measurement of the point);
-3. temporal LSM from that frame (usually i) to frame i+1, started at the NCC peak;
+3. temporal LSM from that frame (usually i) to frame i+1, started at the NCC peak,
+   then matched again from the point's key template (``anchor``,
+   :mod:`core.track_anchor`: the patch where it was first measured in that camera,
+   with the composed temporal affines) so that frame-to-frame drift does not build up;
 4. spatial LSM at frame i+1 from the reference camera into the others, started at
    the temporal results (or, where a camera lost the point, at the projection of the
    intersection of the temporal matches, or of the predicted point: that camera is
@@ -25,6 +28,11 @@ cameras at once:
    ``max_coast`` frames and is re-acquired from its last templates; the gaps so
    bridged are filled by cubic Hermite interpolation (:func:`fill_gaps`,
    ``Tracks.measured`` tells them apart).
+6. a lost point stays dormant for up to ``max_dormant`` frames
+   (:mod:`core.track_reacquire`): predicted from the rigid motion of its measured
+   neighbours and searched with its key templates; when found in two or more cameras
+   near its prediction it resumes the same trajectory, and the gap is bridged from
+   the predictions (:func:`bridge_gaps`, not ``measured``).
 
 Beyond the paper, every ``regen_every`` frames the surface is grown again from the
 live points (:func:`core.surface.measure_surface`) over grid cells that no live point
@@ -46,8 +54,16 @@ from .intersect import triangulate
 from .lsm import ImageStack, match
 from .ncc import search
 from .surface import Surface, measure_surface
+from .track_anchor import KeyTemplates, reanchor
 from .track_filter import COV_FLOOR, PointFilter, predict_in_image
-from .track_trajectories import FilterResult, derivative, fill_gaps, filter_trajectories
+from .track_reacquire import Reacquired, neighbour_motion, reacquire
+from .track_trajectories import (
+    FilterResult,
+    bridge_gaps,
+    derivative,
+    fill_gaps,
+    filter_trajectories,
+)
 
 __all__ = ["FilterResult", "PointFilter", "Tracks", "fill_gaps", "filter_trajectories",
            "predict_in_image", "track"]
@@ -103,6 +119,8 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
           max_rms_px: float = 1.0, accel_sigma: float = 0.025, gate: float = 5.0,
           max_coast: int = 0, temporal_sigma: float | None = 4.0,
           max_sigma_px: float = 0.2, fallback: bool = True, regen_every: int = 5,
+          anchor: bool = True, anchor_px: float = 1.0, max_dormant: int = 0,
+          reacquire_m: float = 0.01,
           step: int = 2, progress=None,
           log: list | None = None) -> Tracks:
     """Track the surface points through ``n_frames`` frames.
@@ -145,6 +163,21 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
         temporal matches alone (also those a spatial match vetoed).
     regen_every : int
         Regenerate / seed new points every this many frames (0: never).
+    anchor : bool
+        Match every temporal match again from the point's key template
+        (:mod:`core.track_anchor`): removes the drift of frame-to-frame matching.
+    anchor_px : float
+        Largest distance between the key match and the temporal match, pixels; beyond
+        it (or where the key match fails) the key is reset to the new measurement.
+    max_dormant : int
+        Frames a lost point is kept dormant (after ``max_coast``) and searched again
+        (:mod:`core.track_reacquire`): predicted from the rigid motion of its
+        neighbours, re-acquired from its key templates in two or more cameras within
+        ``reacquire_m`` of that prediction; the trajectory resumes with the same index
+        and the gap is bridged from the predictions (:func:`bridge_gaps`,
+        :attr:`Tracks.measured` False there).  0: never.
+    reacquire_m : float
+        Largest distance between a re-acquired point and its prediction, metres.
     log : list, optional
         Receives one dict per frame step with the counts of (point, camera) pairs
         through each stage (``seen``, ``ncc_ok``, ``temporal_ok``, ``spatial_ok``,
@@ -172,13 +205,21 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
     last_uv = surface.uv.copy()                      # (P, C, 2) there
     prev_uv = np.full_like(last_uv, np.nan)          # and in the frame before, if measured
     coast = np.zeros(p0, int)
-    dead = np.zeros(p0, bool)
+    dead = np.zeros(p0, bool)                        # not tracked (lost or dormant)
+    gone = np.zeros(p0, bool)                        # dropped for good
+    last_m = np.zeros(p0, int)                       # last measured frame
+    pred_hist = [np.full((p0, 3), np.nan)]           # dormant points' predictions
+    keys = KeyTemplates.start(surface.uv, 0)
     ring = {0: _stack(frames(0), cameras, 0)}
     for i in range(n_frames - 1):
         nxt = _stack(frames(i + 1), cameras, i + 1)
         ring[i + 1] = nxt
+        needed = keys.frames() if anchor else set()
         for f in [f for f in ring if f < i - max_coast]:
-            del ring[f]
+            if f not in needed:
+                del ring[f]
+            elif f == i - max_coast - 1:                # drop the cached upsampled mosaic
+                ring[f] = _Frame(ImageStack(ring[f].stack.images), ring[f].valid)
         n = len(kf)
         stage: dict = {"live_before": int((~dead & (coast == 0)).sum()),
                        "coasting_before": int((~dead & (coast > 0)).sum())}
@@ -204,6 +245,8 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
         pairs &= np.all(np.isfinite(pred), axis=2)
         pi, ci = np.nonzero(pairs)
         uv_t = np.full((n, c, 2), np.nan)
+        key_aff = np.full((n, c, 2, 2), np.nan)      # key -> i+1 where re-anchored
+        key_ok = np.zeros((n, c), bool)
         if len(pi):
             if predict == "ekf" and adaptive:
                 rad = np.clip(np.ceil(3.0 * sig_p[pi, ci]) + 1, 3, max_radius).astype(int)
@@ -231,23 +274,33 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
                        weight_sigma=temporal_sigma, max_sigma_px=max_sigma_px)
             ok_t = rt.ok & nxt.valid[ci] & tvalid
             uv_t[pi[ok_t], ci[ok_t]] = rt.uv[ok_t]
+            if anchor and ok_t.any():
+                k = np.flatnonzero(ok_t)
+                uv_a, aff_a, ok_a = reanchor(
+                    keys, {f: ring[f].stack for f in keys.frames()}, nxt.stack, pi[k],
+                    ci[k], rt.uv[k], rt.affine[k], half=half, max_px=anchor_px,
+                    weight_sigma=temporal_sigma, max_sigma_px=max_sigma_px)
+                uv_t[pi[k], ci[k]] = uv_a
+                key_aff[pi[k], ci[k]] = aff_a
+                key_ok[pi[k], ci[k]] = ok_a
+                stage["anchored"] = int(ok_a.sum())
             stage.update(seen=len(pi), ncc_ok=int(ncc_ok.sum()), temporal_ok=int(ok_t.sum()),
                          temporal_status=np.bincount(rt.status, minlength=8).tolist(),
                          radius_mean=float(rad.mean()))
         # --- spatial LSM at i+1 from the reference camera (or the first temporal one) ---
         has_t = np.all(np.isfinite(uv_t), axis=2)
         tcam = np.where(has_t[:, ref], ref, np.argmax(has_t, axis=1))
-        anchor = has_t[np.arange(n), tcam] & ~dead
+        based = has_t[np.arange(n), tcam] & ~dead
         # Cameras without a temporal match start at the intersection of the temporal
         # matches (two or more) projected, or else at the predicted point projected.
         it_ = triangulate(cameras, uv_t, sigma_px=0.3)
         xyz_s = np.where((it_.ok & (it_.rms < max_rms_px))[:, None], it_.xyz, xyz_p)
         proj_s = np.stack([cam.project(xyz_s) for cam in cameras], axis=1)
         start_s = np.where(has_t[..., None], uv_t, proj_s)
-        qi, qc = np.nonzero(anchor[:, None] & (np.arange(c)[None] != tcam[:, None])
+        qi, qc = np.nonzero(based[:, None] & (np.arange(c)[None] != tcam[:, None])
                             & np.all(np.isfinite(start_s), axis=2) & nxt.valid[None])
         uv_acc = np.full((n, c, 2), np.nan)
-        uv_acc[anchor, tcam[anchor]] = uv_t[anchor, tcam[anchor]]
+        uv_acc[based, tcam[based]] = uv_t[based, tcam[based]]
         uv_tonly = uv_acc.copy()
         if len(qi):
             tc = tcam[qi]
@@ -274,7 +327,7 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
         cov_new = np.full((n, 3, 3), np.nan)
         chosen = np.zeros(n, bool)
         n_gated = 0
-        cands = (uv_acc, uv_tonly) + ((np.where(anchor[:, None, None], uv_t, np.nan),)
+        cands = (uv_acc, uv_tonly) + ((np.where(based[:, None, None], uv_t, np.nan),)
                                       if fallback else ())
         for cand in cands:
             inter = triangulate(cameras, cand, sigma_px=0.3)
@@ -289,7 +342,25 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
         kf.update(xyz_new[rows], cov_new[rows] + COV_FLOOR, rows)
         coast = np.where(chosen, 0, coast + 1)
         dead |= coast > max_coast
+        gone |= dead & (coast > max_coast + max_dormant)
+        pred_d = np.full((n, 3), np.nan)
+        if max_dormant and chosen.any() and (dead & ~gone).any():
+            pred_d, rd = _dormant_step(dead & ~gone, last_m, xyz_hist, xyz_new, chosen,
+                                       kf, keys, ring, nxt, cameras, half, temporal_sigma,
+                                       max_sigma_px, max_rms_px, reacquire_m)
+            if len(rd.rows):
+                r = rd.rows
+                uv_new[r], xyz_new[r], cov_new[r] = rd.uv, rd.xyz, rd.cov
+                key_ok[r] = np.all(np.isfinite(rd.uv), axis=2)
+                key_aff[r] = rd.affine
+                chosen[r], dead[r], coast[r] = True, False, 0
+            stage.update(dormant=int((dead & ~gone).sum()) + len(rd.rows),
+                         reacquired_dormant=len(rd.rows))
+        last_m = np.where(chosen, i + 1, last_m)
         got = np.all(np.isfinite(uv_new), axis=2)
+        keys.affine[got & key_ok] = key_aff[got & key_ok]
+        gp, gc = np.nonzero(got & ~key_ok)
+        keys.reset(gp, gc, uv_new[gp, gc], i + 1)
         prev_uv = np.where((got & (last_f == i))[..., None], last_uv,
                            np.where(got[..., None], np.nan, prev_uv))
         last_uv = np.where(got[..., None], uv_new, last_uv)
@@ -300,6 +371,7 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
         xyz_hist.append(xyz_new)
         sig_hist.append(np.sqrt(np.abs(np.diagonal(cov_new, axis1=1, axis2=2))))
         rate_hist.append(np.where(chosen[:, None], kf.x[:, 3:], np.nan))
+        pred_hist.append(pred_d)
         # --- regenerate lost points and seed newly visible surface ---
         if regen_every and (i + 1) % regen_every == 0 and chosen.any() and nxt.valid.all():
             occ = np.concatenate([uv_new[chosen, ref], proj[~dead & ~chosen, ref]])
@@ -313,6 +385,7 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
                 xyz_hist = [_pad(x, k) for x in xyz_hist]
                 sig_hist = [_pad(s, k) for s in sig_hist]
                 rate_hist = [_pad(s, k) for s in rate_hist]
+                pred_hist = [_pad(s, k) for s in pred_hist]
                 uv_hist[-1][-k:] = new.uv
                 xyz_hist[-1][-k:] = new.xyz
                 sig_hist[-1][-k:] = np.sqrt(np.abs(np.diagonal(new.cov, axis1=1, axis2=2)))
@@ -321,12 +394,15 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
                 kf.append(PointFilter.start(new.xyz, new.cov + COV_FLOOR, rate0, rsig))
                 start = np.concatenate([start, np.full(k, i + 1)])
                 aff_sp = np.concatenate([aff_sp, new.affine])
+                keys.append(KeyTemplates.start(new.uv, i + 1))
                 seen_n = np.all(np.isfinite(new.uv), axis=2)
                 last_f = np.concatenate([last_f, np.where(seen_n, i + 1, -1)])
                 last_uv = np.concatenate([last_uv, new.uv])
                 prev_uv = np.concatenate([prev_uv, np.full_like(new.uv, np.nan)])
                 coast = np.concatenate([coast, np.zeros(k, int)])
                 dead = np.concatenate([dead, np.zeros(k, bool)])
+                gone = np.concatenate([gone, np.zeros(k, bool)])
+                last_m = np.concatenate([last_m, np.full(k, i + 1)])
                 stage["regenerated"] = k
         if log is not None:
             log.append(stage)
@@ -336,8 +412,52 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
     xyz = np.stack(xyz_hist)
     measured = np.all(np.isfinite(xyz), axis=2)
     filled = fill_gaps(xyz, np.stack(rate_hist), max_coast)
+    bridged = bridge_gaps(xyz, np.stack(pred_hist))
+    filled = np.where(np.isfinite(bridged), bridged, filled)
     return Tracks(xyz=filled, uv=np.stack(uv_hist), sigma_xyz=np.stack(sig_hist),
                   start=start, fps=float(fps), measured=measured)
+
+
+@dataclass
+class _Dormant:
+    rows: np.ndarray        # (K,) re-acquired points
+    uv: np.ndarray          # (K, C, 2)
+    affine: np.ndarray      # (K, C, 2, 2) key -> new frame
+    xyz: np.ndarray         # (K, 3)
+    cov: np.ndarray         # (K, 3, 3)
+
+
+def _dormant_step(dormant, last_m, xyz_hist, xyz_new, chosen, kf, keys, ring, nxt, cameras,
+                  half, weight_sigma, max_sigma_px, max_rms_px, max_dist_m,
+                  max_rigid_rms: float = 0.005):
+    """Predict the dormant points (P,) bool from their neighbours' rigid motion since
+    their last measured frame and try to re-acquire them; the re-acquired filters are
+    restarted.  Returns the predictions (P, 3) and the re-acquired points."""
+    n = len(dormant)
+    pred = np.full((n, 3), np.nan)
+    d = np.flatnonzero(dormant)
+    for fl in np.unique(last_m[d]):              # loop over loss frames, points batched
+        sel = d[last_m[d] == fl]
+        then = xyz_hist[fl]
+        xyz_p, rms, ok = neighbour_motion(then[chosen], xyz_new[chosen], then[sel])
+        ok &= rms < max_rigid_rms
+        pred[sel[ok]] = xyz_p[ok]
+    rows = np.flatnonzero(dormant & np.all(np.isfinite(pred), axis=1))
+    empty = _Dormant(np.zeros(0, int), *(np.zeros((0,) + s) for s in
+                                         ((len(cameras), 2), (len(cameras), 2, 2), (3,), (3, 3))))
+    if len(rows) == 0:
+        return pred, empty
+    ra: Reacquired = reacquire(keys, {f: ring[f].stack for f in keys.frames()}, nxt.stack,
+                               nxt.valid, cameras, rows, pred[rows], half=half,
+                               weight_sigma=weight_sigma, max_sigma_px=max_sigma_px,
+                               max_rms_px=max_rms_px, max_dist_m=max_dist_m)
+    r = rows[ra.ok]
+    if len(r) == 0:
+        return pred, empty
+    rate0, rsig = _neighbour_rates(xyz_new[chosen], kf.x[chosen, 3:], ra.xyz[ra.ok])
+    restart = PointFilter.start(ra.xyz[ra.ok], ra.cov[ra.ok] + COV_FLOOR, rate0, rsig)
+    kf.x[r], kf.P[r] = restart.x, restart.P
+    return pred, _Dormant(r, ra.uv[ra.ok], ra.affine[ra.ok], ra.xyz[ra.ok], ra.cov[ra.ok])
 
 
 def _neighbour_rates(xyz: np.ndarray, rate: np.ndarray, new_xyz: np.ndarray,

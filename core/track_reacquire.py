@@ -1,0 +1,228 @@
+"""Re-acquisition of lost points: neighbour-motion prediction and key-template matching.
+
+A point lost by the tracker (occluded, turned away, a failed match) is kept *dormant*
+with its key templates (:class:`core.track_anchor.KeyTemplates`).  In every frame its
+position is predicted from the motion of its neighbours: the rigid motion that carries
+the ``k`` nearest points measured both in the point's last measured frame and in the
+current frame (least squares, Kabsch / Horn) is applied to the point's last position
+(:func:`neighbour_motion`).  Where that prediction projects into two or more cameras,
+the key templates are searched there (NCC, then LSM from the key with its last affine)
+and the point is re-acquired when the forward intersection of the matches is
+consistent and lies close to the prediction (:func:`reacquire`).  The trajectory
+resumes with the same index; the frames in between are bridged from the predictions
+(:func:`core.track_trajectories.bridge_gaps`).
+
+Shapes: Q queried points, M neighbour candidates, C cameras; world metres, pixels.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .camera import Camera
+from .intersect import triangulate
+from .lsm import ImageStack, match
+from .ncc import search
+from .track_anchor import KeyTemplates
+
+
+def rigid_fit(src: np.ndarray, dst: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted least-squares rigid motions ``dst ≈ R @ src + t``, batched.
+
+    Parameters
+    ----------
+    src, dst : ndarray, shape (Q, K, 3)
+        Corresponding points (world metres); rows with weight 0 are ignored.
+    w : ndarray, shape (Q, K)
+        Weights (0 or positive); each batch needs three or more non-collinear points.
+
+    Returns
+    -------
+    R : ndarray, shape (Q, 3, 3)
+        Rotations (det +1).
+    t : ndarray, shape (Q, 3)
+        Translations, metres.
+    """
+    ws = np.maximum(w.sum(axis=1, keepdims=True), 1e-12)
+    src = np.where(w[..., None] > 0, src, 0.0)
+    dst = np.where(w[..., None] > 0, dst, 0.0)
+    cs = np.einsum("qk,qkd->qd", w, src) / ws
+    cd = np.einsum("qk,qkd->qd", w, dst) / ws
+    H = np.einsum("qk,qki,qkj->qij", w, src - cs[:, None], dst - cd[:, None])
+    U, _, Vt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(Vt.transpose(0, 2, 1) @ U.transpose(0, 2, 1)))
+    D = np.broadcast_to(np.eye(3), H.shape).copy()
+    D[:, 2, 2] = np.where(d == 0, 1.0, d)
+    R = Vt.transpose(0, 2, 1) @ D @ U.transpose(0, 2, 1)
+    return R, cd - np.einsum("qij,qj->qi", R, cs)
+
+
+def neighbour_motion(xyz_then: np.ndarray, xyz_now: np.ndarray, query: np.ndarray, *,
+                     k: int = 10, radius_m: float = 0.06,
+                     min_neighbours: int = 5,
+                     inlier_m: float = 0.003,
+                     min_spread: float = 0.3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Predict points from the rigid motion of their nearest neighbours.
+
+    Parameters
+    ----------
+    xyz_then, xyz_now : ndarray, shape (M, 3)
+        Neighbour candidates at the query's frame and now, metres (rows with NaN are
+        not used).
+    query : ndarray, shape (Q, 3)
+        Points at the earlier frame, metres.
+    k, radius_m, min_neighbours
+        Up to ``k`` neighbours within ``radius_m`` are fitted; fewer than
+        ``min_neighbours`` give no prediction.
+    inlier_m : float
+        Neighbours farther than ``max(3 × median, inlier_m)`` metres from the rigid fit
+        (wrong matches, another body part) are dropped and the motion fitted again.
+    min_spread : float
+        Where the neighbours' second principal standard deviation is below this times
+        the distance from their centroid to the query (nearly collinear neighbours),
+        only their mean translation is applied.
+
+    Returns
+    -------
+    xyz : ndarray, shape (Q, 3)
+        Predicted positions now, metres, NaN where not ``ok``.
+    rms : ndarray, shape (Q,)
+        RMS residual of the kept neighbours' rigid fit, metres (how rigid the patch
+        moved).
+    ok : ndarray, shape (Q,), bool
+    """
+    q = len(query)
+    xyz = np.full((q, 3), np.nan)
+    rms = np.full(q, np.nan)
+    ok = np.zeros(q, bool)
+    good = np.all(np.isfinite(xyz_then), axis=1) & np.all(np.isfinite(xyz_now), axis=1)
+    if good.sum() < min_neighbours or q == 0:
+        return xyz, rms, ok
+    a, b = xyz_then[good], xyz_now[good]
+    kk = min(k, len(a))
+    qf = np.all(np.isfinite(query), axis=1)
+    d, idx = cKDTree(a).query(np.where(qf[:, None], query, 1e9), k=kk,
+                              distance_upper_bound=radius_m)
+    d, idx = d.reshape(q, kk), idx.reshape(q, kk)
+    w = np.isfinite(d).astype(float)
+    idx = np.minimum(idx, len(a) - 1)
+    ok = w.sum(axis=1) >= min_neighbours
+    if not ok.any():
+        return xyz, rms, ok
+    src, dst, w = a[idx[ok]], b[idx[ok]], w[ok]
+    # Start from the neighbours whose displacement is near the median displacement
+    # (a rigid fit through gross outliers can be anything), then fit, drop neighbours
+    # far off the fit, and fit again.
+    disp = np.where(w[..., None] > 0, dst - src, np.nan)
+    dev = np.linalg.norm(disp - np.nanmedian(disp, axis=1)[:, None], axis=2)
+    w = w * (np.nan_to_num(dev, nan=np.inf)
+             <= np.maximum(3.0 * np.nanmedian(dev, axis=1), 3 * inlier_m)[:, None])
+    for _ in range(2):
+        R, t = rigid_fit(src, dst, w)
+        res = np.linalg.norm(np.einsum("qij,qkj->qki", R, src) + t[:, None] - dst, axis=2)
+        med = np.nanmedian(np.where(w > 0, res, np.nan), axis=1)
+        w = w * (res <= np.maximum(3.0 * med, inlier_m)[:, None])
+    R, t = rigid_fit(src, dst, w)
+    res = np.einsum("qij,qkj->qki", R, src) + t[:, None] - dst
+    good = w.sum(axis=1) >= min_neighbours
+    # Nearly collinear neighbours (an occlusion edge) leave the rotation about their
+    # line undetermined: where their second principal spread is small against the
+    # lever arm to the query, only their mean translation is applied.
+    ws = np.maximum(w.sum(axis=1), 1e-12)
+    cs = np.einsum("qk,qkd->qd", w, src) / ws[:, None]
+    cd = np.einsum("qk,qkd->qd", w, dst) / ws[:, None]
+    sc = np.einsum("qk,qki,qkj->qij", w, src - cs[:, None], src - cs[:, None]) / ws[:, None, None]
+    spread = np.sqrt(np.maximum(np.linalg.eigvalsh(sc)[:, 1], 0.0))
+    lever = np.linalg.norm(query[ok] - cs, axis=1)
+    rigid = spread >= min_spread * lever
+    moved = np.where(rigid[:, None], np.einsum("qij,qj->qi", R, query[ok]) + t,
+                     query[ok] + cd - cs)
+    xyz[ok] = np.where(good[:, None], moved, np.nan)
+    rms[ok] = np.sqrt(np.sum(w * np.sum(res ** 2, axis=2), axis=1) / np.maximum(w.sum(axis=1), 1))
+    ok[ok] = good
+    return xyz, rms, ok
+
+
+@dataclass
+class Reacquired:
+    """Outcome of :func:`reacquire` for Q dormant points.
+
+    Attributes
+    ----------
+    ok : ndarray, shape (Q,), bool
+        Re-acquired.
+    uv : ndarray, shape (Q, C, 2)
+        Matches in the new frame, pixels (NaN where a camera did not match).
+    affine : ndarray, shape (Q, C, 2, 2)
+        Affines from the key patches to the new frame.
+    xyz : ndarray, shape (Q, 3)
+        Forward intersection, metres.
+    cov : ndarray, shape (Q, 3, 3)
+        Its covariance, m².
+    """
+
+    ok: np.ndarray
+    uv: np.ndarray
+    affine: np.ndarray
+    xyz: np.ndarray
+    cov: np.ndarray
+
+
+def reacquire(keys: KeyTemplates, stacks: dict, search_stack: ImageStack, valid: np.ndarray,
+              cameras: list[Camera], points: np.ndarray, xyz_pred: np.ndarray, *,
+              half: int = 6, radius: int = 4, min_score: float = 0.7,
+              weight_sigma: float | None = 4.0, max_sigma_px: float = 0.2,
+              max_rms_px: float = 1.0, max_dist_m: float = 0.01) -> Reacquired:
+    """Search dormant points at their predicted positions with their key templates.
+
+    Parameters
+    ----------
+    keys : KeyTemplates
+    stacks : dict int -> ImageStack
+        Images of the key frames in use, camera order.
+    search_stack : ImageStack
+        Images of the new frame, camera order.
+    valid : ndarray, shape (C,), bool
+        Cameras with an image in the new frame.
+    points : ndarray, shape (Q,), int
+        Rows of the dormant points in ``keys``.
+    xyz_pred : ndarray, shape (Q, 3)
+        Predicted positions, metres.
+    radius : int
+        NCC search half width around the projected prediction, pixels.
+    max_dist_m : float
+        Largest distance between the re-acquired point and its prediction, metres.
+    """
+    q, c = len(points), len(cameras)
+    uv = np.full((q, c, 2), np.nan)
+    aff = np.full((q, c, 2, 2), np.nan)
+    proj = np.stack([cam.project(xyz_pred) for cam in cameras], axis=1)        # (Q, C, 2)
+    kf = keys.f[points]
+    w, h = search_stack.shape[2], search_stack.shape[1]
+    m = half + radius + 2
+    inside = ((proj[..., 0] >= m) & (proj[..., 0] <= w - 1 - m) & (proj[..., 1] >= m)
+              & (proj[..., 1] <= h - 1 - m))
+    qi, ci = np.nonzero((kf >= 0) & inside & valid[None] & np.all(np.isfinite(proj), axis=2))
+    if len(qi):
+        fr = np.unique(kf[qi, ci])
+        tstack = (stacks[int(fr[0])] if len(fr) == 1
+                  else ImageStack(np.concatenate([stacks[int(f)].images for f in fr])))
+        tidx = np.searchsorted(fr, kf[qi, ci]) * c + ci
+        kuv = keys.uv[points[qi], ci]
+        nc = search(tstack, search_stack, kuv, proj[qi, ci], half=half, radius=radius,
+                    template_index=tidx, search_index=ci, min_score=min_score)
+        r = match(tstack, search_stack, kuv, nc.uv, half=half,
+                  affine=keys.affine[points[qi], ci], template_index=tidx, search_index=ci,
+                  max_shift_px=2.0, weight_sigma=weight_sigma, max_sigma_px=max_sigma_px)
+        good = nc.ok & r.ok
+        uv[qi[good], ci[good]] = r.uv[good]
+        aff[qi[good], ci[good]] = r.affine[good]
+    inter = triangulate(cameras, uv, sigma_px=0.3)
+    n_views = np.sum(np.isfinite(uv[..., 0]), axis=1)
+    dist = np.linalg.norm(inter.xyz - xyz_pred, axis=1)
+    ok = (inter.ok & (n_views >= 2) & (inter.rms < max_rms_px)
+          & (np.nan_to_num(dist, nan=np.inf) < max_dist_m))
+    return Reacquired(ok=ok, uv=uv, affine=aff, xyz=inter.xyz, cov=inter.cov)

@@ -24,6 +24,10 @@ prior:
   and a metaball of the trunk or head is centred on that plane.  The studio's
   ``line3`` rig sees the walker's right side in no frame: without this its shape is
   left to the prior;
+* **smoothness** (``σ_smooth``): consecutive metaballs along one bone have similar radii
+  and move alike (the difference of their centres' displacements from the start),
+  so a limb's cross-section varies smoothly instead of alternating tiny and large
+  metaballs that blend into the same surface where it is seen;
 * **prior** towards the start shape (the template): ``(radii − radii0)/σ_radius``,
   ``(centres − centres0)/σ_center``.
 
@@ -61,6 +65,7 @@ class ShapeSettings:
     sigma_radius: float = 0.03  # prior towards the start radii
     sigma_center: float = 0.02  # prior towards the start centres
     sigma_symmetry: float = 0.003  # left/right symmetry of radii and centres (0: off)
+    sigma_smooth: float = 0.01  # neighbours along a bone: radii and displacements (0: off)
     free_centers: bool = True
     model_points: bool = True  # the penalty against bulging (needs cameras)
     k_members: int = 8  # metaballs in a point's field
@@ -231,6 +236,32 @@ def _symmetry_rows(sym: Symmetry, M: int, n_c: int, w: float, radii, centers):
     return np.concatenate(r), np.concatenate(Js, axis=0)
 
 
+def chain_pairs(balls: Metaballs) -> np.ndarray:
+    """Consecutive metaballs on one bone, (P, 2) int (``make_metaballs`` lays each
+    bone's metaballs out in order from head to tail)."""
+    m = np.arange(len(balls) - 1)
+    return np.stack([m, m + 1], axis=1)[balls.bone[:-1] == balls.bone[1:]]
+
+
+def _smooth_rows(pairs: np.ndarray, M: int, n_c: int, w: float, radii, centers, centers0):
+    """Residuals and Jacobian (rows, 3M + n_c) of the smoothness prior."""
+    P = len(pairs)
+    a, b = pairs[:, 0], pairs[:, 1]
+    rows = np.arange(3 * P)
+    J = np.zeros((3 * P, 3 * M + n_c))
+    J[rows, (3 * b[:, None] + np.arange(3)).ravel()] = w
+    J[rows, (3 * a[:, None] + np.arange(3)).ravel()] = -w
+    r = [(radii[b] - radii[a]).ravel() * w]
+    Js = [J]
+    if n_c:
+        disp = centers - centers0
+        r.append((disp[b] - disp[a]).ravel() * w)
+        Jc = np.zeros((3 * P, 3 * M + n_c))
+        Jc[:, 3 * M:] = J[:, :3 * M]
+        Js.append(Jc)
+    return np.concatenate(r), np.concatenate(Js, axis=0)
+
+
 class _Frame:
     """One frame's data and model points, with the weights frozen for a round."""
 
@@ -265,6 +296,7 @@ class ShapeProblem:
         self.radii0, self.centers0 = balls.radii.copy(), balls.center0.copy()
         self.frames = [_Frame(p, x, sg) for p, x, sg in zip(poses, points, sigma, strict=True)]
         self.sym = mirror_pairs(skel, balls, s) if cfg.sigma_symmetry > 0 else None
+        self.chain = chain_pairs(balls) if cfg.sigma_smooth > 0 else None
         self.rng = np.random.default_rng(seed)
 
     def pack(self, radii: np.ndarray, centers: np.ndarray) -> np.ndarray:
@@ -348,6 +380,11 @@ class ShapeProblem:
             jac.append(np.hstack([np.zeros((n_c, 3 * M)), np.eye(n_c) * w]))
         if self.sym is not None:
             r, J = _symmetry_rows(self.sym, M, n_c, 1.0 / cfg.sigma_symmetry, radii, centers)
+            res.append(r)
+            jac.append(J)
+        if self.chain is not None and len(self.chain):
+            r, J = _smooth_rows(self.chain, M, n_c, 1.0 / cfg.sigma_smooth, radii, centers,
+                                self.centers0)
             res.append(r)
             jac.append(J)
         return np.concatenate(res), np.concatenate(jac, axis=0)

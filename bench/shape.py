@@ -1,0 +1,161 @@
+"""Body-shape benchmark: ``python -m bench.shape [--scene DIR] [--quick]``.
+
+Issue 5 ("the fitted metaball surface against the true mesh: mean distance ≤ 5 mm",
+simplified and complete model) and issue 7 (the visibility index against the true
+mesh's, mean |ΔVI| ≤ 0.05) for the template shape and for the shape fitted by
+:func:`core.shape_fit.fit_shape`.
+
+Poses are the truth's (:func:`core.truth_state.truth_to_state`, exact joints), so the
+figures measure the *shape* alone.  The shape is fitted to **truth-derived surface
+points** (:mod:`core.truth_points`: points of the true mesh seen by two cameras,
+1.5 mm noise, 5 % gross outliers) of a few frames — a stand-in for the tracker's
+points, labelled as such.  The distances are measured on other frames as well:
+
+* metaball → mesh: points on the whole-body iso-surface ``Σ f = 0.5``
+  (:func:`core.metaballs.sample_surface`) to the nearest point of the true mesh
+  (:func:`bench.meshtruth.nearest_on_mesh`);
+* mesh → metaball: every other true vertex to the iso-surface — the shorter of two
+  upper bounds of the distance: the Newton projection along the field gradient
+  (:func:`core.metaballs.project_to_surface`, not the shortest path far from the
+  surface) and the nearest of dense surface samples (too long by the spacing).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from bench.meshtruth import nearest_on_mesh
+from core.metaballs import (
+    Metaballs,
+    make_metaballs,
+    project_to_surface,
+    sample_surface,
+    world_frames,
+)
+from core.skeleton import Skeleton, forward
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def surface_distances(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray, s: np.ndarray,
+                      balls: Metaballs, vertices: np.ndarray, faces: np.ndarray,
+                      per_ball: int = 150, vertex_step: int = 2, seed: int = 0) -> dict:
+    """Distances between the metaball surface of one pose and a triangle mesh.
+
+    Parameters
+    ----------
+    theta : (n,) radians; root_xyz : (3,) metres; s : (G,)
+    vertices : (V, 3) world metres; faces : (T, 3) int — the true mesh of that frame
+    vertex_step : use every ``vertex_step``-th vertex for mesh → metaball
+
+    Returns
+    -------
+    dict with ``ball_to_mesh`` (K,) and ``mesh_to_ball`` (V',) distances in metres,
+    ``ball_bone`` (K,) the bone of the metaball each surface sample started from and
+    ``vertex_idx`` (V',) the vertices measured.
+    """
+    pose = forward(skel, np.asarray(theta, float)[None], np.asarray(root_xyz, float)[None], s)
+    x, ok = sample_surface(skel, pose, balls, s, per_ball=per_ball, seed=seed)
+    bone = np.repeat(balls.bone, per_ball)[ok]
+    x = x[ok]
+    v = np.asarray(vertices, float)
+    d_bm, _, _ = nearest_on_mesh(x, v, np.asarray(faces, int))
+    Rw, cw = world_frames(skel, pose, balls, s)
+    vi = np.arange(0, len(v), max(int(vertex_step), 1))
+    xs, conv = project_to_surface(v[vi], Rw[0], cw[0], balls.radii)
+    d_mb = np.where(conv, np.linalg.norm(xs - v[vi], axis=1), np.inf)
+    d_mb = np.minimum(d_mb, cKDTree(x).query(v[vi])[0])
+    return {"ball_to_mesh": d_bm, "mesh_to_ball": d_mb, "ball_bone": bone, "vertex_idx": vi}
+
+
+def shape_table(scene_dir: Path, fit_frames: list[int], eval_frames: list[int],
+                n_points: int, models: tuple[str, ...], vis_frames: range | None):
+    from bench.visibility import compare
+    from core.scene import load_scene
+    from core.shape_fit import fit_shape
+    from core.truth_points import sample_frame
+    from core.truth_state import truth_to_state
+
+    scene = load_scene(scene_dir)
+    cams = scene.calibration()
+    state, _ = truth_to_state(scene.truth, scene.fps)
+    skel, s = state.skeleton, state.s
+    faces = np.asarray(scene.truth["faces"], int)
+    verts = scene.truth["vertices"]
+    rng = np.random.default_rng(0)
+    pts = [sample_frame(verts[f].astype(float), faces, cams, n_points, rng)[0]
+           for f in fit_frames]
+    print(f"\nShape on {scene.name}: truth poses; fitted to truth-derived surface points of "
+          f"frames {fit_frames} ({', '.join(str(len(p)) for p in pts)} points seen by 2 "
+          f"cameras, 1.5 mm noise, 5 % outliers); distances on frames {eval_frames}")
+    print(f"{'model':11s} {'shape':9s} {'M':>3s} {'ball->mesh mm':>14s} {'mesh->ball mm':>14s} "
+          f"{'symmetric':>9s} {'fit s':>6s}  note")
+    results = {}
+    for model in models:
+        template = make_metaballs(skel, model, s)
+        t0 = time.perf_counter()
+        fit = fit_shape(skel, template, s, state.theta[fit_frames], state.root_xyz[fit_frames],
+                        pts, cams)
+        t_fit = time.perf_counter() - t0
+        for label, balls in (("template", template), ("fitted", fit.metaballs)):
+            bm, mb = [], []
+            for f in eval_frames:
+                d = surface_distances(skel, state.theta[f], state.root_xyz[f], s, balls,
+                                      verts[f], faces)
+                bm.append(d["ball_to_mesh"])
+                mb.append(d["mesh_to_ball"])
+            bm, mb = 1e3 * np.concatenate(bm), 1e3 * np.concatenate(mb)
+            note = fit.message if label == "fitted" else ""
+            tf = f"{t_fit:6.1f}" if label == "fitted" else f"{'':6s}"
+            print(f"{model:11s} {label:9s} {len(balls):3d} {bm.mean():8.1f} ({np.median(bm):4.1f})"
+                  f" {mb.mean():8.1f} ({np.median(mb):4.1f}) {0.5 * (bm.mean() + mb.mean()):9.1f}"
+                  f" {tf}  {note}")
+            results[(model, label)] = balls
+    print("   (mean, median in brackets; symmetric = the average of both directions)")
+    if vis_frames is None:
+        return results
+    print(f"\nVisibility index vs the true mesh, frames {list(vis_frames)} x {len(cams)} cameras "
+          f"(truth poses)")
+    print(f"{'model':11s} {'shape':9s} {'labels':9s} {'mean |dVI|':>10s} {'VI>=0.2 agree':>14s} "
+          f"{'n':>5s}   worst parts")
+    for (model, label), balls in results.items():
+        st = _with_balls(state, balls)
+        for labels in ("model", "segments"):
+            r = compare(st, scene.truth, cams, vis_frames, labels=labels)
+            worst = sorted(r["per_part"].items(), key=lambda kv: -kv[1])[:3]
+            print(f"{model:11s} {label:9s} {labels:9s} {r['mean_abs_diff']:10.3f} "
+                  f"{100 * r['decision_agreement']:13.1f}% {r['n']:5d}   "
+                  + ", ".join(f"{k} {v:.3f}" for k, v in worst))
+    return results
+
+
+def _with_balls(state, balls):
+    from dataclasses import replace
+
+    return replace(state, metaballs=balls)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scene", type=Path, default=REPO / "sample_scenes" / "walk_line3")
+    ap.add_argument("--fit-frames", default="0,17,34", help="frames whose points fit the shape")
+    ap.add_argument("--eval-frames", default="0,25,45")
+    ap.add_argument("--points", type=int, default=4000, help="candidate points per frame")
+    ap.add_argument("--models", default="simplified,complete")
+    ap.add_argument("--no-visibility", action="store_true")
+    args = ap.parse_args(argv)
+    fit_frames = [int(v) for v in args.fit_frames.split(",")]
+    eval_frames = [int(v) for v in args.eval_frames.split(",")]
+    shape_table(args.scene, fit_frames, eval_frames, args.points,
+                tuple(args.models.split(",")),
+                None if args.no_visibility else range(0, 50, 5))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

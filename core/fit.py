@@ -46,6 +46,7 @@ from .attractor import attractor, gather, member_table
 from .ekf import EKF
 from .errors import InputError
 from .fit_init import Initialisation
+from .fit_search import explain_cost, explain_distance, search_limbs
 from .fitting import FitSettings, Observations, fit
 from .metaballs import Metaballs, world_frames
 from .progress import Progress
@@ -96,8 +97,9 @@ class SequenceSettings:
     shape_sigma_center: float = 0.01
     min_part_points: int = 8  # a part with fewer points is hidden: ...
     sigma_hidden: float = 0.05  # ... its DOFs follow the prior with this σ (rad), ...
-    sigma_hidden_anchor: float = 0.15  # ... and drift back to the clicked posture
-    hold_hidden: bool = True  # ... held at the previous frame's angles (else predicted)
+    sigma_hidden_anchor: float = 0.15  # ... and drift back to the clicked posture; ...
+    hold_hidden: bool = False  # ... held at the previous frame's angles (else following
+    #                            the damped prediction, not fed back to the filter)
     sigma_click: float = 0.003  # σ of a forward-intersected click, metres
     segment_max_dist: float = 0.04
     segment_margin: float = 0.015  # ambiguous points between non-adjacent parts dropped
@@ -106,6 +108,12 @@ class SequenceSettings:
     min_inliers: float = 0.5
     inlier_m: float = 0.02
     resegment: bool = True
+    search: bool = True  # annealed retry with the limb search (core.fit_search)
+    search_tau: float = 0.05  # truncation of the search's point distances, metres
+    retry_unexplained: float = 0.2  # share of points > inlier_m from the body: retry
+    max_unexplained: float = 0.4  # ... above this share the frame is marked diverged
+    #: (segmentation reach m, robust knee in σ) per stage of an annealed fit
+    anneal: tuple = ((0.12, 12.0), (0.07, 6.0), (0.04, 3.0), (0.04, 3.0))
     max_nfev: int = 20
     max_nfev_shape: int = 40
     fit: FitSettings = field(default_factory=lambda: FitSettings(members="neighbours",
@@ -120,6 +128,8 @@ class SequenceResult:
     state: FitState
     n_points: np.ndarray  # (F,) points assigned to a part
     inlier_share: np.ndarray  # (F,)
+    unexplained: np.ndarray  # (F,) share of the points > inlier_m from the body
+    retried: np.ndarray  # (F,) bool: the annealed retry's fit was kept
     messages: list
     seconds: float
 
@@ -165,11 +175,22 @@ class _Predictor:
         q = h[-1] + (cfg.damping * (h[-1] - h[-2]) if len(h) > 1 else 0.0)
         return q, np.full(self.n, cfg.sigma_pred)
 
-    def accept(self, q: np.ndarray, q_sigma: np.ndarray | None) -> None:
+    def accept(self, q: np.ndarray, q_sigma: np.ndarray | None) -> np.ndarray:
+        """Feed a fitted frame (σ inf: that parameter was not measured, e.g. a hidden
+        part's angle); returns the filter's σ of the angles (n,) after it — for
+        unmeasured angles the prediction's, growing frame by frame."""
         self.hist.append(q.copy())
+        if q_sigma is None:
+            q_sigma = np.full(q.size, 0.01)
+        meas = np.isfinite(q_sigma)
         if self.ekf is not None:
-            sig = np.full(q.size, 0.01) if q_sigma is None else np.maximum(q_sigma, 0.005)
-            self.ekf.update(q, lambda x: x, np.eye(q.size), sig**2)
+            if meas.any():
+                sig = np.maximum(q_sigma[meas], 0.005)
+                H = np.eye(q.size)[meas]
+                self.ekf.update(q[meas], lambda x: x[meas], H, sig**2)
+            return self.ekf.q_sigma[:self.n].copy()
+        self.n_hidden = np.where(meas[:self.n], 0, getattr(self, "n_hidden", 0) + 1)
+        return self.cfg.sigma_pred * np.sqrt(1.0 + self.n_hidden)
 
     def skip(self) -> None:
         """A diverged frame: the prediction stands in for it."""
@@ -222,6 +243,9 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
     div = np.zeros(nf, bool)
     n_pts = np.zeros(nf, int)
     inl = np.zeros(nf)
+    unexpl = np.full(nf, np.nan)
+    retried = np.zeros(nf, bool)
+    hid = np.zeros((nf, n), bool)
     msgs: list[str] = []
     ci = init.clicks
     click_obs = (np.array([skel.joint_index(j) for j in ci.names]), ci.xyz, cfg.sigma_click)
@@ -232,73 +256,135 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
 
     dof_bone = np.array([skel.bone_index(d.rsplit("_", 1)[0]) for d in skel.dof_names])
 
+    def hidden_dofs(part):
+        """(n,) bool: DOFs of parts with fewer than ``min_part_points`` points."""
+        cnt = np.bincount(part[part >= 0], minlength=len(skel.bone_names))
+        return cnt[dof_bone] < cfg.min_part_points
+
     def prior(part, th_pred, sig_pred, th_hold):
         """Target and σ of the prior on the angles: the prediction, σ capped for stiff
-        DOFs; the DOFs of parts with too few points (hidden) are held at ``th_hold``
-        (the previous frame, when given) with σ ``sigma_hidden``; fused with a prior
-        towards the initial posture (anchored DOFs, and hidden parts, which drift back
-        to the clicked posture instead of wandering)."""
-        cnt = np.bincount(part[part >= 0], minlength=len(skel.bone_names))
+        DOFs; the DOFs of parts with too few points (hidden) follow the (damped)
+        prediction, or are held at ``th_hold`` (the previous frame, when given), with σ
+        ``sigma_hidden``; fused with a prior towards the initial posture (anchored DOFs,
+        and hidden parts, which drift back to the clicked posture instead of
+        wandering)."""
         sig = np.minimum(sig_pred, stiff)
-        hidden = cnt[dof_bone] < cfg.min_part_points
+        hidden = hidden_dofs(part)
         target = th_pred if th_hold is None else np.where(hidden, th_hold, th_pred)
         sig = np.where(hidden, np.minimum(sig, cfg.sigma_hidden), sig)
         sig_a = np.where(hidden, np.minimum(anchor, cfg.sigma_hidden_anchor), anchor)
         w1, w2 = 1.0 / sig**2, 1.0 / sig_a**2
         return (w1 * target + w2 * init.theta) / (w1 + w2), 1.0 / np.sqrt(w1 + w2)
 
-    def one_frame(f, q_pred, sig_pred, joints=None, q_hold=None):
-        """Pose-only fit of frame f from the prediction; returns (q, σ, ok, info)."""
-        nonlocal labels
+    def search_start(f, cands):
+        """Of the candidate poses (k, n+3), the one whose body explains frame f's points
+        best (:func:`core.fit_search.explain_cost`)."""
+        cands = np.atleast_2d(cands)
+        if len(cands) == 1 or not len(frames[f].xyz):
+            return cands[0].copy()
+        cost = explain_cost(frames[f].xyz, skel, balls, s, radii, cands[:, :n], cands[:, n:],
+                            cfg.search_tau)
+        return cands[int(np.argmin(cost))].copy()
+
+    def one_frame(f, q_pred, sig_pred, joints=None, q_hold=None, anneal=False):
+        """Pose-only fit of frame f from ``q_pred`` (n+3,), which is also the prior's
+        target; returns ``(q, FitResult, ok, part or message, labels)``.
+
+        Plain: segment, fit, segment again, fit (``cfg.segment_max_dist`` and the
+        robust scale of ``cfg.fit``).  ``anneal``: the stages of ``cfg.anneal`` —
+        wide segmentation and a soft robust knee first, narrowing — and, after the
+        first stage has brought the trunk near its points, every limb placed by
+        :func:`core.fit_search.search_limbs` (its new angles become the prior's
+        target)."""
         pts = frames[f]
-        th_p, rt_p = q_pred[:n], q_pred[n:]
-        part, _ = segment_points(pts.xyz, skel, balls, th_p, rt_p, s, radii,
-                                 cfg.segment_max_dist, cfg.segment_margin)
-        part, labels = carry_labels(part, pts.ids, labels)
-        if (part >= 0).sum() < cfg.min_points:
-            return None, None, False, f"frame {f}: only {(part >= 0).sum()} usable points"
-        th, rt = th_p, rt_p
-        for it in range(2 if cfg.resegment else 1):
-            if it:
-                part, _ = segment_points(pts.xyz, skel, balls, th, rt, s, radii,
-                                         cfg.segment_max_dist, cfg.segment_margin)
-                if (part >= 0).sum() < cfg.min_points:
-                    break
-                part, labels = carry_labels(part, pts.ids, labels)
-            target, sig = prior(part, q_pred[:n], sig_pred,
+        lab = labels
+        stages = cfg.anneal if anneal else \
+            ((cfg.segment_max_dist, cfg.fit.robust_scale),) * (2 if cfg.resegment else 1)
+        q, target_q = q_pred.copy(), q_pred.copy()
+        r = part = None
+        for k, (max_dist, knee) in enumerate(stages):
+            if anneal and k == 1 and cfg.search:
+                q[:n] = search_limbs(pts.xyz, skel, balls, s, radii, q[:n], q[n:],
+                                     tau=cfg.search_tau).theta
+                target_q = q.copy()
+            part, _ = segment_points(pts.xyz, skel, balls, q[:n], q[n:], s, radii,
+                                     max_dist, cfg.segment_margin)
+            part, lab = carry_labels(part, pts.ids, lab)
+            if (part >= 0).sum() < cfg.min_points:
+                if r is None:
+                    return (None, None, False,
+                            f"frame {f}: only {(part >= 0).sum()} usable points", lab)
+                break
+            target, sig = prior(part, target_q[:n], sig_pred,
                                 None if q_hold is None else q_hold[:n])
             o = _observations(pts, part, target, sig, n, joints)
-            r = fit(skel, balls, o, th, rt, s, radii, solve="pose", settings=pose_cfg)
-            th, rt = r.theta, r.root_xyz
-        return np.concatenate([th, rt]), r, True, part
+            stage_cfg = pose_cfg if knee == pose_cfg.robust_scale else \
+                FitSettings(**{**pose_cfg.__dict__, "robust_scale": knee})
+            r = fit(skel, balls, o, q[:n], q[n:], s, radii, solve="pose", settings=stage_cfg)
+            q = np.concatenate([r.theta, r.root_xyz])
+        return q, r, True, part, lab
 
-    def judge(f, res, info):
-        """Quality of a fitted frame; returns (ok, σ of q or None)."""
+    def assess(f, res):
+        """Quality of a fitted frame, without side effects: ``(ok, reasons, stats)``."""
         if not res[2]:
-            msgs.append(str(info) + ": marked diverged")
-            return False
-        q, r, _, part = res
+            return False, str(res[3]), None
+        q, r, _, part, _ = res
         use = part >= 0
         d = surface_residuals(skel, balls, q[:n], q[n:], s, radii, frames[f].xyz[use],
                               part[use], cfg.fit.members)
         inlier = np.abs(d) < cfg.inlier_m
-        n_pts[f] = int(use.sum())
-        inl[f] = float(inlier.mean())
+        share = float(inlier.mean()) if len(d) else 0.0
         rm = float(np.sqrt(np.mean(d[inlier] ** 2))) if inlier.any() else np.inf
-        rmse[f] = rm
-        q_sig[f] = r.theta_sigma
+        d_all = explain_distance(frames[f].xyz, skel, balls, s, radii, q[:n], q[n:])
+        stats = {"n": int(use.sum()), "inl": share, "rmse": rm, "sig": r.theta_sigma,
+                 "conv": bool(r.converged),
+                 "unexplained": float(np.mean(np.abs(d_all) > cfg.inlier_m)),
+                 "cost": float(np.sum(np.minimum(np.abs(d_all), cfg.search_tau) ** 2))}
         bad = []
         if not np.all(np.isfinite(q)):
             bad.append("non-finite solution")
         if rm > cfg.max_rmse_m:
             bad.append(f"surface RMS {rm * 1000:.1f} mm")
-        if inl[f] < cfg.min_inliers:
-            bad.append(f"only {100 * inl[f]:.0f} % inlier points")
-        if bad:
-            msgs.append(f"frame {f}: " + ", ".join(bad) + ": marked diverged")
-            return False
-        conv[f] = bool(r.converged)
-        return True
+        if share < cfg.min_inliers:
+            bad.append(f"only {100 * share:.0f} % inlier points")
+        if stats["unexplained"] > cfg.max_unexplained:
+            bad.append(f"{100 * stats['unexplained']:.0f} % of the points far from the body")
+        return not bad, ", ".join(bad), stats
+
+    def record(f, res, ok, why, stats):
+        """Write the quality of frame f (and the message of a diverged one); commit the
+        segmentation labels of an accepted fit."""
+        nonlocal labels
+        if stats is not None:
+            n_pts[f], inl[f], rmse[f], q_sig[f] = (stats["n"], stats["inl"], stats["rmse"],
+                                                   stats["sig"])
+            unexpl[f] = stats["unexplained"]
+        if ok:
+            conv[f] = stats["conv"]
+            labels = res[4]
+        else:
+            msgs.append(f"frame {f}: {why}: marked diverged" if stats is not None
+                        else f"{why}: marked diverged")
+
+    def fit_frame(f, q_pred, sig_pred, alternatives=(), joints=None, q_hold=None):
+        """Fit frame f: the plain fit from the prediction; when it fails or leaves more
+        than ``cfg.retry_unexplained`` of the points far from the body, an annealed fit
+        (:func:`one_frame` ``anneal``) from the best of the prediction and the
+        alternatives; the accepted fit of lowest explain cost wins.  Returns
+        ``(ok, q)`` with q the fitted pose, or the prediction when no fit is accepted."""
+        res = one_frame(f, q_pred, sig_pred, joints, q_hold)
+        ok, why, st = assess(f, res)
+        if cfg.search and (not ok or st["unexplained"] > cfg.retry_unexplained):
+            q0 = search_start(f, np.stack([q_pred, *alternatives]))
+            res2 = one_frame(f, q0, sig_pred, joints, q_hold, anneal=True)
+            ok2, why2, st2 = assess(f, res2)
+            if ok2 and (not ok or st2["cost"] < st["cost"]):
+                res, ok, why, st = res2, ok2, why2, st2
+                retried[f] = True
+        record(f, res, ok, why, st)
+        if ok:
+            hid[f] = hidden_dofs(res[3])
+        return ok, (res[0] if ok else q_pred)
 
     def store(f, q, ok):
         theta[f], root[f] = q[:n], q[n:]
@@ -317,12 +403,11 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
     shaped = []
     for k, f in enumerate(shape_range):
         if k:
-            res = one_frame(f, np.concatenate([theta[f - 1], root[f - 1]]),
-                            np.full(n, cfg.sigma_pred_max))
-            if not (res[2] and judge(f, res, res[3])):
-                store(f, np.concatenate([theta[f - 1], root[f - 1]]), False)
+            ok, q = fit_frame(f, np.concatenate([theta[f - 1], root[f - 1]]),
+                              np.full(n, cfg.sigma_pred_max))
+            store(f, q, ok)
+            if not ok:
                 continue
-            store(f, res[0], True)
         for rnd in range(2):  # segment, solve the shape, segment again with it
             obs_s, keep = [], []
             for g in (shaped + [f]) if rnd == 0 else shaped:
@@ -345,11 +430,10 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
     for f in shape_range:  # the poses with the final shape
         if div[f]:
             continue
-        res = one_frame(f, np.concatenate([theta[f], root[f]]), np.full(n, cfg.sigma_pred_max),
-                        click_obs if f == f0 else None)
-        ok = res[2] and judge(f, res, res[3])
+        ok, q = fit_frame(f, np.concatenate([theta[f], root[f]]), np.full(n, cfg.sigma_pred_max),
+                          joints=click_obs if f == f0 else None)
         if ok:
-            store(f, res[0], True)
+            store(f, q, True)
         elif f != f0:
             store(f, np.concatenate([theta[f], root[f]]), False)
     # 2) motion forwards and backwards from the clicked frame ----------------------
@@ -366,13 +450,15 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
                 pred.skip()
         for f in order:
             q_pred, sig_pred = pred.predict()
-            res = one_frame(f, q_pred, sig_pred, q_hold=np.concatenate(
-                [theta[f - direction], root[f - direction]]) if cfg.hold_hidden else None)
-            ok = judge(f, res, res[3] if not res[2] else None)
+            q_prev = np.concatenate([theta[f - direction], root[f - direction]])
+            ok, q = fit_frame(f, q_pred, sig_pred, [q_prev],
+                              q_hold=q_prev if cfg.hold_hidden else None)
             if ok:
                 sig = np.concatenate([q_sig[f], np.full(3, 0.005)])
-                pred.accept(res[0], np.where(np.isfinite(sig), sig, 0.05))
-                store(f, res[0], True)
+                sig = np.where(np.isfinite(sig), sig, 0.05)
+                sig[:n][hid[f]] = np.inf  # a hidden part's angles are no measurement
+                q_sig[f] = np.where(hid[f], pred.accept(q, sig), q_sig[f])
+                store(f, q, True)
             else:
                 pred.skip()
                 store(f, q_pred, False)
@@ -385,7 +471,10 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
     state = FitState(skeleton=skel, s=s, metaballs=balls_out, root_xyz=root, theta=theta,
                      quality=q, fps=fps, source_scene=source_scene,
                      metaball_model=metaball_model)
-    return SequenceResult(state=state, n_points=n_pts, inlier_share=inl, messages=msgs,
+    if retried.any():
+        msgs.append(f"{int(retried.sum())} frames fitted by the annealed retry (limb search)")
+    return SequenceResult(state=state, n_points=n_pts, inlier_share=inl, unexplained=unexpl,
+                          retried=retried, messages=msgs,
                           seconds=time.perf_counter() - t_start)
 
 

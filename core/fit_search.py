@@ -1,0 +1,255 @@
+"""Global search for a frame's starting pose: which hypothesis explains the points best.
+
+The per-frame least-squares fit (:mod:`core.fitting`) only converges from a start
+within a few centimetres of the body: the points are segmented to body parts at the
+start (:mod:`core.segment`), and a limb that moved more than the segmentation's reach
+since the last frame (a dance kick moves the knee 15–25 cm in 1/25 s) loses its
+points and stays behind.  This module scores whole poses without any segmentation,
+by how well the body explains the frame's points, so that a few discrete hypotheses
+can be compared and a limb placed near its points before the fit:
+
+* :func:`explain_cost` — for H poses at once, the robust (truncated) squared distance
+  of every point to the whole body's surface ``Σ_m f_m = 0.5``,
+  ``Σ_i min(|d_i|, τ)² / σ²`` (``d_i`` to first order in the log field, as the
+  attractor distance of :mod:`core.attractor` with every metaball a member; a point
+  inside the body counts by its depth);
+* :func:`search_limbs` — per limb (upper arm + forearm, thigh + shin), a grid of
+  flexion, abduction and elbow/knee angles around the current pose, the rest of the
+  body held; the grid pose of lowest cost plus a weak prior towards the start
+  (σ ``sigma_prior``) wins.  Only points outside the rest of the body by more than
+  ``explained_m`` and within the limb's reach count (a limb with fewer than 10 such
+  points is not moved: a hidden limb stays where the prediction put it), so one limb
+  costs (H × N_near × M_limb); the best grid pose is refined on two finer 3×3×3 grids.
+
+Arrays: ``xyz`` (N, 3) world metres; ``theta`` (H, n) radians; ``root`` (H, 3) metres.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .attractor import LN_T
+from .metaballs import Metaballs, world_frames
+from .skeleton import Skeleton, forward, joint_positions
+
+_LEG_GRID = (("hip_x", (-75, -50, -25, 0, 25, 50, 75)), ("hip_y", (-30, 0, 30)),
+             ("knee_x", (-60, -30, 0, 30, 60)))
+_ARM_GRID = (("shoulder_x", (-75, -50, -25, 0, 25, 50, 75)),
+             ("shoulder_y", (-50, -25, 0, 25, 50)), ("elbow_x", (-60, -30, 0, 30, 60)))
+
+
+def _limb(side: str, bones: tuple, root_joint: str, tail_joint: str, grid: tuple) -> tuple:
+    return (tuple(side + b for b in bones), side + root_joint, side + tail_joint,
+            tuple((side + d, g) for d, g in grid))
+
+
+#: Limbs searched by :func:`search_limbs`: name -> (bones moved, root joint, tail
+#: joint, grid DOFs with their offsets in degrees around the start).
+LIMBS = {
+    f"{side}{name}": _limb(side, *spec)
+    for side in ("l_", "r_")
+    for name, spec in (("leg", (("hip", "knee", "ankle"), "hip", "ankle", _LEG_GRID)),
+                       ("arm", (("shoulder", "elbow", "wrist"), "shoulder", "wrist",
+                                _ARM_GRID)))
+}
+
+
+def _limb_move(xyz, skel, balls, s, radii, theta, root, limb, tau, sigma, sigma_prior,
+               explained_m, min_points: int = 10,
+               max_points: int = 200) -> tuple[float, np.ndarray | None]:
+    """Best grid pose of one limb: (cost decrease, theta (n,)) or (0, None)."""
+    bones, root_joint, tail_joint, grid = limb
+    on = np.isin(balls.bone, [skel.bone_index(b) for b in bones])
+    pose = forward(skel, theta[None], root[None], s)
+    Rw, cw = world_frames(skel, pose, balls, s)
+    L_rest, g_rest = _log_field(xyz, Rw[:, ~on], cw[:, ~on], radii[~on])
+    L_self, g_self = _log_field(xyz, Rw[:, on], cw[:, on], radii[on])
+    d_rest = _distance(L_rest, g_rest)[0]
+    jx = joint_positions(skel, theta, root, s)
+    base = jx[skel.joint_index(root_joint)]
+    reach = np.linalg.norm(jx[skel.joint_index(tail_joint)] - base) * 1.15 + 0.1
+    near = (d_rest < -explained_m) & (np.linalg.norm(xyz - base, axis=1) < reach)
+    if near.sum() < min_points:
+        return 0.0, None
+    sel = np.nonzero(near)[0]
+    if len(sel) > max_points:  # an even subsample keeps the grid's cost bounded
+        sel = sel[np.linspace(0, len(sel) - 1, max_points).astype(int)]
+    near = np.zeros(len(xyz), bool)
+    near[sel] = True
+    x = xyz[near]
+    Lr, gr = L_rest[:, near], g_rest[:, near]
+    d0 = _distance(*_combine(Lr, gr, L_self[:, near], g_self[:, near]))[0]
+    cost0 = float(_rho(d0, tau, sigma).sum())
+    best, best_cost = theta, cost0
+    for level in range(3):  # the grid, then finer grids around its best pose
+        if level == 0:
+            th, idx = _grid(skel, best, grid)
+        else:
+            step = [np.diff(g).min() / 2**level for _, g in grid]
+            th, idx = _grid(skel, best, [(d, (-st, 0.0, st)) for (d, _), st in zip(
+                grid, step, strict=True)])
+        pose = forward(skel, th, np.repeat(root[None], len(th), axis=0), s)
+        Rw, cw = world_frames(skel, pose, balls, s)
+        d = _distance(*_combine(Lr, gr, *_log_field(x, Rw[:, on], cw[:, on], radii[on])))
+        cost = _rho(d, tau, sigma).sum(axis=1)
+        cost += np.sum(((th[:, idx] - theta[idx][None]) / sigma_prior) ** 2, axis=1)
+        k = int(np.argmin(cost))
+        if cost[k] < best_cost - 1e-9:
+            best, best_cost = th[k].copy(), float(cost[k])
+    if best is theta:
+        return 0.0, None
+    return cost0 - best_cost, best
+
+
+@dataclass
+class SearchResult:
+    """Outcome of :func:`search_limbs`.
+
+    Attributes
+    ----------
+    theta : (n,) radians — the start with every searched limb at its best grid pose
+    cost_before, cost_after : explain cost (see :func:`explain_cost`) of the whole body
+    moved : list of str — limbs whose best grid pose is not the start
+    """
+
+    theta: np.ndarray
+    cost_before: float
+    cost_after: float
+    moved: list
+
+
+def _log_field(xyz: np.ndarray, Rw: np.ndarray, cw: np.ndarray,
+               radii: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Log field ``L = ln Σ_m exp(−2 d_m)`` (H, N) of metaballs (H, M) at points (N, 3)
+    and its world gradient ``∇L`` (H, N, 3), 1/metre (eq. 7–8, as a log-sum-exp)."""
+    y = (xyz[None, None] - cw[:, :, None]) @ Rw  # (H, M, N, 3) in the metaballs' frames
+    q = y / radii[None, :, None] ** 2
+    e = -2.0 * np.sum(y * q, axis=-1)  # (H, M, N)
+    top = e.max(axis=1, keepdims=True)
+    w = np.exp(e - top)
+    tot = w.sum(axis=1)
+    L = top[:, 0] + np.log(tot)
+    g = -4.0 * np.einsum("hmn,hmnk->hnk", w, q @ np.swapaxes(Rw, -1, -2)) / tot[..., None]
+    return L, g
+
+
+def _combine(La, ga, Lb, gb) -> tuple[np.ndarray, np.ndarray]:
+    """Log field and gradient of the sum of two fields given as ``(L, ∇L)``."""
+    L = np.logaddexp(La, Lb)
+    wa, wb = np.exp(La - L), np.exp(Lb - L)
+    return L, wa[..., None] * ga + wb[..., None] * gb
+
+
+def _distance(L: np.ndarray, g: np.ndarray, g_min: float = 2.0) -> np.ndarray:
+    """Signed distance to the surface ``Σ f = 0.5`` to first order,
+    ``(L − ln 0.5) / max(|∇L|, g_min)`` metres (positive inside), as in
+    :mod:`core.attractor`."""
+    return (L - LN_T) / np.maximum(np.linalg.norm(g, axis=-1), g_min)
+
+
+def _rho(d: np.ndarray, tau: float, sigma: float) -> np.ndarray:
+    return np.minimum(np.abs(d), tau) ** 2 / sigma**2
+
+
+def explain_cost(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarray,
+                 radii: np.ndarray, theta: np.ndarray, root: np.ndarray,
+                 tau: float = 0.05, sigma: float = 0.01, chunk: int = 16) -> np.ndarray:
+    """Robust cost (H,) of H poses: how badly the body leaves the points unexplained.
+
+    Parameters
+    ----------
+    xyz : (N, 3) world points, metres
+    theta : (H, n) radians; root : (H, 3) metres
+    tau : truncation of a point's distance, metres (an outlier or a point of another
+        thing costs at most ``(tau / sigma)²``)
+    sigma : distance scale, metres
+
+    Returns
+    -------
+    (H,) ``Σ_i min(|d_i|, tau)² / sigma²`` with ``d_i`` the first-order distance of
+    point i to the body surface (positive inside, counted by its magnitude).
+    """
+    xyz = np.asarray(xyz, float).reshape(-1, 3)
+    theta = np.atleast_2d(np.asarray(theta, float))
+    root = np.atleast_2d(np.asarray(root, float))
+    out = np.zeros(len(theta))
+    if not len(xyz):
+        return out
+    for a in range(0, len(theta), chunk):
+        pose = forward(skel, theta[a:a + chunk], root[a:a + chunk], s)
+        Rw, cw = world_frames(skel, pose, balls, s)
+        out[a:a + chunk] = _rho(_distance(*_log_field(xyz, Rw, cw, radii)), tau,
+                                sigma).sum(axis=1)
+    return out
+
+
+def explain_distance(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarray,
+                     radii: np.ndarray, theta: np.ndarray, root: np.ndarray) -> np.ndarray:
+    """Distance (N,) metres of each point to the body surface ``Σ f = 0.5`` in one pose
+    (first order, positive inside); the ``d_i`` of :func:`explain_cost`."""
+    xyz = np.asarray(xyz, float).reshape(-1, 3)
+    pose = forward(skel, np.asarray(theta, float)[None], np.asarray(root, float)[None], s)
+    Rw, cw = world_frames(skel, pose, balls, s)
+    return _distance(*_log_field(xyz, Rw, cw, radii))[0]
+
+
+def _grid(skel: Skeleton, theta0: np.ndarray, grid) -> tuple[np.ndarray, np.ndarray]:
+    """Hypotheses (H, n) around ``theta0`` over the grid's DOFs, clipped to the limits;
+    returns them and the DOF indices."""
+    idx = np.array([skel.dof_index(d) for d, _ in grid])
+    offs = np.meshgrid(*[np.radians(g) for _, g in grid], indexing="ij")
+    offs = np.stack([o.ravel() for o in offs], axis=1)  # (H, k)
+    th = np.repeat(theta0[None], len(offs), axis=0)
+    th[:, idx] = np.clip(theta0[idx][None] + offs, skel.dof_lo[idx], skel.dof_hi[idx])
+    return th, idx
+
+
+def search_limbs(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarray,
+                 radii: np.ndarray, theta0: np.ndarray, root: np.ndarray,
+                 limbs: tuple | None = None, tau: float = 0.05, sigma: float = 0.01,
+                 sigma_prior: float = 0.6, explained_m: float = 0.01,
+                 rounds: int = 2) -> SearchResult:
+    """Place each limb at the grid pose that best explains the points near it.
+
+    Parameters
+    ----------
+    xyz : (N, 3) world points of the frame, metres
+    theta0 : (n,) start pose, radians; root : (3,) metres
+    limbs : names of :data:`LIMBS` to search (default all four)
+    tau, sigma : see :func:`explain_cost`
+    sigma_prior : σ (radians) of the weak prior towards the start on the grid DOFs: a
+        move must explain more points than it costs, so a limb without points stays
+    explained_m : only points outside the rest of the body by more than this count
+    rounds : moves per limb at most; each move goes to the limb whose best grid pose
+        lowers the cost most (so a limb takes its own points before another can)
+
+    Returns
+    -------
+    SearchResult
+    """
+    xyz = np.asarray(xyz, float).reshape(-1, 3)
+    theta = np.asarray(theta0, float).copy()
+    root = np.asarray(root, float).reshape(3)
+    names = tuple(LIMBS) if limbs is None else tuple(limbs)
+    before = float(explain_cost(xyz, skel, balls, s, radii, theta[None], root[None],
+                                tau, sigma)[0])
+    moved: list[str] = []
+    if len(xyz) == 0:
+        return SearchResult(theta, before, before, moved)
+    for _ in range(rounds * len(names)):  # greedy: the limb that gains most moves first
+        best_gain, best_theta, best_name = 0.0, None, None
+        for name in names:
+            gain, th = _limb_move(xyz, skel, balls, s, radii, theta, root, LIMBS[name],
+                                  tau, sigma, sigma_prior, explained_m)
+            if gain > best_gain:
+                best_gain, best_theta, best_name = gain, th, name
+        if best_theta is None:
+            break
+        theta = best_theta
+        if best_name not in moved:
+            moved.append(best_name)
+    after = float(explain_cost(xyz, skel, balls, s, radii, theta[None], root[None],
+                               tau, sigma)[0])
+    return SearchResult(theta, before, after, moved)

@@ -1,0 +1,78 @@
+"""Global start search: the explain cost and the per-limb grid search."""
+
+import numpy as np
+import pytest
+
+from core import metaballs as mb
+from core import skeleton as sk
+from core.attractor import attractor, gather, member_table
+from core.fit_search import explain_cost, explain_distance, search_limbs
+from tests.core._bodyscene import model_points
+
+
+@pytest.fixture
+def body():
+    skel = sk.make_skeleton()
+    s = np.ones(skel.n_groups)
+    return skel, s, mb.make_metaballs(skel, "simplified", s)
+
+
+def _outer(skel, balls, theta, root, s, rng, per_bone=40):
+    """Points on the whole body's surface (the parts' surfaces outside other parts)."""
+    xyz, _ = model_points(skel, balls, theta, root, s, rng, per_bone=per_bone)
+    pose = sk.forward(skel, theta[None], root[None], s)
+    Rw, cw = mb.world_frames(skel, pose, balls, s)
+    xs, ok = mb.project_to_surface(xyz, Rw[0], cw[0], balls.radii)
+    return xs[ok]
+
+
+def test_explain_distance_is_the_whole_body_attractor_distance(body, rng):
+    skel, s, balls = body
+    theta = rng.normal(0, 0.2, skel.n_dof)
+    root = np.array([0.1, -0.2, 1.0])
+    x = _outer(skel, balls, theta, root, s, rng) + rng.normal(0, 0.03, (1, 3))
+    d = explain_distance(x, skel, balls, s, balls.radii, theta, root)
+    pose = sk.forward(skel, theta[None], root[None], s)
+    Rw, cw = mb.world_frames(skel, pose, balls, s)
+    idx, ok = gather(*member_table(skel, balls, "body"), np.zeros(len(x), int))
+    ref = attractor(x, idx, ok, Rw[0], cw[0], balls.radii).dist
+    assert np.allclose(d, ref, atol=1e-9)
+    on = _outer(skel, balls, theta, root, s, rng)
+    assert np.abs(explain_distance(on, skel, balls, s, balls.radii, theta, root)).max() < 1e-6
+    # the cost of the right pose is lower than of a moved one, batched over poses
+    th2 = np.stack([theta, theta + 0.3])
+    c = explain_cost(on, skel, balls, s, balls.radii, th2, np.stack([root, root]))
+    assert c[0] < 1e-6 < c[1]
+
+
+def test_a_limb_that_moved_far_is_found_and_a_hidden_one_stays(body, rng):
+    skel, s, balls = body
+    root = np.array([0.0, 0.0, 1.0])
+    true = np.zeros(skel.n_dof)
+    true[skel.dof_index("l_hip_x")] = -0.9  # thigh raised forward (a kick)
+    true[skel.dof_index("l_knee_x")] = 1.1
+    true[skel.dof_index("r_shoulder_x")] = -1.2  # right arm raised forward
+    x = _outer(skel, balls, true, root, s, rng)
+    xs = sk.joint_positions(skel, true, root, s)
+    # the left arm is hidden: none of its points are observed
+    pose = sk.forward(skel, true[None], root[None], s)
+    Rw, cw = mb.world_frames(skel, pose, balls, s)
+    left_arm = np.isin(balls.bone, [skel.bone_index(b) for b in ("l_shoulder", "l_elbow",
+                                                                   "l_wrist")])
+    near_arm = np.abs(explain_distance(x, skel, mb.Metaballs(
+        balls.bone[left_arm], balls.center0[left_arm], balls.group[left_arm],
+        balls.rot[left_arm], balls.radii[left_arm]), s, balls.radii[left_arm], true,
+        root)) < 0.05
+    x = x[~near_arm]
+    start = np.zeros(skel.n_dof)
+    start[skel.dof_index("l_shoulder_x")] = -1.4  # the hidden arm, forward in free space
+    res = search_limbs(x, skel, balls, s, balls.radii, start, root)
+    got = sk.joint_positions(skel, res.theta, root, s)
+    for j in ("l_knee", "l_ankle", "r_elbow", "r_wrist"):
+        before = np.linalg.norm(sk.joint_positions(skel, start, root, s)[skel.joint_index(j)]
+                                - xs[skel.joint_index(j)])
+        after = np.linalg.norm(got[skel.joint_index(j)] - xs[skel.joint_index(j)])
+        assert before > 0.25 and after < 0.1, (j, before, after)
+    assert res.cost_after < 0.2 * res.cost_before
+    assert set(res.moved) == {"l_leg", "r_arm"}
+    assert res.theta[skel.dof_index("l_shoulder_x")] == pytest.approx(-1.4)

@@ -5,39 +5,54 @@ frames at 60 fps, a person with bare skin doing a balance/lunge movement in a cl
 room; Qualisys calibration).  There is no joint truth, so the check is the silhouette
 overlap in a camera the fit never saw.
 
-Cameras: the body is fitted with **cam02, cam03, cam04** — front, back-left and
-back-right of the person (azimuths about 12°, 135° and 206° around the person; the
-largest gap between neighbours is 166°) — and **cam01** (front-left, -38°) is held out.
+Configurations (``--configs``): by default the body is fitted with **cam02, cam03,
+cam04** — front, back-left and back-right of the person (azimuths about 12°, 135° and
+206° around him; the largest gap between neighbours is 166°) — and **cam01**
+(front-left, −38°) is held out.  With these three no two fitting cameras are closer
+than 71°, too far apart for LSM on bare skin (no surface point survives at frame 0),
+so the texture-only fit has no observations; ``cam01,cam02,cam04:cam03`` (cam01 and
+cam02 are 50° apart) gives the texture-only fit its points, with cam03 held out.
 
-1. **Initialisation** from ``bench/data/pose2sim_clicks.json``: 15 key joints clicked by
-   eye at frame 0 in the three fitting cameras (full-resolution pixels), forward
-   intersected; posture and bone scales from :func:`core.fit_init.initialise`.
-2. **Foreground** of every camera (:func:`core.background.fit_background`, robust
-   temporal median over the take) at ``--mask-scale`` (quarter resolution,
-   272 × 480 px); the person's mask is the foreground components touching a region
-   around the clicked joints projected into that camera (other people and clutter
-   in the room are left out); occluding contours (:func:`core.contours.occluding_contours`)
-   of the three fitting cameras.
+1. **Initialisation** from ``bench/data/pose2sim_clicks.json``: 15 key joints clicked
+   by eye at frame 0 (full-resolution pixels), forward-intersected from the fitting
+   cameras' clicks only; posture and bone scales from :func:`core.fit_init.initialise`.
+2. **Foreground** of every camera at ``--mask-scale`` (quarter resolution, 272 × 480
+   px): robust temporal median (:func:`core.background.fit_background`) — the person
+   holds the lunge for most of the take and burns into it — repaired with the
+   calibration photo of the empty force plate (:func:`core.background.with_reference`,
+   :func:`read_empty_scene`).  The person's mask is the foreground components touching
+   a box around the clicked joints projected into that camera (the other people and
+   the clutter are left out); occluding contours of the fitting cameras.
 3. Three fits of the same frames, side by side:
 
    * **texture only** — LSM surface points (Wallis pre-filter, half resolution,
      :func:`core.surface.measure_surface` seeded by NCC along epipolar lines from
-     points between the clicked joints in cam03, tracked by :func:`core.tracking.track`)
-     fitted by :func:`core.fit.fit_sequence`;
+     points between the clicked joints, in the fitting camera closest in angle to
+     another; tracked by :func:`core.tracking.track`) fitted by
+     :func:`core.fit.fit_sequence`; frames without enough points are marked diverged
+     and hold the prediction;
    * **contours only** — metaball radii from frame 0's silhouettes
      (:func:`core.contour_track.fit_shape_to_contours`), then the EKF contour tracker
-     with per-part camera selection (:func:`core.contour_track.track_contours`);
-   * **texture + contours** — every frame of the texture fit refined with that frame's
-     contours (:func:`core.contour_track.refine_state_with_contours`, per-part camera
-     selection); frames the texture fit marked diverged take the contour track's pose.
+     (:func:`core.contour_track.track_contours`) with per-part camera selection by the
+     visibility index (:data:`CONTOUR_CFG`); ``--compare-selection`` adds the
+     motion-ranked selection and all cameras fused;
+   * **texture + contours** — every frame of the texture fit refined with its contours
+     (:func:`core.contour_track.refine_state_with_contours`, same selection); frames
+     the texture fit marked diverged start from the contour track's pose.
 
-4. **Check**: each fitted body rendered into cam01
-   (:func:`core.silhouette_check.body_masks`) and compared with the person's foreground
-   mask there (IoU per frame: mean, median, 10th percentile).  Overlays of a few frames
-   (fitted outlines over cam01) and the four cameras' masks go to ``--out``.
+4. **Check**: each fitted body rendered into the held-out camera
+   (:func:`core.silhouette_check.body_masks`) against the person's mask there: IoU per
+   frame (mean, median, 10th percentile, first and last frame) and the IoU after one
+   image shift fitted over all frames (:func:`core.silhouette_check.shift_iou`: a
+   calibration offset of the held-out camera moves every frame alike: the joints
+   triangulated from the cam02–cam04 clicks project a median 44 px (full resolution),
+   mostly up and left, from where they were clicked in cam01).  Overlays of a few
+   frames (outlines over the held-out image) and the four cameras' masks go to
+   ``--out/<config>/``.
 
-Run: ``python -m bench.realvideo_fit [--frames 100] [--out out/realvideo_fit]``
-(about 4–6 minutes on 2 cores for 100 frames; tracking is cached in ``--out``).
+Run: ``python -m bench.realvideo_fit [--frames 100] [--configs ...]`` (one
+configuration of 100 frames takes about 5 minutes on 2 free cores; tracking is cached
+in ``--out``).
 """
 
 from __future__ import annotations
@@ -184,11 +199,12 @@ def read_empty_scene(data: Path, name: str, size: tuple[int, int],
 def person_region(camera: Camera, xyz: np.ndarray, grow: tuple[float, float] = (0.6, 0.25)
                   ) -> tuple[int, int, int, int]:
     """Image box ``(u0, v0, u1, v1)`` around 3-D joints ``xyz`` (K, 3) projected into
-    ``camera``, widened by ``grow`` (fractions of the box's width, height) on each side."""
+    ``camera``, widened by ``grow`` (fractions of the box's width, height; at least a
+    tenth of its larger side) on each side."""
     uv = camera.project(xyz)
     uv = uv[np.all(np.isfinite(uv), axis=1)]
     lo, hi = uv.min(axis=0), uv.max(axis=0)
-    ext = (hi - lo) * np.asarray(grow)
+    ext = np.maximum((hi - lo) * np.asarray(grow), 0.1 * np.max(hi - lo))
     w, h = camera.size
     u0, v0 = np.maximum(lo - ext, 0).astype(int)
     u1, v1 = np.minimum(hi + ext, (w - 1, h - 1)).astype(int)
@@ -384,7 +400,7 @@ def run_config(names: list[str], check: str, allc: dict, clicks: dict, video: di
         masks[n] = keep_in_region(fg[n], person_region(cam, init.clicks.xyz))
     contours = [[occluding_contours(masks[n][f], spacing=2.0) for n in names]
                 for f in range(nf)]
-    n_con = np.array([sum(len(c) for c in fc) for fc in contours])
+    n_con = np.array([sum(len(c) for per_cam in fc for c in per_cam) for fc in contours])
     h, w = masks[check].shape[1:]
     print("person area " + ", ".join(f"{n} {100 * masks[n].mean():.1f} %" for n in masks)
           + f"; contour points per frame (fitting cameras) median {int(np.median(n_con))}")

@@ -118,6 +118,40 @@ def surface_distance_mm(state, vertices: np.ndarray, frames: list[int], per_fram
     return float(np.mean(np.concatenate(out)) * 1000.0)
 
 
+#: Joint -> the DOF whose σ says whether the part that places the joint was observed.
+_PLACING_DOF = {"l_elbow": "l_shoulder_x", "r_elbow": "r_shoulder_x",
+                "l_wrist": "l_elbow_x", "r_wrist": "r_elbow_x",
+                "l_knee": "l_hip_x", "r_knee": "r_hip_x",
+                "l_ankle": "l_knee_x", "r_ankle": "r_knee_x"}
+#: σ (radians) above which that DOF counts as unobserved in a frame: a hidden part's
+#: angles follow the damped prediction and their σ grows from frame to frame.
+HIDDEN_SIGMA = 0.1
+
+
+def hidden_split(state, truth: dict) -> dict:
+    """MPJPE (mm) of the limb joints over the frames where their part was observed and
+    where it was hidden (σ of its placing DOF > :data:`HIDDEN_SIGMA`), with the counts
+    of joint-frames, and the per-joint hidden share; diverged frames left out."""
+    from core.evaluate import truth_joints
+
+    txyz, names = truth_joints(truth)
+    fxyz = state.joints_xyz(names)
+    ok = ~state.quality.diverged
+    sig = state.quality.theta_sigma
+    seen_e, hid_e, share = [], [], {}
+    for j, dof in _PLACING_DOF.items():
+        k = names.index(j)
+        e = np.linalg.norm(fxyz[ok, k] - txyz[ok, k], axis=-1) * 1000.0
+        h = ~(sig[ok, state.skeleton.dof_index(dof)] <= HIDDEN_SIGMA)
+        seen_e.append(e[~h])
+        hid_e.append(e[h])
+        share[j] = float(h.mean()) if len(h) else 0.0
+    seen, hid = np.concatenate(seen_e), np.concatenate(hid_e)
+    return {"seen_mm": float(seen.mean()) if len(seen) else float("nan"), "n_seen": len(seen),
+            "hidden_mm": float(hid.mean()) if len(hid) else float("nan"),
+            "n_hidden": len(hid), "hidden_share": share}
+
+
 def run_one(scene: Path, frames: int | None, observations: str, model: str) -> dict:
     """Fit and evaluate one scene folder; return the figures (or ``{"error": ...}``)."""
     from core.scene import load_scene
@@ -145,7 +179,8 @@ def run_one(scene: Path, frames: int | None, observations: str, model: str) -> d
     sc = load_scene(scene, check_images=False)
     ok = [f for f in range(state.n_frames) if not state.quality.diverged[f]]
     surf = surface_distance_mm(state, sc.truth["vertices"], ok[:: max(1, len(ok) // 5)])
-    return {"scene": scene.name, "size": sc.image_size, "frames": len(ok),
+    return {"hidden": hidden_split(state, sc.truth),
+            "scene": scene.name, "size": sc.image_size, "frames": len(ok),
             "n_frames": state.n_frames, "rig": sc.meta.get("source", {}).get("rig", "?"),
             "metrics": metrics, "surface_mm": surf, "wall_s": wall,
             "s_per_frame": wall / max(state.n_frames, 1),
@@ -208,7 +243,14 @@ def main(argv: list[str] | None = None) -> int:
         print("    per joint mm: " + ", ".join(
             f"{j} {v:.1f}" for j, v in m["per_joint_mm"].items()))
         print("    per segment RMSE deg: " + ", ".join(
-            f"{k} {v:.1f}" for k, v in m["per_segment_rmse_deg"].items()), flush=True)
+            f"{k} {v:.1f}" for k, v in m["per_segment_rmse_deg"].items()))
+        h = r["hidden"]
+        print(f"    limb joints (elbows, wrists, knees, ankles) where their part was observed: "
+              f"{h['seen_mm']:.1f} mm ({h['n_seen']} joint-frames); hidden (sigma of the "
+              f"placing angle > {HIDDEN_SIGMA} rad): {h['hidden_mm']:.1f} mm "
+              f"({h['n_hidden']}); hidden share: " + ", ".join(
+                  f"{j} {100 * v:.0f}%" for j, v in h["hidden_share"].items() if v > 0),
+              flush=True)
     return 0
 
 

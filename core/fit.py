@@ -110,6 +110,7 @@ class SequenceSettings:
     resegment: bool = True
     search: bool = True  # annealed retry with the limb search (core.fit_search)
     search_tau: float = 0.05  # truncation of the search's point distances, metres
+    search_min_gain: float = 100.0  # explain-cost decrease that moves a limb
     retry_unexplained: float = 0.2  # share of points > inlier_m from the body: retry
     max_unexplained: float = 0.4  # ... above this share the frame is marked diverged
     #: (segmentation reach m, robust knee in σ) per stage of an annealed fit
@@ -129,7 +130,7 @@ class SequenceResult:
     n_points: np.ndarray  # (F,) points assigned to a part
     inlier_share: np.ndarray  # (F,)
     unexplained: np.ndarray  # (F,) share of the points > inlier_m from the body
-    retried: np.ndarray  # (F,) bool: the annealed retry's fit was kept
+    retried: np.ndarray  # (F,) bool: a refit after the limb search was kept
     messages: list
     seconds: float
 
@@ -256,12 +257,15 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
 
     dof_bone = np.array([skel.bone_index(d.rsplit("_", 1)[0]) for d in skel.dof_names])
 
-    def hidden_dofs(part):
-        """(n,) bool: DOFs of parts with fewer than ``min_part_points`` points."""
+    def hidden_dofs(xyz, q, max_dist):
+        """(n,) bool: DOFs of parts with fewer than ``min_part_points`` points within
+        ``max_dist`` of them at pose q (counted without the ambiguity margin: a limb
+        beside the trunk is seen even where its points are not used)."""
+        part, _ = segment_points(xyz, skel, balls, q[:n], q[n:], s, radii, max_dist, 0.0)
         cnt = np.bincount(part[part >= 0], minlength=len(skel.bone_names))
         return cnt[dof_bone] < cfg.min_part_points
 
-    def prior(part, th_pred, sig_pred, th_hold):
+    def prior(hidden, th_pred, sig_pred, th_hold):
         """Target and σ of the prior on the angles: the prediction, σ capped for stiff
         DOFs; the DOFs of parts with too few points (hidden) follow the (damped)
         prediction, or are held at ``th_hold`` (the previous frame, when given), with σ
@@ -269,7 +273,6 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
         and hidden parts, which drift back to the clicked posture instead of
         wandering)."""
         sig = np.minimum(sig_pred, stiff)
-        hidden = hidden_dofs(part)
         target = th_pred if th_hold is None else np.where(hidden, th_hold, th_pred)
         sig = np.where(hidden, np.minimum(sig, cfg.sigma_hidden), sig)
         sig_a = np.where(hidden, np.minimum(anchor, cfg.sigma_hidden_anchor), anchor)
@@ -315,7 +318,7 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
                     return (None, None, False,
                             f"frame {f}: only {(part >= 0).sum()} usable points", lab)
                 break
-            target, sig = prior(part, target_q[:n], sig_pred,
+            target, sig = prior(hidden_dofs(pts.xyz, q, max_dist), target_q[:n], sig_pred,
                                 None if q_hold is None else q_hold[:n])
             o = _observations(pts, part, target, sig, n, joints)
             stage_cfg = pose_cfg if knee == pose_cfg.robust_scale else \
@@ -367,14 +370,32 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
                         else f"{why}: marked diverged")
 
     def fit_frame(f, q_pred, sig_pred, alternatives=(), joints=None, q_hold=None):
-        """Fit frame f: the plain fit from the prediction; when it fails or leaves more
-        than ``cfg.retry_unexplained`` of the points far from the body, an annealed fit
-        (:func:`one_frame` ``anneal``) from the best of the prediction and the
-        alternatives; the accepted fit of lowest explain cost wins.  Returns
-        ``(ok, q)`` with q the fitted pose, or the prediction when no fit is accepted."""
+        """Fit frame f: the plain fit from the prediction, then
+
+        * when it is accepted, the limb search (:func:`core.fit_search.search_limbs`)
+          from its pose: a limb that a better place explains more points at is moved
+          there and the frame refitted from it (a limb lost while hidden, or one that
+          moved faster than the prediction);
+        * when it fails or leaves more than ``cfg.retry_unexplained`` of the points far
+          from the body, an annealed fit (:func:`one_frame` ``anneal``) from the best
+          of the prediction and the alternatives;
+
+        the accepted fit of lowest explain cost wins.  Returns ``(ok, q)`` with q the
+        fitted pose, or the prediction when no fit is accepted."""
         res = one_frame(f, q_pred, sig_pred, joints, q_hold)
         ok, why, st = assess(f, res)
-        if cfg.search and (not ok or st["unexplained"] > cfg.retry_unexplained):
+        if cfg.search and ok and st["unexplained"] <= cfg.retry_unexplained:
+            sr = search_limbs(frames[f].xyz, skel, balls, s, radii, res[0][:n], res[0][n:],
+                              tau=cfg.search_tau, min_gain=cfg.search_min_gain)
+            if sr.moved:
+                q1 = res[0].copy()
+                q1[:n] = sr.theta
+                res2 = one_frame(f, q1, sig_pred, joints, q_hold)
+                ok2, why2, st2 = assess(f, res2)
+                if ok2 and st2["cost"] < st["cost"]:
+                    res, ok, why, st = res2, ok2, why2, st2
+                    retried[f] = True
+        elif cfg.search:
             q0 = search_start(f, np.stack([q_pred, *alternatives]))
             res2 = one_frame(f, q0, sig_pred, joints, q_hold, anneal=True)
             ok2, why2, st2 = assess(f, res2)
@@ -383,7 +404,7 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
                 retried[f] = True
         record(f, res, ok, why, st)
         if ok:
-            hid[f] = hidden_dofs(res[3])
+            hid[f] = hidden_dofs(frames[f].xyz, res[0], cfg.segment_max_dist)
         return ok, (res[0] if ok else q_pred)
 
     def store(f, q, ok):
@@ -472,7 +493,7 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
                      quality=q, fps=fps, source_scene=source_scene,
                      metaball_model=metaball_model)
     if retried.any():
-        msgs.append(f"{int(retried.sum())} frames fitted by the annealed retry (limb search)")
+        msgs.append(f"{int(retried.sum())} frames refitted after the limb search")
     return SequenceResult(state=state, n_points=n_pts, inlier_share=inl, unexplained=unexpl,
                           retried=retried, messages=msgs,
                           seconds=time.perf_counter() - t_start)

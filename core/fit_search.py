@@ -210,7 +210,7 @@ def search_limbs(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarra
                  radii: np.ndarray, theta0: np.ndarray, root: np.ndarray,
                  limbs: tuple | None = None, tau: float = 0.05, sigma: float = 0.01,
                  sigma_prior: float = 0.6, explained_m: float = 0.01,
-                 rounds: int = 2) -> SearchResult:
+                 rounds: int = 2, min_gain: float = 0.0) -> SearchResult:
     """Place each limb at the grid pose that best explains the points near it.
 
     Parameters
@@ -222,6 +222,8 @@ def search_limbs(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarra
     sigma_prior : σ (radians) of the weak prior towards the start on the grid DOFs: a
         move must explain more points than it costs, so a limb without points stays
     explained_m : only points outside the rest of the body by more than this count
+    min_gain : a move must lower the cost by more than this (a few outliers near a
+        limb do not move it)
     rounds : moves per limb at most; each move goes to the limb whose best grid pose
         lowers the cost most (so a limb takes its own points before another can)
 
@@ -239,7 +241,7 @@ def search_limbs(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarra
     if len(xyz) == 0:
         return SearchResult(theta, before, before, moved)
     for _ in range(rounds * len(names)):  # greedy: the limb that gains most moves first
-        best_gain, best_theta, best_name = 0.0, None, None
+        best_gain, best_theta, best_name = min_gain, None, None
         for name in names:
             gain, th = _limb_move(xyz, skel, balls, s, radii, theta, root, LIMBS[name],
                                   tau, sigma, sigma_prior, explained_m)

@@ -1,0 +1,63 @@
+"""Fitting across frames: a limb that jumps is re-found, a hidden part is coasted."""
+
+import numpy as np
+import pytest
+
+from core import metaballs as mb
+from core import skeleton as sk
+from core.fit import FramePoints, SequenceSettings, fit_sequence
+from core.fit_init import initialise
+from core.fitting import FitSettings
+from core.landmarks import CLICK_JOINTS
+from tests.core._bodyscene import cameras, clicks_of, model_points
+
+
+def _outer_points(skel, balls, theta, root, s, rng, drop_bones=()):
+    """Noisy points of the body's outer surface, without those of ``drop_bones``."""
+    xyz, part = model_points(skel, balls, theta, root, s, rng, per_bone=60)
+    keep = ~np.isin(part, [skel.bone_index(b) for b in drop_bones])
+    xyz = xyz[keep]
+    pose = sk.forward(skel, theta[None], root[None], s)
+    Rw, cw = mb.world_frames(skel, pose, balls, s)
+    xyz = xyz[mb.field(xyz, Rw[0], cw[0], balls.radii)[0] < 0.7]
+    return xyz + rng.normal(0, 0.001, xyz.shape)
+
+
+@pytest.mark.slow
+def test_a_kick_is_refound_and_a_hidden_arm_coasts_with_growing_sigma(rng):
+    skel = sk.make_skeleton()
+    s = np.ones(skel.n_groups)
+    balls = mb.make_metaballs(skel, "simplified", s)
+    nf = 7
+    theta = np.zeros((nf, skel.n_dof))
+    theta[:, skel.dof_index("l_hip_x")] = [0.0, -0.1, -0.2, -0.9, -1.0, -1.0, -1.0]  # kick
+    theta[:, skel.dof_index("l_knee_x")] = [0.0, 0.1, 0.2, 0.9, 1.0, 1.0, 1.0]
+    theta[:, skel.dof_index("r_shoulder_x")] = -0.1 * np.arange(nf)  # swings on, hidden
+    root = np.array([[0.0, -0.01 * f, 1.0] for f in range(nf)])
+    hidden = ("r_shoulder", "r_elbow", "r_wrist")
+    frames = [FramePoints(xyz=_outer_points(skel, balls, theta[f], root[f], s, rng,
+                                            hidden if f >= 4 else ()), sigma=0.001)
+              for f in range(nf)]
+    cams = cameras()
+    init = initialise(clicks_of(skel, theta[0], root[0], s, cams, CLICK_JOINTS), cams,
+                      model="simplified")
+    cfg = SequenceSettings(max_nfev=15, max_nfev_shape=15, fit=FitSettings(members="part"))
+    res = fit_sequence(frames, init, cfg)
+    st = res.state
+    assert not st.quality.diverged.any(), res.messages
+    fit_x = st.joints_xyz()
+    true_x = sk.joint_positions(skel, theta, root, s)
+    err = lambda j: np.linalg.norm(  # noqa: E731
+        fit_x[:, st.skeleton.joint_index(j)] - true_x[:, skel.joint_index(j)], axis=-1)
+    e = err("l_ankle")  # the thigh turns 0.7 rad from frame 2 to 3: ~0.4 m at the ankle
+    assert e[3] < 0.04 and np.all(e[4:] < 0.01), e
+    assert res.retried[3]
+    # the hidden arm (frames 4-6) follows the damped prediction: it neither wanders nor
+    # snaps back to the clicked posture, and its σ grows while it is hidden
+    sig = st.quality.theta_sigma[:, skel.dof_index("r_shoulder_x")]
+    assert sig[0] < 0.01 and np.all(np.diff(sig[4:]) > 0) and sig[6] > 0.2, sig
+    w = skel.joint_index("r_wrist")
+    back = np.linalg.norm(true_x[6, w] - true_x[0, w])
+    assert err("r_wrist")[3] < 0.01 and err("r_wrist")[6] < 0.7 * back, (err("r_wrist"), back)
+    for arr in (st.theta, st.root_xyz):
+        assert np.all(np.isfinite(arr))

@@ -14,11 +14,15 @@ prior:
 * **model points** (the penalty against bulging where there are no points): points
   sampled on the current model surface that the cameras see (z-buffered against the
   model's own rendering, :func:`core.model_render.render_parts`, in ``min_views``
-  cameras, as the data points were) must lie on the data: the residual is
-  ``e(x_s) + n·(x_s − y)`` with ``y`` the median normal offset of the nearest data
-  points — zero when the surface has moved along its normal ``n`` onto the data.  A
-  metaball growing into space where a camera sees nothing is pulled back; a region
-  no camera sees is left to the prior;
+  cameras, as the data points were) must not lie outside the data: with ``o`` the
+  median normal offset ``n·(x_s − y)`` of the nearest data points ``y``, a point with
+  ``o > gate`` gets the residual ``e(x_s) + o − gate`` — zero when the surface has
+  moved inward along its normal ``n`` to within the gate of the data.  The gate
+  (1 cm) absorbs what the point spacing explains on a curved surface (data points
+  2 cm aside lie 4 mm below the tangent plane of a 5 cm limb), which a two-sided term
+  would turn into a systematic shrinking.  A metaball growing into space where the
+  cameras see nothing is pulled back; a region no camera sees is left to the
+  symmetry and the prior;
 * **symmetry** (soft, ``σ_symmetry``): a left metaball and its right partner have the
   same radii and mirror-image centres (about the skeleton's rest-pose sagittal plane),
   and a metaball of the trunk or head is centred on that plane.  The studio's
@@ -74,6 +78,7 @@ class ShapeSettings:
     depth_tol: float = 0.02  # z-buffer tolerance of the model points
     neighbours: int = 5  # data points whose median normal offset a model point uses
     max_offset: float = 0.05  # cap of a model point's offset
+    model_gate: float = 0.01  # offsets below this are no bulge (curvature, point spacing)
     robust_scale: float = 3.0  # Cauchy knee of the data points, in σ
     rounds: int = 8
     max_nfev: int = 15
@@ -92,8 +97,8 @@ class ShapeFit:
     metaballs : the fitted metaballs (radii, and centres when free)
     rms_m : (F,) RMS distance of each frame's data points to the surface (Cauchy
         inliers, i.e. within the last round's knee), NaN for a frame left out
-    model_rms_m : (F,) RMS offset of the seen model points to the data
-    n_points : (F,) data points used; n_model : (F,) model points used
+    model_rms_m : (F,) RMS normal offset of the seen model points to the data
+    n_points : (F,) data points used; n_model : (F,) seen model points
     frame_ok : (F,) False for a frame left out (too few points)
     converged : the last round moved no unknown by more than ``round_tol``
     message : what happened, in words
@@ -193,21 +198,33 @@ def mirror_pairs(skel: Skeleton, balls: Metaballs, s: np.ndarray) -> Symmetry:
     Rw = Rb[balls.bone] @ balls.rot
     left, right, amap, centre = [], [], [], []
     names = skel.bone_names
+    o = np.einsum("mij,mj->mi", A, balls.center0)  # rest-pose offsets from the bone origin
+
+    def pair(m, mr):
+        left.append(m)
+        right.append(mr)
+        amap.append(np.argmax(np.abs(Rw[mr].T @ mirror @ Rw[m]), axis=0))
+
     for b, name in enumerate(names):
         on = np.flatnonzero(balls.bone == b)
         if name.startswith("r_"):
             continue
-        if not name.startswith("l_"):
-            centre.extend(on)
+        if name.startswith("l_"):
+            other = "r_" + name[2:]
+            if other in names:
+                for m, mr in zip(on, np.flatnonzero(balls.bone == names.index(other)),
+                                 strict=False):
+                    pair(m, mr)
             continue
-        other = "r_" + name[2:]
-        if other not in names:
-            continue
-        on_r = np.flatnonzero(balls.bone == names.index(other))
-        for m, mr in zip(on, on_r, strict=False):
-            left.append(m)
-            right.append(mr)
-            amap.append(np.argmax(np.abs(Rw[mr].T @ mirror @ Rw[m]), axis=0))
+        # a mid-line bone: a metaball off the mid-plane pairs with its mirror image on
+        # the same bone (e.g. the hip girdle's sides), one on the plane stays on it
+        for m in on:
+            d = np.linalg.norm(o[on] - mirror @ o[m], axis=1)
+            mr = on[np.argmin(d)]
+            if mr == m or abs(o[m] @ lateral) < 1e-6:
+                centre.append(m)
+            elif o[m] @ lateral > 0:
+                pair(m, mr)
     return Symmetry(np.array(left, int), np.array(right, int),
                     np.array(amap, int).reshape(-1, 3), np.array(centre, int), A, lateral)
 
@@ -270,6 +287,7 @@ class _Frame:
         self.idx = self.valid = self.w = None
         self.knee = np.inf
         self.xs = self.sidx = self.svalid = self.soff = self.sinv = None
+        self.soff_all = None
 
 
 def _cauchy(r: np.ndarray, c: float) -> np.ndarray:
@@ -297,7 +315,7 @@ class ShapeProblem:
         self.frames = [_Frame(p, x, sg) for p, x, sg in zip(poses, points, sigma, strict=True)]
         self.sym = mirror_pairs(skel, balls, s) if cfg.sigma_symmetry > 0 else None
         self.chain = chain_pairs(balls) if cfg.sigma_smooth > 0 else None
-        self.rng = np.random.default_rng(seed)
+        self.seed = int(seed)
 
     def pack(self, radii: np.ndarray, centers: np.ndarray) -> np.ndarray:
         return np.concatenate([np.ravel(radii)] + ([np.ravel(centers)] if self.n_c else []))
@@ -318,7 +336,7 @@ class ShapeProblem:
         points with their normal offsets to the data, at ``x``."""
         cfg = self.cfg
         radii, centers = self.unpack(x)
-        for fr in self.frames:
+        for k, fr in enumerate(self.frames):
             b, Rw, cw = self.geometry(fr, radii, centers)
             fr.idx, fr.valid = nearest_members(fr.xyz, Rw, cw, radii, cfg.k_members)
             att = attractor(fr.xyz, fr.idx, fr.valid, Rw, cw, radii)
@@ -326,12 +344,12 @@ class ShapeProblem:
             mad = 1.4826 * float(np.median(np.abs(dist - np.median(dist))))
             fr.knee = max(cfg.robust_scale * float(np.median(fr.sigma)), 3.0 * mad)
             fr.w = att.inv_g / fr.sigma * _cauchy(dist, fr.knee)
-            fr.xs = None
+            fr.xs = fr.soff_all = None
             if self.cameras is None:
                 continue
             xs, ok = sample_surface(self.skel, fr.pose, b, self.s,
                                     per_ball=cfg.samples_per_ball,
-                                    seed=int(self.rng.integers(2**31)))
+                                    seed=self.seed + k)  # same directions every round
             xs = xs[ok]
             seen = seen_by(self.cameras, xs, Rw, cw, radii, b.bone, cfg.depth_tol)
             xs = xs[seen >= cfg.min_views]
@@ -339,9 +357,14 @@ class ShapeProblem:
                 continue
             sidx, svalid = nearest_members(xs, Rw, cw, radii, cfg.k_members)
             satt = attractor(xs, sidx, svalid, Rw, cw, radii)
-            fr.xs, fr.sidx, fr.svalid = xs, sidx, svalid
-            fr.soff = model_offsets(xs, -satt.grad, fr.xyz, cfg.neighbours, cfg.max_offset)
-            fr.sinv = satt.inv_g
+            off = model_offsets(xs, -satt.grad, fr.xyz, cfg.neighbours, cfg.max_offset)
+            fr.soff_all = off
+            bulge = off > cfg.model_gate
+            if not bulge.any():
+                continue
+            fr.xs, fr.sidx, fr.svalid = xs[bulge], sidx[bulge], svalid[bulge]
+            fr.soff = off[bulge] - cfg.model_gate
+            fr.sinv = satt.inv_g[bulge]
 
     def _rows(self, fr, b, Rw, cw, radii, x, idx, valid, w, off=None):
         att = attractor(x, idx, valid, Rw, cw, radii)
@@ -487,9 +510,9 @@ def fit_shape(skel: Skeleton, balls: Metaballs, s: np.ndarray, theta: np.ndarray
         inl = np.abs(dist) <= fr.knee
         rms[f] = float(np.sqrt(np.mean(dist[inl] ** 2))) if inl.any() else np.nan
         n_pts[f] = len(fr.xyz)
-        if fr.xs is not None:
-            mrms[f] = float(np.sqrt(np.mean(fr.soff ** 2)))
-            n_mod[f] = len(fr.xs)
+        if fr.soff_all is not None:
+            mrms[f] = float(np.sqrt(np.mean(fr.soff_all ** 2)))
+            n_mod[f] = len(fr.soff_all)
     if not keep.all():
         msg += f"; {int((~keep).sum())} frame(s) with fewer than {cfg.min_points} points left out"
     return ShapeFit(out, rms, mrms, n_pts, n_mod, keep, converged, msg)

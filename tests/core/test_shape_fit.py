@@ -79,6 +79,20 @@ def test_symmetry_rows_vanish_for_a_mirrored_shape_and_are_linear(rng):
     np.testing.assert_allclose(r3, r + J @ dx, atol=1e-12)
 
 
+def test_mirror_pairs_of_the_complete_model_pair_the_hip_girdle_sides():
+    skel = sk.make_skeleton()
+    s = np.ones(skel.n_groups)
+    balls = mb.make_metaballs(skel, "complete", s)
+    sym = mirror_pairs(skel, balls, s)
+    assert 2 * len(sym.left) + len(sym.centre) == len(balls)
+    assert len(set(sym.left) | set(sym.right) | set(sym.centre)) == len(balls)
+    pel = skel.bone_index("pelvis")
+    side = [(a, b) for a, b in zip(sym.left, sym.right, strict=True) if balls.bone[a] == pel]
+    assert len(side) == 1 and balls.bone[side[0][1]] == pel
+    x = np.einsum("mij,mj->mi", sym.A, balls.center0) @ sym.lateral
+    assert x[side[0][0]] == pytest.approx(-x[side[0][1]]) and x[side[0][0]] > 0.01
+
+
 def test_model_offsets_measure_how_far_the_surface_lies_outside_the_data(rng):
     # a plane of data at z = 0, model points above and below it, normals +z
     data = np.column_stack([rng.uniform(-1, 1, (2000, 2)), np.zeros(2000)])

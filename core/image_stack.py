@@ -162,17 +162,15 @@ _TAP_MARGIN = len(_HALF_TAPS) // 2 - 1     # input pixels beyond a window that i
 
 @functools.lru_cache(maxsize=16)
 def _half_matrix(wr: int) -> np.ndarray:
-    """Transposed 1-D upsampling matrix (ws, 4 wr + 1) of a window of ``ws = 2 (wr + m) + 1``
-    pixels (m = ``_TAP_MARGIN``): output ``2k`` is input ``m + k``, output ``2k + 1`` the
-    cubic-spline value half-way to input ``m + k + 1``."""
+    """Half-pixel matrix (ws, 2 wr) of a window of ``ws = 2 (wr + m) + 1`` pixels
+    (m = ``_TAP_MARGIN``): a row of the window @ it gives the cubic-spline values
+    half-way between pixels ``m + k`` and ``m + k + 1``, k = 0 .. 2 wr - 1."""
     m = _TAP_MARGIN
     n = len(_HALF_TAPS) // 2
-    C = np.zeros((4 * wr + 1, 2 * (wr + m) + 1), np.float32)
-    for k in range(2 * wr + 1):
-        C[2 * k, m + k] = 1.0
-        if k < 2 * wr:
-            C[2 * k + 1, m + k - n + 1:m + k + n + 1] = _HALF_TAPS
-    return np.ascontiguousarray(C.T)
+    H = np.zeros((2 * (wr + m) + 1, 2 * wr), np.float32)
+    for k in range(2 * wr):
+        H[m + k - n + 1:m + k + n + 1, k] = _HALF_TAPS
+    return H
 
 
 def _windows(stack: ImageStack, index: np.ndarray, u0: np.ndarray, v0: np.ndarray,
@@ -204,14 +202,20 @@ def _upsample_windows(win_t: np.ndarray, wr: int) -> np.ndarray:
 
     ``win_t`` (N, ws, ws) with row = u, ``ws = 2 (wr + m) + 1``: returns (N, 4 wr + 1,
     4 wr + 1) float32 (row = v) covering the central ``2 wr + 1`` pixels, the same
-    values as :func:`upsample2` (two GEMMs with the banded half-pixel matrix).
+    values as :func:`upsample2`.  Per axis, the pixels are copied to the even samples
+    and one GEMM with the banded half-pixel matrix gives the odd ones.
     """
     n, ws, _ = win_t.shape
-    C = _half_matrix(wr)
-    size = C.shape[1]
-    x = (win_t.reshape(n * ws, ws) @ C).reshape(n, ws, size)          # (n, u, v')
-    x = np.ascontiguousarray(x.transpose(0, 2, 1)).reshape(n * size, ws)  # (n, v', u)
-    return (x @ C).reshape(n, size, size)
+    m = _TAP_MARGIN
+    H = _half_matrix(wr)                              # (ws, 2 wr): odd outputs only
+    size = 4 * wr + 1
+    x = np.empty((n, size, ws), np.float32)           # (n, v', u)
+    x[:, 0::2, :] = win_t[:, :, m:m + 2 * wr + 1].transpose(0, 2, 1)
+    x[:, 1::2, :] = (win_t.reshape(n * ws, ws) @ H).reshape(n, ws, 2 * wr).transpose(0, 2, 1)
+    out = np.empty((n, size, size), np.float32)       # (n, v', u')
+    out[:, :, 0::2] = x[:, :, m:m + 2 * wr + 1]
+    out[:, :, 1::2] = (x.reshape(n * size, ws) @ H).reshape(n, size, 2 * wr)
+    return out
 
 
 class PatchSource:

@@ -250,8 +250,8 @@ class PatchSource:
         self.f = float(f)
         m, h, w = stack.shape
         reach = np.broadcast_to(np.asarray(reach, float), (n,))
-        # Valid region: ±wr px around the rounded centre, one sample of the grid in.
-        wr = int(np.ceil(reach.max() + 1.0)) if n else 0
+        # Windows of ±wr px around the rounded centres (reach + 0.5 px of rounding).
+        wr = int(np.ceil(reach.max() + 0.51)) if n else 0
         size = 2 * f * wr + 1                           # samples per window side
         cached = stack._up if upsample else stack._mosaic
         if n == 0 or cached is not None or n * size * size >= (
@@ -277,8 +277,8 @@ class PatchSource:
         self.bu = -f * (c[:, 0] - wr).astype(np.float64)
         self.bv = ((k % self.rows_per_chunk) * size - f * (c[:, 1] - wr)).astype(np.float64)
         self.size = size
-        self.lo = (c - wr + 0.5).astype(np.float64)
-        self.hi = (c + wr - 0.5).astype(np.float64)
+        self.lo = (c - wr + 0.01).astype(np.float64)
+        self.hi = (c + wr - 0.01).astype(np.float64)
 
     def sample(self, pu: np.ndarray, pv: np.ndarray, rows: np.ndarray | None = None):
         """Values at positions ``pu``, ``pv`` (n_a, P) float32 of patches ``rows``.
@@ -302,6 +302,34 @@ class PatchSource:
         r0 = ch * self.rows_per_chunk * self.size
         img = self.up[r0:r0 + self.rows_per_chunk * self.size]
         return cv2.remap(img, pu, pv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+
+def resampling_noise_factor(u: np.ndarray, v: np.ndarray, upsample: bool = True) -> np.ndarray:
+    """Variance of white pixel noise after :class:`PatchSource` resampling at ``(u, v)``,
+    per unit of the pixel noise variance (1 at pixel centres, less in between).
+
+    The sample is a weighted sum of the original pixels, separable in u and v: with
+    ``upsample``, bilinear between the 2× samples (pixels at even, cubic-spline
+    half-pixel values at odd positions), else bilinear between the pixels; the factor
+    is the sum of the squared weights.  Same shapes as ``u``, ``v``; float32.
+    """
+    n = len(_HALF_TAPS) // 2
+    rho_h = float(np.sum(_HALF_TAPS.astype(np.float64) ** 2))   # half-pixel value
+    c = float(_HALF_TAPS[n - 1])                                 # its weight on a neighbour
+
+    def axis(p):
+        q = np.asarray(p, np.float32) * (2.0 if upsample else 1.0)
+        k = np.floor(q)
+        t = q - k
+        s = 1.0 - t
+        if not upsample:
+            return s * s + t * t
+        even = np.remainder(k, 2.0) == 0
+        v0 = np.where(even, 1.0, rho_h).astype(np.float32)
+        v1 = np.where(even, rho_h, 1.0).astype(np.float32)
+        return s * s * v0 + t * t * v1 + 2.0 * c * s * t
+
+    return axis(u) * axis(v)
 
 
 def remap_bilinear(img: np.ndarray, mu: np.ndarray, mv: np.ndarray) -> np.ndarray:

@@ -51,7 +51,7 @@ import numpy as np
 from .batched_linalg import line_update, spd_inverse
 from .blas_threads import single_blas_thread
 from .camera import Camera
-from .image_stack import ImageStack, PatchSource, upsample2
+from .image_stack import ImageStack, PatchSource, resampling_noise_factor, upsample2
 
 __all__ = ["ImageStack", "LSMResult", "Status", "epipolar_lines", "match", "template_patches",
            "upsample2"]
@@ -257,6 +257,33 @@ def _normal_matrix(T: np.ndarray, gx: np.ndarray, gy: np.ndarray, xs: np.ndarray
     N[:, 7, 7] = M[8, :, 0]
     return N
 
+def _normal_matrix_from_design(gx: np.ndarray, gy: np.ndarray, T: np.ndarray, Jw: np.ndarray,
+                               xs: np.ndarray, ys: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """``N = JᵀWJ`` (n, 8, 8) as :func:`_normal_matrix`, reusing the weighted design
+    rows ``Jw`` (n, 8, P): the columns of the offset and gain are ``Jw 1`` and ``Jw T``,
+    and only the 6 × 6 geometric block needs moments of ``∇T ∇Tᵀ`` (one GEMM)."""
+    n, npx = T.shape
+    basis = np.stack([np.ones_like(xs), xs, ys, xs * xs, xs * ys, ys * ys], axis=1)  # (P, 6)
+    basis = (basis * w[:, None]).astype(np.float32)
+    Q = np.empty((3, n, npx), np.float32)
+    np.multiply(gx, gx, out=Q[0])
+    np.multiply(gx, gy, out=Q[1])
+    np.multiply(gy, gy, out=Q[2])
+    M = (Q.reshape(3 * n, npx) @ basis).reshape(3, n, 6).astype(np.float64)
+    N = np.empty((n, 8, 8))
+    for i in range(3):
+        for j in range(3):
+            k = _MOM[i, j]
+            N[:, i, j] = M[0, :, k]
+            N[:, i, 3 + j] = N[:, 3 + j, i] = M[1, :, k]
+            N[:, 3 + i, 3 + j] = M[2, :, k]
+    c6 = Jw.sum(axis=2, dtype=np.float64)                       # Σ w J_i
+    c7 = (Jw @ T[:, :, None])[:, :, 0].astype(np.float64)       # Σ w J_i T
+    N[:, :, 6] = N[:, 6, :] = c6
+    N[:, :, 7] = N[:, 7, :] = c7
+    return N
+
+
 
 @single_blas_thread()
 def match(template_images, search_images, uv_template, uv_search, *, half: int = 6,
@@ -361,7 +388,7 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
         np.multiply(g, m * wpx, out=Jw[:, r])
     Jw[:, 6] = wpx
     np.multiply(T, wpx, out=Jw[:, 7])
-    N = _normal_matrix(T, gx, gy, xs, ys, wpx)
+    N = _normal_matrix_from_design(gx, gy, T, Jw, xs, ys, wpx)
     N2 = N if weight_sigma is None else _normal_matrix(T, gx, gy, xs, ys, wpx * wpx)
     sw = float(wpx.sum())
     # Texture: smaller eigenvalue of the (weighted) structure tensor, mean of ∇T ∇Tᵀ.
@@ -534,7 +561,16 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
         Nd = Nd @ M2 @ Nd
     ct = Nd[:, [0, 3]][:, :, [0, 3]]
     Ad = A[done]
-    cov[done] = (sigma0[done] ** 2)[:, None, None] * (Ad @ ct @ Ad.transpose(0, 2, 1))
+    # σ0 measures the noise of T plus that of the resampled S, which resampling has
+    # reduced (averaged neighbours) without reducing its effect on the match.  With
+    # equal noise in both images, the noise that enters the shifts is σ0² κ with
+    # κ = (1 + r1²) / (1 + r1² ρ), ρ the mean variance factor of the resampling over
+    # the patch at the match (:func:`resampling_noise_factor`).
+    pos = uv[done, :, None] + Ad @ basis[1:].astype(np.float64)    # (n_d, 2, P)
+    rho = resampling_noise_factor(pos[:, 0], pos[:, 1], upsample).mean(axis=1)
+    g2 = gain[done] ** 2
+    kappa = (1.0 + g2) / (1.0 + g2 * rho)
+    cov[done] = (kappa * sigma0[done] ** 2)[:, None, None] * (Ad @ ct @ Ad.transpose(0, 2, 1))
     sig = np.sqrt(np.abs(np.diagonal(cov, axis1=1, axis2=2)))
     big = (status == Status.OK) & ~(np.all(sig <= max_sigma_px, axis=1))
     status[big] = Status.LARGE_SIGMA

@@ -36,9 +36,13 @@ cam02 are 50° apart) gives the texture-only fit its points, with cam03 held out
      (:func:`core.contour_track.track_contours`) with per-part camera selection by the
      visibility index (:data:`CONTOUR_CFG`); ``--compare-selection`` adds the
      motion-ranked selection and all cameras fused;
-   * **texture + contours** — every frame of the texture fit refined with its contours
-     (:func:`core.contour_track.refine_state_with_contours`, same selection); frames
-     the texture fit marked diverged start from the contour track's pose.
+   * **texture + contours** — the contour EKF with each frame's point-fit pose as a
+     direct measurement of ``[θ, root]`` before the contour update
+     (:func:`core.fused_track.track_fused`: σ from the point fit's normal matrix,
+     floored; gated; diverged frames contribute nothing);
+   * **texture, refined** — every frame of the texture fit refined with its own
+     contours (:func:`core.contour_track.refine_state_with_contours`, same selection);
+     frames the texture fit marked diverged start from the contour track's pose.
 
 4. **Check**: each fitted body rendered into the held-out camera
    (:func:`core.silhouette_check.body_masks`) against the person's mask there: IoU per
@@ -376,8 +380,11 @@ def run_config(names: list[str], check: str, allc: dict, clicks: dict, video: di
     from core.contour_track import fit_shape_to_contours, track_contours
     from core.fit import SequenceSettings, fit_sequence
     from core.fit_init import initialise
+    from core.fused_track import track_fused
+    from core.landmarks import METRIC_JOINTS
     from core.model_render import camera_rays
     from core.silhouette_check import body_masks, mask_iou, shift_iou
+    from core.skeleton import joint_positions
 
     tag = f"{''.join(n[-1] for n in names)}_{check}"
     out = a.out / tag
@@ -455,15 +462,28 @@ def run_config(names: list[str], check: str, allc: dict, clicks: dict, video: di
                   f"EKF matches per frame median {int(np.median([t.n_matches for t in tracks]))}"
                   f", residual RMS median {np.nanmedian([t.rms_px for t in tracks]):.2f} px")
 
-    # texture + contours
+    # texture + contours: the point-fit poses as measurements in the contour EKF ...
+    t0 = time.perf_counter()
+    q_pts = np.hstack([st_tex.theta, st_tex.root_xyz])
+    q_pts[div_tex] = np.nan
+    q_sig = np.hstack([st_tex.quality.theta_sigma, np.full((nf, 3), 0.01)])
+    tr_f, n_used = track_fused(init.skeleton, init.s, balls_c, th0, rt0, cams_q, contours,
+                               q_pts, q_sig, CONTOUR_CFG)
+    t_ekf = (time.perf_counter() - t0) / nf + t_tex
+    results["texture + contours"] = (
+        init.s, balls_c, np.array([t.theta for t in tr_f]), np.array([t.root for t in tr_f]),
+        t_ekf, f"point-fit pose used in {int(np.sum(n_used > 0))} frames, "
+               f"{np.mean(n_used[n_used > 0]) if n_used.any() else 0:.0f} of "
+               f"{q_pts.shape[1]} components")
+    # ... and each point-fit frame refined with its contours (diverged: contour pose)
     t0 = time.perf_counter()
     cfg = replace(CONTOUR_CFG, iterations=10, sigma_px=1.5, huber_px=3.0)
     st_fu, _ = fused_fit(st_tex, th_c, rt_c, cams_q, contours, cfg)
     t_fu = (time.perf_counter() - t0) / nf + t_tex
     n_ref = int(np.sum(np.isfinite(st_fu.contour_rms_px)))
-    results["texture + contours"] = (st_fu.s, st_fu.metaballs, st_fu.theta, st_fu.root_xyz,
-                                     t_fu, f"{n_ref} of {nf} refined; "
-                                     f"{int(div_tex.sum())} from the contour track")
+    results["texture, refined"] = (st_fu.s, st_fu.metaballs, st_fu.theta, st_fu.root_xyz,
+                                   t_fu, f"{n_ref} of {nf} refined; "
+                                   f"{int(div_tex.sum())} from the contour track")
 
     # check in the held-out camera
     rays_chk = camera_rays(cam_chk)
@@ -479,29 +499,38 @@ def run_config(names: list[str], check: str, allc: dict, clicks: dict, video: di
     print(f"held-out {check} ({w}x{h} px), {nf} frames; the clicked pose at frame 0: IoU "
           f"{float(mask_iou(init_body[0], person[0])):.3f}")
     print(f"{'fit':20s} {'IoU mean':>8s} {'median':>6s} {'p10':>6s}  {'frame 0':>7s} "
-          f"{'last':>6s}  {'shifted mean':>12s} {'(du, dv) px':>11s}  {'s/frame':>7s}  notes")
-    for label, (_, _, _, _, spf, flags) in results.items():
+          f"{'last':>6s}  {'shifted mean':>12s} {'(du, dv) px':>11s}  {'jerk mm':>7s} "
+          f"{'s/frame':>7s}  notes")
+    idx = [init.skeleton.joint_index(j) for j in METRIC_JOINTS]
+    for label, (s_, _, th, rt, spf, flags) in results.items():
         i = ious[label]
         sh, si = shifted[label]
+        xj = joint_positions(init.skeleton, th, rt, s_)[:, idx]
+        acc = 1000 * np.median(np.linalg.norm(np.diff(xj, 2, axis=0), axis=2))
         print(f"{label:20s} {_stats(i)}  {i[0]:7.3f} {i[-1]:6.3f}  {np.nanmean(si):12.3f} "
-              f"{str(tuple(int(x) for x in sh)):>11s}  {spf:7.2f}  {flags}")
+              f"{str(tuple(int(x) for x in sh)):>11s}  {acc:7.1f} {spf:7.2f}  {flags}")
+    print("(shifted: IoU after one image shift fitted over all frames, quarter-resolution px; "
+          "jerk: median |second difference| of the 14 metric joints per frame, mm)")
     steps = list(range(0, nf, max(1, nf // 10)))
     print("IoU per frame       " + " ".join(f"{f:5d}" for f in steps))
     for label in results:
         print(f"  {label:18s}" + " ".join(f"{ious[label][f]:5.2f}" for f in steps))
-    win = ious["texture + contours"] - ious["texture only"]
-    print(f"texture + contours vs texture only: better in {int(np.sum(win > 0))} of {nf} "
-          f"frames, mean difference {np.nanmean(win):+.3f}")
-    print(f"speed: texture fit {t_tex:.2f} s/frame ({int(np.median(npts))} points/frame, "
-          f"tracking {info['tracking_s'] / nf:.2f} s/frame at {cams_t[0].size[0]}x"
-          f"{cams_t[0].size[1]}); contour EKF {t_con:.2f} s/frame and refinement "
-          f"{t_fu - t_tex:.2f} s/frame ({int(np.median(n_con))} contour points, 3 cameras at "
-          f"{w}x{h}); check render {1000 * t_chk:.0f} ms/frame")
+    for label in results:
+        if label != "texture only":
+            win = ious[label] - ious["texture only"]
+            print(f"{label} vs texture only: better in {int(np.sum(win > 0))} of {nf} frames, "
+                  f"mean difference {np.nanmean(win):+.3f}")
+    print(f"speed: texture fit {t_tex:.2f} s/frame ({int(np.median(npts))} points/frame; "
+          f"LSM tracking {info['tracking_s'] / nf:.2f} s/frame at {cams_t[0].size[0]}x"
+          f"{cams_t[0].size[1]}); contour EKF {t_con:.2f} s/frame, with the point-fit poses "
+          f"{t_ekf - t_tex:.2f} s/frame, refinement {t_fu - t_tex:.2f} s/frame "
+          f"({int(np.median(n_con))} contour points, 3 cameras at {w}x{h}); check render "
+          f"{1000 * t_chk:.0f} ms/frame")
 
     picks = [f for f in (int(x) for x in a.overlay_frames.split(",")) if 0 <= f < nf]
     colours = {"texture only": (60, 120, 255), "contours only": (255, 160, 0),
-               "texture + contours": (255, 0, 0), "contours, motion-ranked": (200, 0, 200),
-               "contours, all fused": (0, 200, 200)}
+               "texture + contours": (255, 0, 0), "texture, refined": (200, 0, 200),
+               "contours, motion-ranked": (0, 200, 200), "contours, all fused": (255, 255, 0)}
     for f in picks:
         draw_check(video[check][1][f], person[f],
                    {f"{k} IoU {ious[k][f]:.2f}": (bodies[k][f], colours[k]) for k in results},

@@ -179,13 +179,16 @@ def _windows(stack: ImageStack, index: np.ndarray, u0: np.ndarray, v0: np.ndarra
     (row = v, or row = u when ``transposed``); pixels outside the image repeat its border."""
     _, h, w = stack.shape
     n = len(index)
-    out = np.empty((n, ws, ws), np.float32)
     inside = (u0 >= 0) & (v0 >= 0) & (u0 + ws <= w) & (v0 + ws <= h)
-    k = np.flatnonzero(inside)
-    if k.size:
+    if inside.any():
         view = np.lib.stride_tricks.sliding_window_view(stack.images, (ws, ws), axis=(1, 2))
         if transposed:
             view = view.swapaxes(3, 4)
+    if inside.all():
+        return view[index, v0, u0].astype(np.float32)
+    out = np.empty((n, ws, ws), np.float32)
+    k = np.flatnonzero(inside)
+    if k.size:
         out[k] = view[index[k], v0[k], u0[k]]
     k = np.flatnonzero(~inside)
     if k.size:
@@ -318,16 +321,14 @@ def resampling_noise_factor(u: np.ndarray, v: np.ndarray, upsample: bool = True)
     c = float(_HALF_TAPS[n - 1])                                 # its weight on a neighbour
 
     def axis(p):
-        q = np.asarray(p, np.float32) * (2.0 if upsample else 1.0)
+        q = np.asarray(p, np.float32) * np.float32(2.0 if upsample else 1.0)
         k = np.floor(q)
         t = q - k
         s = 1.0 - t
         if not upsample:
             return s * s + t * t
-        even = np.remainder(k, 2.0) == 0
-        v0 = np.where(even, 1.0, rho_h).astype(np.float32)
-        v1 = np.where(even, rho_h, 1.0).astype(np.float32)
-        return s * s * v0 + t * t * v1 + 2.0 * c * s * t
+        odd = (k.astype(np.int64) & 1).astype(np.float32) * np.float32(rho_h - 1.0)
+        return s * s * (1.0 + odd) + t * t * (rho_h - odd) + np.float32(2.0 * c) * s * t
 
     return axis(u) * axis(v)
 

@@ -277,7 +277,7 @@ def _normal_matrix_from_design(gx: np.ndarray, gy: np.ndarray, T: np.ndarray, Jw
             N[:, i, j] = M[0, :, k]
             N[:, i, 3 + j] = N[:, 3 + j, i] = M[1, :, k]
             N[:, 3 + i, 3 + j] = M[2, :, k]
-    c6 = Jw.sum(axis=2, dtype=np.float64)                       # Σ w J_i
+    c6 = Jw.sum(axis=2).astype(np.float64)                      # Σ w J_i
     c7 = (Jw @ T[:, :, None])[:, :, 0].astype(np.float64)       # Σ w J_i T
     N[:, :, 6] = N[:, 6, :] = c6
     N[:, :, 7] = N[:, 7, :] = c7
@@ -384,8 +384,9 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
         wpx = np.exp(-(xs * xs + ys * ys) / (2.0 * weight_sigma ** 2)).astype(np.float32)
     # Weighted design rows per patch (n, 8, P) float32: b = Jᵀ W e is one batched GEMV.
     Jw = np.empty((n, 8, npx), np.float32)
-    for r, (g, m) in enumerate([(gx, 1), (gx, xs), (gx, ys), (gy, 1), (gy, xs), (gy, ys)]):
-        np.multiply(g, m * wpx, out=Jw[:, r])
+    bw = basis * wpx                                            # (3, P)
+    np.multiply(gx[:, None, :], bw, out=Jw[:, 0:3])
+    np.multiply(gy[:, None, :], bw, out=Jw[:, 3:6])
     Jw[:, 6] = wpx
     np.multiply(T, wpx, out=Jw[:, 7])
     N = _normal_matrix_from_design(gx, gy, T, Jw, xs, ys, wpx)
@@ -403,7 +404,7 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
     # ``Ncur`` holds the inverse in use per patch.
     sub = [0, 3, 6, 7]
     Ncur = np.zeros_like(Ninv)
-    Ncur[:, np.ix_(sub, sub)[0], np.ix_(sub, sub)[1]] = spd_inverse(N[:, sub][:, :, sub])[0]
+    Ncur[:, np.ix_(sub, sub)[0], np.ix_(sub, sub)[1]] = _inverse4(N[:, sub][:, :, sub], pd)
     shift_only = np.ones(n, bool)
     # Redundancy: tr W - tr(N⁻¹ JᵀW²J) (= n - u for uniform weights).
     if weight_sigma is None:
@@ -566,7 +567,8 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
     # equal noise in both images, the noise that enters the shifts is σ0² κ with
     # κ = (1 + r1²) / (1 + r1² ρ), ρ the mean variance factor of the resampling over
     # the patch at the match (:func:`resampling_noise_factor`).
-    pos = uv[done, :, None] + Ad @ basis[1:].astype(np.float64)    # (n_d, 2, P)
+    sub_grid = np.stack(np.meshgrid(*2 * [np.linspace(-half, half, 5)]), 0).reshape(2, -1)
+    pos = uv[done, :, None] + Ad @ sub_grid                  # (n_d, 2, 25): a 5 × 5 subgrid
     rho = resampling_noise_factor(pos[:, 0], pos[:, 1], upsample).mean(axis=1)
     g2 = gain[done] ** 2
     kappa = (1.0 + g2) / (1.0 + g2 * rho)
@@ -576,6 +578,16 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
     status[big] = Status.LARGE_SIGMA
     return LSMResult(uv=uv, affine=A, gain=gain, offset=offset, sigma0=sigma0, cov_uv=cov,
                      iterations=iters, status=status, texture=texture)
+
+
+def _inverse4(N: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """Inverses of the (n, k, k) sub-blocks of positive definite normal matrices (``ok``);
+    identity where not ``ok``."""
+    M = np.where(ok[:, None, None], N, np.eye(N.shape[1]))
+    try:
+        return np.linalg.inv(M)
+    except np.linalg.LinAlgError:
+        return spd_inverse(M)[0]
 
 
 def _mean_sd(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -74,9 +74,13 @@ def make_pairs(n: int, seed: int = 0, size: int = 41, max_shift: float = 1.5,
     yy, xx = np.meshgrid(r, r, indexing="ij")
 
     def texture(x, y):                         # x, y: (n, S, S) offsets
-        arg = (kx[:, :, None, None] * x[:, None] + ky[:, :, None, None] * y[:, None]
-               + ph[:, :, None, None])
-        return mean + np.einsum("nw,nwij->nij", amp, np.cos(arg))
+        out = np.empty(x.shape)
+        for i in range(0, n, 64):              # in chunks: (64, waves, S, S) at a time
+            k = slice(i, i + 64)
+            arg = (kx[k, :, None, None] * x[k, None] + ky[k, :, None, None] * y[k, None]
+                   + ph[k, :, None, None])
+            out[k] = mean + np.einsum("nw,nwij->nij", amp[k], np.cos(arg))
+        return out
 
     x0 = np.broadcast_to(xx - c, (n, size, size))
     y0 = np.broadcast_to(yy - c, (n, size, size))

@@ -20,14 +20,27 @@ clicked frame's initial posture (:mod:`core.fit_init`):
    with a prior on the angles — the prediction, its σ capped for stiff DOFs
    (:data:`core.skeleton.STIFF_SIGMA`), fused with a prior towards the clicked
    posture for DOFs a person hardly moves (:data:`core.skeleton.ANCHOR_SIGMA`); a part
-   with fewer than ``min_part_points`` points is *hidden*: its DOFs are held at the
-   previous frame's angles and drift back to the clicked posture.  The points are
-   segmented again at the refined pose and the pose refined once more;
-3. **quality** — per frame the RMS point-to-surface distance of the inlier points
-   (metres), σ of every joint angle (normal matrix), converged and diverged flags.
-   A frame with fewer than ``min_points`` assigned points, a non-finite solution, an
-   RMS above ``max_rmse_m`` or too few inliers is *diverged*: its pose is the
-   prediction (finite), flagged, and not fed to the filter.
+   with fewer than ``min_part_points`` points near it is *hidden*: its DOFs are held
+   at the previous frame's angles (``hold_hidden``, the default; else they follow the
+   filter's damped prediction), drift back to the clicked posture, and reach the
+   filter only as a weak measurement (σ ``sigma_hidden_meas``), so that their
+   reported σ grows while they are hidden.
+   The points are segmented again at the refined pose and the pose refined once more;
+3. **recovery** (:mod:`core.fit_search`) — the robust *explain cost* (truncated
+   distances of all points to the whole body, no segmentation) judges poses.  After
+   an accepted fit, the limb grid search tries to place each limb where it explains
+   more points (a limb lost while hidden, or one faster than the prediction); if a
+   limb moves, the frame is refitted from there and the lower-cost fit kept.  A fit
+   that fails, or leaves more than ``retry_unexplained`` of the points far from the
+   body, is retried *annealed* (wide segmentation and a soft robust knee first,
+   narrowing; limb search after the first stage) from the better of the prediction
+   and the previous frame (zero velocity);
+4. **quality** — per frame the RMS point-to-surface distance of the inlier points
+   (metres), σ of every joint angle (normal matrix; hidden parts: the filter's),
+   converged and diverged flags.  A frame with fewer than ``min_points`` assigned
+   points, a non-finite solution, an RMS above ``max_rmse_m``, too few inliers or
+   more than ``max_unexplained`` of its points far from the body is *diverged*: its
+   pose is the prediction (finite), flagged, and not fed to the filter.
 
 Frames before the clicked frame are processed backwards from it the same way.
 :func:`fit_scene` runs what a scene needs (calibration from the wand when
@@ -98,8 +111,9 @@ class SequenceSettings:
     min_part_points: int = 8  # a part with fewer points is hidden: ...
     sigma_hidden: float = 0.05  # ... its DOFs follow the prior with this σ (rad), ...
     sigma_hidden_anchor: float = 0.15  # ... and drift back to the clicked posture; ...
-    hold_hidden: bool = False  # ... held at the previous frame's angles (else following
-    #                            the damped prediction, not fed back to the filter)
+    hold_hidden: bool = True  # ... held at the previous frame's angles (else following
+    #                           the damped prediction); fed back to the filter only
+    sigma_hidden_meas: float = 0.3  # ... as a measurement of this σ (rad): its σ grows
     sigma_click: float = 0.003  # σ of a forward-intersected click, metres
     segment_max_dist: float = 0.04
     segment_margin: float = 0.015  # ambiguous points between non-adjacent parts dropped
@@ -477,7 +491,7 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
             if ok:
                 sig = np.concatenate([q_sig[f], np.full(3, 0.005)])
                 sig = np.where(np.isfinite(sig), sig, 0.05)
-                sig[:n][hid[f]] = np.inf  # a hidden part's angles are no measurement
+                sig[:n][hid[f]] = cfg.sigma_hidden_meas  # a hidden part's angles: weak
                 q_sig[f] = np.where(hid[f], pred.accept(q, sig), q_sig[f])
                 store(f, q, True)
             else:

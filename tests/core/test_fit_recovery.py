@@ -41,7 +41,10 @@ def test_a_kick_is_refound_and_a_hidden_arm_coasts_with_growing_sigma(rng):
     cams = cameras()
     init = initialise(clicks_of(skel, theta[0], root[0], s, cams, CLICK_JOINTS), cams,
                       model="simplified")
-    cfg = SequenceSettings(max_nfev=15, max_nfev_shape=15, fit=FitSettings(members="part"))
+    # hidden parts coast on the damped prediction here (the default holds them at the
+    # previous frame's angles, which suits the swinging arms of a walk better)
+    cfg = SequenceSettings(max_nfev=15, max_nfev_shape=15, fit=FitSettings(members="part"),
+                           hold_hidden=False)
     res = fit_sequence(frames, init, cfg)
     st = res.state
     assert not st.quality.diverged.any(), res.messages
@@ -55,7 +58,7 @@ def test_a_kick_is_refound_and_a_hidden_arm_coasts_with_growing_sigma(rng):
     # the hidden arm (frames 4-6) follows the damped prediction: it neither wanders nor
     # snaps back to the clicked posture, and its σ grows while it is hidden
     sig = st.quality.theta_sigma[:, skel.dof_index("r_shoulder_x")]
-    assert sig[0] < 0.01 and np.all(np.diff(sig[4:]) > 0) and sig[6] > 0.2, sig
+    assert sig[0] < 0.01 and np.all(np.diff(sig[4:]) > 0) and sig[6] > 0.1, sig
     w = skel.joint_index("r_wrist")
     back = np.linalg.norm(true_x[6, w] - true_x[0, w])
     assert err("r_wrist")[3] < 0.01 and err("r_wrist")[6] < 0.7 * back, (err("r_wrist"), back)

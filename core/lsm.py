@@ -14,24 +14,33 @@ The 8 parameters are estimated by Gauss–Newton in the inverse compositional fo
 (Baker & Matthews 2004): the update is computed on the template side, so the design
 matrix ``[∇T·∂W/∂p, 1, T]`` (template gradients, offset, gain) and its normal matrix
 ``N`` are computed and inverted once per patch; every iteration then only resamples
-the search patch, forms ``Aᵀe`` and multiplies by ``N⁻¹``.  The warp is composed
-with the inverse update (``W ← W ∘ ΔW⁻¹``) and the radiometry with its inverse.  The
-fixed point is the same as that of the forward-additive Gauss–Newton up to terms of
-the order of the noise in the template gradients.
+the search patch, forms ``Jᵀe`` (one batched GEMV) and multiplies by ``N⁻¹``.  The
+warp is composed with the inverse update (``W ← W ∘ ΔW⁻¹``) and the radiometry with
+its inverse.  The fixed point is the same as that of the forward-additive
+Gauss–Newton up to terms of the order of the noise in the template gradients.  The
+template gradients are the slopes of the cubic spline through the template (not
+central differences, which damp fine texture by up to a third and make the steps
+overshoot): from 1 px off, most patches converge in 3 iterations (shift and
+radiometry only, then all 8 parameters, then the check).
 
-Resampling: the search images are upsampled 2× once per call by cubic B-spline
-interpolation (a symmetric 12-tap half-pixel filter, so no phase error), and the
-iterations sample that image bilinearly (``cv2.remap``, whose 1/32 px rounding is
-corrected to first order).  This keeps the precision of cubic-spline resampling at
-the cost of bilinear sampling; ``upsample=False`` samples the original image
-bilinearly (faster, ~30 % larger errors on fine texture).  When the patches cover
-only a small part of the images, only windows around the start positions are
-upsampled.
+Resampling: windows of the search images around the start positions are upsampled
+2× by cubic B-spline interpolation (a symmetric 12-tap half-pixel filter, so no
+phase error; two GEMMs per window stack), and the iterations sample them bilinearly
+(``cv2.remap``).  The warp is snapped to cv2.remap's 1/32 px grid before sampling
+(so every sample is exact) and the update starts from the snapped warp.  This keeps
+the precision of cubic-spline resampling at the cost of bilinear sampling;
+``upsample=False`` samples the original image bilinearly (~25 % larger errors on
+fine texture).  When the windows would be larger than the images (or the stack's
+upsampled mosaic is cached), the whole upsampled mosaic is sampled instead.
 
 All patches are handled as arrays: there is no Python loop over patches.  Iteration
-stops per patch when the shift correction falls below ``tol_px`` (0.01 px by
-default).  Precision from the normal matrix: ``σ0² = vᵀv / (n - u)``,
-``Σ = σ0² N⁻¹``, mapped to the search image through the affine part.
+stops per patch when the matched point moves less than ``tol_px`` (0.01 px by
+default) in both coordinates.  Precision from the normal matrix: ``σ0² = vᵀv / (n - u)``,
+``Σ = κ σ0² N⁻¹``, mapped to the search image through the affine part; ``κ`` puts
+back the noise of the search patch that its resampling averaged out of the residuals
+(see :func:`core.image_stack.resampling_noise_factor`; equal noise in both images
+assumed).  OpenBLAS runs on one thread inside :func:`match` (:mod:`core.blas_threads`):
+the many skinny GEMMs gain nothing from threads and lose a lot to their spinning.
 
 Optional geometric constraint (multi-photo geometrically constrained matching):
 the matched point must lie on a given line ``n · uv = d`` in the search image (the
@@ -85,7 +94,7 @@ class LSMResult:
     sigma0 : ndarray, shape (N,)
         Standard deviation of unit weight: RMS grey-level residual, grey levels.
     cov_uv : ndarray, shape (N, 2, 2)
-        Covariance of ``uv``, px².
+        Covariance of ``uv``, px² (``κ σ0² N⁻¹`` mapped by the affine part, see above).
     iterations : ndarray, shape (N,), int
     status : ndarray, shape (N,), int
         :class:`Status` codes; 0 = accepted.
@@ -128,7 +137,7 @@ def template_patches(images, uv: np.ndarray, half: int = 6, index=None,
     """Patches around ``uv`` (N, 2), with their gradients.
 
     Integer centres are read directly; sub-pixel centres are resampled like the
-    search patches of :func:`match`.  Gradients are central differences.
+    search patches of :func:`match`.  Gradients are the cubic-spline slopes.
 
     Returns
     -------
@@ -311,7 +320,7 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
     upsample : bool
         Resample the 2× cubic-spline upsampled images (default) or the originals.
     tol_px : float
-        Convergence: both shift corrections below this, pixels.
+        Convergence: the matched point moved less than this in u and v, pixels.
     max_iter : int
     max_shift_px : float
         Reject when the match drifts farther than this from ``uv_search``, pixels.

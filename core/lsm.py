@@ -286,10 +286,9 @@ def _normal_matrix_from_design(gx: np.ndarray, gy: np.ndarray, T: np.ndarray, Jw
             N[:, i, j] = M[0, :, k]
             N[:, i, 3 + j] = N[:, 3 + j, i] = M[1, :, k]
             N[:, 3 + i, 3 + j] = M[2, :, k]
-    c6 = Jw.sum(axis=2).astype(np.float64)                      # Σ w J_i
-    c7 = (Jw @ T[:, :, None])[:, :, 0].astype(np.float64)       # Σ w J_i T
-    N[:, :, 6] = N[:, 6, :] = c6
-    N[:, :, 7] = N[:, 7, :] = c7
+    c67 = (Jw @ np.stack([np.ones_like(T), T], axis=2)).astype(np.float64)  # Σ w J_i (1, T)
+    N[:, :, 6] = N[:, 6, :] = c67[:, :, 0]
+    N[:, :, 7] = N[:, 7, :] = c67[:, :, 1]
     return N
 
 
@@ -465,15 +464,15 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
             # is snapped to that grid (offset and slopes multiples of 1/32, so that
             # every sample position is exact in float32 and for cv2), and the update
             # below starts from the snapped warp actually sampled.
-            Mu = np.stack([bu[a] + f * uv[a, 0], f * Aa[:, 0, 0], f * Aa[:, 0, 1]], axis=1)
-            Mv = np.stack([bv[a] + f * uv[a, 1], f * Aa[:, 1, 0], f * Aa[:, 1, 1]], axis=1)
-            Mu = np.rint(Mu * 32.0) * (1 / 32.0)
-            Mv = np.rint(Mv * 32.0) * (1 / 32.0)
-            uv_s = np.stack([Mu[:, 0] - bu[a], Mv[:, 0] - bv[a]], axis=1) / f
-            A_s = np.stack([Mu[:, 1:], Mv[:, 1:]], axis=1) / f
-            pu = Mu.astype(np.float32) @ basis
-            pv = Mv.astype(np.float32) @ basis
-            S = src.sample(pu, pv, wrow[act])
+            base = np.stack([bu[a], bv[a]])                         # (2, n_a)
+            M = np.empty((2, na, 3))                                # [u; v] x (1, x, y)
+            M[:, :, 0] = base + f * uv[a].T
+            M[:, :, 1:] = f * Aa.transpose(1, 0, 2)
+            M = np.rint(M * 32.0) * (1 / 32.0)
+            uv_s = ((M[:, :, 0] - base) / f).T
+            A_s = M[:, :, 1:].transpose(1, 0, 2) / f
+            puv = M.reshape(2 * na, 3).astype(np.float32) @ basis   # (2 n_a, P)
+            S = src.sample(puv[:na], puv[na:], wrow[act])
             new = fresh[a]
             if new.any():
                 # Radiometric start: match the mean and spread of the grey levels.

@@ -43,13 +43,18 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def seen_vertices(vertices: np.ndarray, faces: np.ndarray, cameras, min_views: int = 2):
-    """(V,) bool: vertices of the mesh that ``min_views`` cameras see (the mesh's own
-    z-buffer, as :mod:`core.truth_points` judges the points it makes)."""
-    from core.truth_points import _visible
+    """(V,) bool: vertices of the mesh that ``min_views`` cameras see, judged as
+    :mod:`core.truth_points` judges the points it makes (depth map, viewing angle)."""
+    from core.truth_points import depth_map, visible
 
     v = np.asarray(vertices, float)
-    occ = np.concatenate([v, v[np.asarray(faces, int)].mean(axis=1)])
-    views = sum(_visible(cam, v, occ, 3.0, 0.015).astype(int) for cam in cameras)
+    tri = v[np.asarray(faces, int)]
+    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    vn = np.zeros_like(v)
+    for k in range(3):
+        np.add.at(vn, np.asarray(faces, int)[:, k], fn)
+    vn /= np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-300)
+    views = sum(visible(cam, v, vn, depth_map(cam, tri)).astype(int) for cam in cameras)
     return views >= min_views
 
 
@@ -163,7 +168,7 @@ def main(argv=None) -> int:
     ap.add_argument("--scene", type=Path, default=REPO / "sample_scenes" / "walk_line3")
     ap.add_argument("--fit-frames", default="0,17,34", help="frames whose points fit the shape")
     ap.add_argument("--eval-frames", default="0,25,45")
-    ap.add_argument("--points", type=int, default=4000, help="candidate points per frame")
+    ap.add_argument("--points", type=int, default=10000, help="candidate points per frame")
     ap.add_argument("--models", default="simplified,complete")
     ap.add_argument("--no-visibility", action="store_true")
     ap.add_argument("--vis-step", type=int, default=5, help="every n-th frame for the VI")

@@ -18,7 +18,14 @@ Part labels of the true mesh (``labels``):
   definition).  Its boundaries are not the model's: the hip girdle ellipsoid covers
   the buttocks that the segment rule gives to the thighs, the clavicle ellipsoids the
   shoulder tops, the trunk ellipsoids overlap the upper arms' roots, etc., so it adds a
-  part-boundary mismatch to |ΔVI| even for a perfect shape.
+  part-boundary mismatch to |ΔVI| even for a perfect shape (on walk_line3 with the
+  template shape: 0.134 with these labels, 0.093 with the model's).
+
+Our rendering (``surface``): ``"lone"`` (default) — each metaball's lone visible
+ellipsoid, as :func:`core.contour_obs.body_ellipsoids` renders it for the camera
+selection; ``"blend"`` — ellipsoids that follow the blended whole-body surface
+(:func:`core.metaballs.render_radii`), right for a shape fitted to surface points
+(:mod:`core.shape_fit`), whose metaballs are often small and overlap.
 """
 
 from __future__ import annotations

@@ -489,15 +489,17 @@ def fit_shape(skel: Skeleton, balls: Metaballs, s: np.ndarray, theta: np.ndarray
     lo = np.full(len(x), -np.inf)
     lo[:3 * prob.M] = cfg.min_radius
     x = np.maximum(x, lo)
-    converged, msg = False, f"not converged in {cfg.rounds} rounds"
+    converged, moved = False, np.inf
     for _ in range(cfg.rounds):
         prob.freeze(x)
         sol = _levenberg_marquardt(prob.system, x, lo, cfg.max_nfev, cfg.tol, max_step=0.02)
         moved = float(np.abs(sol.x - x).max(initial=0.0))
         x = sol.x
         if moved < cfg.round_tol:
-            converged, msg = True, "converged"
+            converged = True
             break
+    msg = "converged" if converged else \
+        f"not converged in {cfg.rounds} rounds (the last moved {1e3 * moved:.1f} mm)"
     radii, centers = prob.unpack(x)
     out = Metaballs(balls.bone.copy(), np.array(centers, float), balls.group.copy(),
                     balls.rot.copy(), np.array(radii, float))

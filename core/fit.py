@@ -126,7 +126,7 @@ class SequenceSettings:
     search_tau: float = 0.05  # truncation of the search's point distances, metres
     search_min_gain: float = 100.0  # explain-cost decrease that moves a limb
     retry_unexplained: float = 0.2  # share of points > inlier_m from the body: retry
-    max_unexplained: float = 0.4  # ... above this share the frame is marked diverged
+    max_unexplained: float = 0.3  # ... above this share the frame is marked diverged
     #: (segmentation reach m, robust knee in σ) per stage of an annealed fit
     anneal: tuple = ((0.12, 12.0), (0.07, 6.0), (0.04, 3.0), (0.04, 3.0))
     max_nfev: int = 20

@@ -64,3 +64,28 @@ def test_a_kick_is_refound_and_a_hidden_arm_coasts_with_growing_sigma(rng):
     assert err("r_wrist")[3] < 0.01 and err("r_wrist")[6] < 0.7 * back, (err("r_wrist"), back)
     for arr in (st.theta, st.root_xyz):
         assert np.all(np.isfinite(arr))
+
+
+@pytest.mark.slow
+def test_a_frame_of_clutter_is_marked_not_fitted(rng):
+    skel = sk.make_skeleton()
+    s = np.ones(skel.n_groups)
+    balls = mb.make_metaballs(skel, "simplified", s)
+    nf = 4
+    theta = np.zeros((nf, skel.n_dof))
+    theta[:, skel.dof_index("l_elbow_x")] = -0.1 * np.arange(nf)
+    root = np.array([[0.0, -0.01 * f, 1.0] for f in range(nf)])
+    frames = [FramePoints(xyz=_outer_points(skel, balls, theta[f], root[f], s, rng),
+                          sigma=0.001) for f in range(nf)]
+    # frame 2: as many points, but scattered through the body's box (nothing fits them)
+    box = rng.uniform([-0.5, -0.4, 0.0], [0.5, 0.4, 1.8], (len(frames[2].xyz), 3))
+    frames[2] = FramePoints(xyz=box, sigma=0.001)
+    cams = cameras()
+    init = initialise(clicks_of(skel, theta[0], root[0], s, cams, CLICK_JOINTS), cams,
+                      model="simplified")
+    res = fit_sequence(frames, init, SequenceSettings(max_nfev=15, max_nfev_shape=15,
+                                                      fit=FitSettings(members="part")))
+    q = res.state.quality
+    assert q.diverged.tolist() == [False, False, True, False], res.messages
+    assert any(m.startswith("frame 2") for m in res.messages)
+    assert np.all(np.isfinite(res.state.theta)) and np.all(np.isfinite(res.state.root_xyz))

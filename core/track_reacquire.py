@@ -61,7 +61,8 @@ def rigid_fit(src: np.ndarray, dst: np.ndarray, w: np.ndarray) -> tuple[np.ndarr
 
 
 def neighbour_motion(xyz_then: np.ndarray, xyz_now: np.ndarray, query: np.ndarray, *,
-                     k: int = 10, radius_m: float = 0.06,
+                     rate_then: np.ndarray | None = None, query_rate: np.ndarray | None = None,
+                     max_rate_dev: float = 0.015, k: int = 10, radius_m: float = 0.06,
                      min_neighbours: int = 5,
                      inlier_m: float = 0.003,
                      min_spread: float = 0.3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -74,6 +75,12 @@ def neighbour_motion(xyz_then: np.ndarray, xyz_now: np.ndarray, query: np.ndarra
         not used).
     query : ndarray, shape (Q, 3)
         Points at the earlier frame, metres.
+    rate_then : ndarray, shape (M, 3), optional
+        The candidates' rates at the earlier frame, metres per frame.
+    query_rate : ndarray, shape (Q, 3), optional
+        The queries' rates there: only neighbours whose rate differs by less than
+        ``max_rate_dev`` (m/frame) are used — points that moved with the query, on the
+        same body part (legs and arms pass close to each other).
     k, radius_m, min_neighbours
         Up to ``k`` neighbours within ``radius_m`` are fitted; fewer than
         ``min_neighbours`` give no prediction.
@@ -99,16 +106,26 @@ def neighbour_motion(xyz_then: np.ndarray, xyz_now: np.ndarray, query: np.ndarra
     rms = np.full(q, np.nan)
     ok = np.zeros(q, bool)
     good = np.all(np.isfinite(xyz_then), axis=1) & np.all(np.isfinite(xyz_now), axis=1)
+    use_rate = rate_then is not None and query_rate is not None
+    if use_rate:
+        good &= np.all(np.isfinite(rate_then), axis=1)
     if good.sum() < min_neighbours or q == 0:
         return xyz, rms, ok
     a, b = xyz_then[good], xyz_now[good]
-    kk = min(k, len(a))
+    kk = min(3 * k if use_rate else k, len(a))
     qf = np.all(np.isfinite(query), axis=1)
     d, idx = cKDTree(a).query(np.where(qf[:, None], query, 1e9), k=kk,
                               distance_upper_bound=radius_m)
     d, idx = d.reshape(q, kk), idx.reshape(q, kk)
-    w = np.isfinite(d).astype(float)
+    w = np.isfinite(d)
     idx = np.minimum(idx, len(a) - 1)
+    if use_rate:
+        dev = np.linalg.norm(rate_then[good][idx] - query_rate[:, None], axis=2)
+        w &= ~(dev > max_rate_dev)                   # a NaN query rate keeps them all
+        # the k nearest of the neighbours that moved with the query
+        order = np.argsort(~w, axis=1, kind="stable")[:, :k]
+        idx, w = np.take_along_axis(idx, order, 1), np.take_along_axis(w, order, 1)
+    w = w.astype(float)
     ok = w.sum(axis=1) >= min_neighbours
     if not ok.any():
         return xyz, rms, ok
@@ -175,7 +192,8 @@ def reacquire(keys: KeyTemplates, stacks: dict, search_stack: ImageStack, valid:
               cameras: list[Camera], points: np.ndarray, xyz_pred: np.ndarray, *,
               half: int = 6, radius: int = 4, min_score: float = 0.7,
               weight_sigma: float | None = 4.0, max_sigma_px: float = 0.2,
-              max_rms_px: float = 1.0, max_dist_m: float = 0.01) -> Reacquired:
+              max_rms_px: float = 1.0, max_dist_m: float = 0.01,
+              min_views: int = 2) -> Reacquired:
     """Search dormant points at their predicted positions with their key templates.
 
     Parameters
@@ -195,6 +213,8 @@ def reacquire(keys: KeyTemplates, stacks: dict, search_stack: ImageStack, valid:
         NCC search half width around the projected prediction, pixels.
     max_dist_m : float
         Largest distance between the re-acquired point and its prediction, metres.
+    min_views : int
+        Cameras in which the point must be matched (two or more).
     """
     q, c = len(points), len(cameras)
     uv = np.full((q, c, 2), np.nan)
@@ -223,6 +243,6 @@ def reacquire(keys: KeyTemplates, stacks: dict, search_stack: ImageStack, valid:
     inter = triangulate(cameras, uv, sigma_px=0.3)
     n_views = np.sum(np.isfinite(uv[..., 0]), axis=1)
     dist = np.linalg.norm(inter.xyz - xyz_pred, axis=1)
-    ok = (inter.ok & (n_views >= 2) & (inter.rms < max_rms_px)
+    ok = (inter.ok & (n_views >= max(min_views, 2)) & (inter.rms < max_rms_px)
           & (np.nan_to_num(dist, nan=np.inf) < max_dist_m))
     return Reacquired(ok=ok, uv=uv, affine=aff, xyz=inter.xyz, cov=inter.cov)

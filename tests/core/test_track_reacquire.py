@@ -78,7 +78,7 @@ def test_occluded_points_are_reacquired_with_the_same_index():
     p0 = len(surf)
     truth = surf.xyz[None] + np.arange(F)[:, None, None] * motion
     band = (surf.xyz[:, 0] > 0.005) & (surf.xyz[:, 0] < 0.075)
-    lost = track(lambda i: frames[i], cams, surf, F, 25.0, regen_every=0)
+    lost = track(lambda i: frames[i], cams, surf, F, 25.0, regen_every=0, max_dormant=0)
     tr = track(lambda i: frames[i], cams, surf, F, 25.0, regen_every=0, max_dormant=3)
     assert not lost.alive[4, :p0][band].any()          # without: lost for good
     back = tr.measured[4, :p0] & ~tr.measured[2, :p0]
@@ -88,3 +88,18 @@ def test_occluded_points_are_reacquired_with_the_same_index():
     assert not tr.measured[2:4, :p0][:, back].any()    # flagged as not measured there
     err = np.linalg.norm(tr.xyz[:, :p0][:, back] - truth[:, back], axis=2)
     assert np.median(err[4]) < 0.001 and np.median(err[2:4, bridged]) < 0.002
+
+
+def test_neighbour_motion_follows_the_neighbours_that_moved_with_the_point(rng):
+    M = 600                                   # two parts passing each other (two legs)
+    then = rng.uniform(-0.05, 0.05, (M, 3))
+    part = rng.random(M) < 0.5
+    step = np.where(part[:, None], [0.02, 0.0, 0.0], [0.0, -0.03, 0.01])   # m/frame
+    now = then + step
+    query = rng.uniform(-0.03, 0.03, (20, 3))
+    q_rate = np.tile([0.02, 0.0, 0.0], (20, 1)) + rng.normal(0, 0.002, (20, 3))
+    xyz, _, ok = neighbour_motion(then, now, query, rate_then=step, query_rate=q_rate)
+    assert ok.all()
+    assert np.allclose(xyz, query + [0.02, 0.0, 0.0], atol=1e-6)
+    mixed, _, _ = neighbour_motion(then, now, query)     # without rates: either part
+    assert np.mean(np.linalg.norm(mixed - (query + [0.02, 0.0, 0.0]), axis=1) > 0.005) > 0.2

@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from .camera import Camera
 
@@ -128,3 +129,22 @@ def predict_in_image(cam: Camera, xyz: np.ndarray, cov: np.ndarray,
     a, b, d = S[:, 0, 0], S[:, 0, 1], S[:, 1, 1]
     lam = 0.5 * (a + d) + np.sqrt(np.maximum(0.25 * (a - d) ** 2 + b * b, 0.0))
     return uv, np.sqrt(np.maximum(lam, 0.0))
+
+
+def neighbour_rates(xyz: np.ndarray, rate: np.ndarray, new_xyz: np.ndarray,
+                     radius_m: float = 0.05, k: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """Start rates (K, 3) of new points: the median filtered rate of up to ``k`` measured
+    points within ``radius_m``; their σ (K,) is 1 cm/frame there, 3 cm/frame elsewhere."""
+    out = np.zeros((len(new_xyz), 3))
+    sig = np.full(len(new_xyz), 0.03)
+    ok = np.all(np.isfinite(xyz), axis=1) & np.all(np.isfinite(rate), axis=1)
+    if ok.sum() < k:
+        return out, sig
+    tree = cKDTree(xyz[ok])
+    d, idx = tree.query(new_xyz, k=k, distance_upper_bound=radius_m)
+    have = np.isfinite(d)
+    vals = np.where(have[..., None], rate[ok][np.minimum(idx, ok.sum() - 1)], np.nan)
+    enough = have.sum(axis=1) >= 3
+    out[enough] = np.nanmedian(vals[enough], axis=1)
+    sig[enough] = 0.01
+    return out, sig

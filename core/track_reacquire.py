@@ -2,12 +2,14 @@
 
 A point lost by the tracker (occluded, turned away, a failed match) is kept *dormant*
 with its key templates (:class:`core.track_anchor.KeyTemplates`).  In every frame its
-position is predicted from the motion of its neighbours: the rigid motion that carries
-the ``k`` nearest points measured both in the point's last measured frame and in the
-current frame (least squares, Kabsch / Horn) is applied to the point's last position
-(:func:`neighbour_motion`).  Where that prediction projects into two or more cameras,
-the key templates are searched there (NCC, then LSM from the key with its last affine)
-and the point is re-acquired when the forward intersection of the matches is
+position is predicted from the motion of its neighbours: the rigid motion (least
+squares, Kabsch / Horn) of the nearest points measured both in the last frame and in
+the current one, among those whose rate in the last frame was close to the point's own
+— the points that moved with it, on the same body part — carries the point's last
+position (measured, or predicted) one frame on (:func:`neighbour_motion`,
+:func:`dormant_step`).  Where that prediction projects into two or more cameras, the
+key templates are searched there (NCC, then LSM from the key with its last affine) and
+the point is re-acquired when the forward intersection of the matches is
 consistent and lies close to the prediction (:func:`reacquire`).  The trajectory
 resumes with the same index; the frames in between are bridged from the predictions
 (:func:`core.track_trajectories.bridge_gaps`).
@@ -27,6 +29,7 @@ from .intersect import triangulate
 from .lsm import ImageStack, match
 from .ncc import search
 from .track_anchor import KeyTemplates
+from .track_filter import COV_FLOOR, PointFilter, neighbour_rates
 
 
 def rigid_fit(src: np.ndarray, dst: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -246,3 +249,98 @@ def reacquire(keys: KeyTemplates, stacks: dict, search_stack: ImageStack, valid:
     ok = (inter.ok & (n_views >= max(min_views, 2)) & (inter.rms < max_rms_px)
           & (np.nan_to_num(dist, nan=np.inf) < max_dist_m))
     return Reacquired(ok=ok, uv=uv, affine=aff, xyz=inter.xyz, cov=inter.cov)
+
+
+@dataclass
+class DormantStep:
+    """Dormant points re-acquired by :func:`dormant_step` (K of them, C cameras).
+
+    Attributes
+    ----------
+    rows : ndarray, shape (K,), int
+        Their rows among all points.
+    uv : ndarray, shape (K, C, 2)
+        Matches in the new frame, pixels (NaN where a camera did not match).
+    affine : ndarray, shape (K, C, 2, 2)
+        Affines from the key patches to the new frame.
+    xyz : ndarray, shape (K, 3)
+        Forward intersections, metres.
+    cov : ndarray, shape (K, 3, 3)
+        Their covariances, m².
+    """
+
+    rows: np.ndarray
+    uv: np.ndarray
+    affine: np.ndarray
+    xyz: np.ndarray
+    cov: np.ndarray
+
+
+def dormant_step(dormant: np.ndarray, xyz_hist: list, pred_hist: list, rate_last: np.ndarray,
+                 xyz_new: np.ndarray, chosen: np.ndarray, kf: PointFilter, keys: KeyTemplates,
+                 stacks: dict, search_stack: ImageStack, valid: np.ndarray,
+                 cameras: list[Camera], *, half: int = 6, weight_sigma: float | None = 4.0,
+                 max_sigma_px: float = 0.2, max_rms_px: float = 1.0,
+                 max_dist_m: float = 0.01, min_views: int = 2,
+                 max_rigid_rms: float = 0.005) -> tuple[np.ndarray, DormantStep]:
+    """Predict the dormant points one frame on and try to re-acquire them.
+
+    The prediction carries each point's position in the last frame (measured, or
+    predicted: ``pred_hist[-1]``) by the rigid motion of the neighbours measured in
+    both frames whose rate there was close to the point's own (measured, or that of
+    its predictions; :func:`neighbour_motion`).  Points found again
+    (:func:`reacquire`) get their filters in ``kf`` restarted there.
+
+    Parameters
+    ----------
+    dormant : ndarray, shape (P,), bool
+    xyz_hist, pred_hist : list of ndarray, shape (P, 3)
+        Measured and predicted (dormant) positions of every frame so far, metres.
+    rate_last : ndarray, shape (P, 3)
+        Filtered rates of the points measured in the last frame, m/frame (NaN else).
+    xyz_new : ndarray, shape (P, 3)
+        Positions measured in the new frame, metres; ``chosen`` (P,) bool marks them.
+    kf : PointFilter
+    keys : KeyTemplates
+    stacks : dict int -> ImageStack
+        Images of the key frames in use; ``search_stack`` those of the new frame, with
+        ``valid`` (C,) bool where a camera has an image.
+    max_rigid_rms : float
+        Predictions whose neighbours moved less rigidly than this (RMS, metres) are
+        not trusted.
+
+    Returns
+    -------
+    pred : ndarray, shape (P, 3)
+        Predicted positions of the dormant points in the new frame, metres (NaN where
+        no prediction: such points cannot come back).
+    DormantStep
+    """
+    n = len(dormant)
+    pred = np.full((n, 3), np.nan)
+    d = np.flatnonzero(dormant)
+    last = np.where(np.isfinite(xyz_hist[-1]), xyz_hist[-1], pred_hist[-1])
+    rate = rate_last.copy()
+    if len(pred_hist) > 1:                       # predicted points: their predicted rate
+        before = np.where(np.isfinite(xyz_hist[-2]), xyz_hist[-2], pred_hist[-2])
+        rate = np.where(np.isfinite(rate), rate, pred_hist[-1] - before)
+    xyz_p, rms, ok = neighbour_motion(last[chosen], xyz_new[chosen], last[d],
+                                      rate_then=rate_last[chosen], query_rate=rate[d])
+    ok &= rms < max_rigid_rms
+    pred[d[ok]] = xyz_p[ok]
+    rows = np.flatnonzero(dormant & np.all(np.isfinite(pred), axis=1))
+    c = len(cameras)
+    empty = DormantStep(np.zeros(0, int), np.zeros((0, c, 2)), np.zeros((0, c, 2, 2)),
+                        np.zeros((0, 3)), np.zeros((0, 3, 3)))
+    if len(rows) == 0:
+        return pred, empty
+    ra = reacquire(keys, stacks, search_stack, valid, cameras, rows, pred[rows], half=half,
+                   weight_sigma=weight_sigma, max_sigma_px=max_sigma_px,
+                   max_rms_px=max_rms_px, max_dist_m=max_dist_m, min_views=min_views)
+    r = rows[ra.ok]
+    if len(r) == 0:
+        return pred, empty
+    rate0, rsig = neighbour_rates(xyz_new[chosen], kf.x[chosen, 3:], ra.xyz[ra.ok])
+    restart = PointFilter.start(ra.xyz[ra.ok], ra.cov[ra.ok] + COV_FLOOR, rate0, rsig)
+    kf.x[r], kf.P[r] = restart.x, restart.P
+    return pred, DormantStep(r, ra.uv[ra.ok], ra.affine[ra.ok], ra.xyz[ra.ok], ra.cov[ra.ok])

@@ -47,7 +47,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from .camera import Camera
 from .intersect import triangulate
@@ -55,8 +54,8 @@ from .lsm import ImageStack, match
 from .ncc import search
 from .surface import Surface, measure_surface
 from .track_anchor import KeyTemplates, reanchor
-from .track_filter import COV_FLOOR, PointFilter, predict_in_image
-from .track_reacquire import Reacquired, neighbour_motion, reacquire
+from .track_filter import COV_FLOOR, PointFilter, neighbour_rates, predict_in_image
+from .track_reacquire import dormant_step
 from .track_trajectories import (
     FilterResult,
     bridge_gaps,
@@ -87,7 +86,8 @@ class Tracks:
     fps : float
     measured : ndarray, shape (F, P) bool, optional
         The position was measured (forward intersection) in that frame; False where a
-        short gap was filled (:func:`fill_gaps`) or the point is not tracked.
+        gap was bridged (:func:`bridge_gaps` after a re-acquisition, :func:`fill_gaps`
+        after coasting) or the point is not tracked.
     """
 
     xyz: np.ndarray
@@ -350,11 +350,11 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
         gone |= dead & (coast > max_coast + max_dormant)
         pred_d = np.full((n, 3), np.nan)
         if max_dormant and chosen.any() and (dead & ~gone).any():
-            pred_d, rd = _dormant_step(dead & ~gone, xyz_hist, pred_hist,
-                                       rate_hist[-1], xyz_new, chosen,
-                                       kf, keys, ring, nxt, cameras, half, temporal_sigma,
-                                       max_sigma_px, max_rms_px, reacquire_m,
-                                       reacquire_views)
+            pred_d, rd = dormant_step(
+                dead & ~gone, xyz_hist, pred_hist, rate_hist[-1], xyz_new, chosen, kf, keys,
+                {f: ring[f].stack for f in keys.frames()}, nxt.stack, nxt.valid, cameras,
+                half=half, weight_sigma=temporal_sigma, max_sigma_px=max_sigma_px,
+                max_rms_px=max_rms_px, max_dist_m=reacquire_m, min_views=reacquire_views)
             if len(rd.rows):
                 r = rd.rows
                 uv_new[r], xyz_new[r], cov_new[r] = rd.uv, rd.xyz, rd.cov
@@ -397,7 +397,7 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
                 uv_hist[-1][-k:] = new.uv
                 xyz_hist[-1][-k:] = new.xyz
                 sig_hist[-1][-k:] = np.sqrt(np.abs(np.diagonal(new.cov, axis1=1, axis2=2)))
-                rate0, rsig = _neighbour_rates(xyz_new[chosen], kf.x[chosen, 3:], new.xyz)
+                rate0, rsig = neighbour_rates(xyz_new[chosen], kf.x[chosen, 3:], new.xyz)
                 rate_hist[-1][-k:] = rate0
                 kf.append(PointFilter.start(new.xyz, new.cov + COV_FLOOR, rate0, rsig))
                 start = np.concatenate([start, np.full(k, i + 1)])
@@ -423,76 +423,6 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
     filled = np.where(np.isfinite(bridged), bridged, filled)
     return Tracks(xyz=filled, uv=np.stack(uv_hist), sigma_xyz=np.stack(sig_hist),
                   start=start, fps=float(fps), measured=measured)
-
-
-@dataclass
-class _Dormant:
-    rows: np.ndarray        # (K,) re-acquired points
-    uv: np.ndarray          # (K, C, 2)
-    affine: np.ndarray      # (K, C, 2, 2) key -> new frame
-    xyz: np.ndarray         # (K, 3)
-    cov: np.ndarray         # (K, 3, 3)
-
-
-def _dormant_step(dormant, xyz_hist, pred_hist, rate_last, xyz_new, chosen, kf, keys,
-                  ring, nxt, cameras, half, weight_sigma, max_sigma_px, max_rms_px, max_dist_m,
-                  min_views, max_rigid_rms: float = 0.005):
-    """Predict the dormant points (P,) bool and try to re-acquire them; the re-acquired
-    filters are restarted.  Returns the predictions (P, 3) and the re-acquired points.
-
-    The prediction carries the point's position in the last frame (measured, or
-    predicted: ``pred_hist[-1]``) by the rigid motion of the neighbours measured in
-    both frames whose rate there (``rate_last`` (P, 3), m/frame) was close to the
-    point's own (measured, or that of its predictions).  A point whose prediction
-    fails is dropped from the search (its gap will not be bridged)."""
-    n = len(dormant)
-    pred = np.full((n, 3), np.nan)
-    d = np.flatnonzero(dormant)
-    last = np.where(np.isfinite(xyz_hist[-1]), xyz_hist[-1], pred_hist[-1])
-    rate = rate_last.copy()
-    if len(pred_hist) > 1:                       # predicted points: their predicted rate
-        before = np.where(np.isfinite(xyz_hist[-2]), xyz_hist[-2], pred_hist[-2])
-        rate = np.where(np.isfinite(rate), rate, pred_hist[-1] - before)
-    xyz_p, rms, ok = neighbour_motion(last[chosen], xyz_new[chosen], last[d],
-                                      rate_then=rate_last[chosen], query_rate=rate[d])
-    ok &= rms < max_rigid_rms
-    pred[d[ok]] = xyz_p[ok]
-    rows = np.flatnonzero(dormant & np.all(np.isfinite(pred), axis=1))
-    empty = _Dormant(np.zeros(0, int), *(np.zeros((0,) + s) for s in
-                                         ((len(cameras), 2), (len(cameras), 2, 2), (3,), (3, 3))))
-    if len(rows) == 0:
-        return pred, empty
-    ra: Reacquired = reacquire(keys, {f: ring[f].stack for f in keys.frames()}, nxt.stack,
-                               nxt.valid, cameras, rows, pred[rows], half=half,
-                               weight_sigma=weight_sigma, max_sigma_px=max_sigma_px,
-                               max_rms_px=max_rms_px, max_dist_m=max_dist_m,
-                               min_views=min_views)
-    r = rows[ra.ok]
-    if len(r) == 0:
-        return pred, empty
-    rate0, rsig = _neighbour_rates(xyz_new[chosen], kf.x[chosen, 3:], ra.xyz[ra.ok])
-    restart = PointFilter.start(ra.xyz[ra.ok], ra.cov[ra.ok] + COV_FLOOR, rate0, rsig)
-    kf.x[r], kf.P[r] = restart.x, restart.P
-    return pred, _Dormant(r, ra.uv[ra.ok], ra.affine[ra.ok], ra.xyz[ra.ok], ra.cov[ra.ok])
-
-
-def _neighbour_rates(xyz: np.ndarray, rate: np.ndarray, new_xyz: np.ndarray,
-                     radius_m: float = 0.05, k: int = 8) -> tuple[np.ndarray, np.ndarray]:
-    """Start rates (K, 3) of new points: the median filtered rate of up to ``k`` measured
-    points within ``radius_m``; their σ (K,) is 1 cm/frame there, 3 cm/frame elsewhere."""
-    out = np.zeros((len(new_xyz), 3))
-    sig = np.full(len(new_xyz), 0.03)
-    ok = np.all(np.isfinite(xyz), axis=1) & np.all(np.isfinite(rate), axis=1)
-    if ok.sum() < k:
-        return out, sig
-    tree = cKDTree(xyz[ok])
-    d, idx = tree.query(new_xyz, k=k, distance_upper_bound=radius_m)
-    have = np.isfinite(d)
-    vals = np.where(have[..., None], rate[ok][np.minimum(idx, ok.sum() - 1)], np.nan)
-    enough = have.sum(axis=1) >= 3
-    out[enough] = np.nanmedian(vals[enough], axis=1)
-    sig[enough] = 0.01
-    return out, sig
 
 
 def _pad(a: np.ndarray, k: int) -> np.ndarray:

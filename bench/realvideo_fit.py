@@ -465,7 +465,7 @@ def run_config(names: list[str], check: str, allc: dict, clicks: dict, video: di
     # texture + contours: the point-fit poses as measurements in the contour EKF ...
     t0 = time.perf_counter()
     q_pts = np.hstack([st_tex.theta, st_tex.root_xyz])
-    q_pts[div_tex] = np.nan
+    q_pts[div_tex | (res.n_points == 0)] = np.nan  # no points: e.g. the clicked frame's pose
     q_sig = np.hstack([st_tex.quality.theta_sigma, np.full((nf, 3), 0.01)])
     tr_f, n_used = track_fused(init.skeleton, init.s, balls_c, th0, rt0, cams_q, contours,
                                q_pts, q_sig, CONTOUR_CFG)

@@ -28,18 +28,20 @@ prior:
   and a metaball of the trunk or head is centred on that plane.  The studio's
   ``line3`` rig sees the walker's right side in no frame: without this its shape is
   left to the prior;
-* **smoothness** (``σ_smooth``): consecutive metaballs along one bone have similar radii
-  and move alike (the difference of their centres' displacements from the start),
-  so a limb's cross-section varies smoothly instead of alternating tiny and large
-  metaballs that blend into the same surface where it is seen;
+* **smoothness** (``σ_smooth``): neighbouring metaballs — consecutive on one bone, and
+  across a joint — change alike from the start shape (radii and centre
+  displacements), so a limb's or the trunk's cross-section varies smoothly instead of
+  alternating tiny and large metaballs that blend into the same surface where it is
+  seen (the overlapping trunk metaballs otherwise trade their widths round after
+  round);
 * **prior** towards the start shape (the template): ``(radii − radii0)/σ_radius``,
   ``(centres − centres0)/σ_center``.
 
 Unknowns: radii (M, 3) and, when ``free_centers``, the centres (M, 3) in their bones'
 frames (metres before scaling).  Levenberg–Marquardt on the normal equations
 (:func:`core.fitting._levenberg_marquardt`) inside re-weighting rounds: each round
-re-selects the members, re-samples and re-tests the model points and freezes the
-weights, so the Jacobian within a round is exact.
+re-selects the members, re-samples the model points (same directions every round)
+and re-tests them, and freezes the weights, so the Jacobian within a round is exact.
 
 Arrays: ``xyz`` (N, 3) world metres; ``theta`` (F, n) radians; ``root_xyz`` (F, 3)
 metres; ``s`` (G,) bone scales.
@@ -80,10 +82,11 @@ class ShapeSettings:
     max_offset: float = 0.05  # cap of a model point's offset
     model_gate: float = 0.01  # offsets below this are no bulge (curvature, point spacing)
     robust_scale: float = 3.0  # Cauchy knee of the data points, in σ
-    rounds: int = 8
+    rounds: int = 10
     max_nfev: int = 15
     tol: float = 1e-4
-    round_tol: float = 2e-4  # stop when no radius or centre moved more than this
+    round_tol: float = 2e-4  # converged when no radius or centre moved more than this
+    cost_tol: float = 0.01  # ... or the cost changed by less than this share in a round
     min_radius: float = 0.005
     min_points: int = 20  # a frame with fewer data points is left out (flagged)
 
@@ -100,7 +103,9 @@ class ShapeFit:
     model_rms_m : (F,) RMS normal offset of the seen model points to the data
     n_points : (F,) data points used; n_model : (F,) seen model points
     frame_ok : (F,) False for a frame left out (too few points)
-    converged : the last round moved no unknown by more than ``round_tol``
+    converged : the last round moved no unknown by more than ``round_tol`` or changed
+        the cost by less than ``cost_tol`` (moves along nearly flat directions, e.g.
+        overlapping metaballs trading widths, hardly change the surface)
     message : what happened, in words
     """
 
@@ -253,22 +258,32 @@ def _symmetry_rows(sym: Symmetry, M: int, n_c: int, w: float, radii, centers):
     return np.concatenate(r), np.concatenate(Js, axis=0)
 
 
-def chain_pairs(balls: Metaballs) -> np.ndarray:
-    """Consecutive metaballs on one bone, (P, 2) int (``make_metaballs`` lays each
-    bone's metaballs out in order from head to tail)."""
+def chain_pairs(balls: Metaballs, skel: Skeleton | None = None) -> np.ndarray:
+    """Neighbouring metaballs, (P, 2) int: consecutive ones on one bone
+    (``make_metaballs`` lays each bone's out in order from head to tail) and, when
+    ``skel`` is given, the last one of a bone with the first one of each child bone."""
     m = np.arange(len(balls) - 1)
-    return np.stack([m, m + 1], axis=1)[balls.bone[:-1] == balls.bone[1:]]
+    pairs = [np.stack([m, m + 1], axis=1)[balls.bone[:-1] == balls.bone[1:]]]
+    if skel is not None:
+        for c, p in enumerate(skel.bone_parent):
+            on_p, on_c = np.flatnonzero(balls.bone == p), np.flatnonzero(balls.bone == c)
+            if p >= 0 and len(on_p) and len(on_c):
+                pairs.append(np.array([[on_p[-1], on_c[0]]]))
+    return np.concatenate(pairs, axis=0)
 
 
-def _smooth_rows(pairs: np.ndarray, M: int, n_c: int, w: float, radii, centers, centers0):
-    """Residuals and Jacobian (rows, 3M + n_c) of the smoothness prior."""
+def _smooth_rows(pairs: np.ndarray, M: int, n_c: int, w: float, radii, centers, radii0,
+                 centers0):
+    """Residuals and Jacobian (rows, 3M + n_c) of the smoothness prior: neighbours
+    change alike from the start shape (radii and centre displacements)."""
     P = len(pairs)
     a, b = pairs[:, 0], pairs[:, 1]
     rows = np.arange(3 * P)
     J = np.zeros((3 * P, 3 * M + n_c))
     J[rows, (3 * b[:, None] + np.arange(3)).ravel()] = w
     J[rows, (3 * a[:, None] + np.arange(3)).ravel()] = -w
-    r = [(radii[b] - radii[a]).ravel() * w]
+    dr = radii - radii0
+    r = [(dr[b] - dr[a]).ravel() * w]
     Js = [J]
     if n_c:
         disp = centers - centers0
@@ -314,7 +329,7 @@ class ShapeProblem:
         self.radii0, self.centers0 = balls.radii.copy(), balls.center0.copy()
         self.frames = [_Frame(p, x, sg) for p, x, sg in zip(poses, points, sigma, strict=True)]
         self.sym = mirror_pairs(skel, balls, s) if cfg.sigma_symmetry > 0 else None
-        self.chain = chain_pairs(balls) if cfg.sigma_smooth > 0 else None
+        self.chain = chain_pairs(balls, skel) if cfg.sigma_smooth > 0 else None
         self.seed = int(seed)
 
     def pack(self, radii: np.ndarray, centers: np.ndarray) -> np.ndarray:
@@ -407,7 +422,7 @@ class ShapeProblem:
             jac.append(J)
         if self.chain is not None and len(self.chain):
             r, J = _smooth_rows(self.chain, M, n_c, 1.0 / cfg.sigma_smooth, radii, centers,
-                                self.centers0)
+                                self.radii0, self.centers0)
             res.append(r)
             jac.append(J)
         return np.concatenate(res), np.concatenate(jac, axis=0)
@@ -489,17 +504,19 @@ def fit_shape(skel: Skeleton, balls: Metaballs, s: np.ndarray, theta: np.ndarray
     lo = np.full(len(x), -np.inf)
     lo[:3 * prob.M] = cfg.min_radius
     x = np.maximum(x, lo)
-    converged, moved = False, np.inf
+    converged, moved, cost, change = False, np.inf, np.inf, np.inf
     for _ in range(cfg.rounds):
         prob.freeze(x)
         sol = _levenberg_marquardt(prob.system, x, lo, cfg.max_nfev, cfg.tol, max_step=0.02)
         moved = float(np.abs(sol.x - x).max(initial=0.0))
-        x = sol.x
-        if moved < cfg.round_tol:
+        change = abs(cost - sol.cost) / max(sol.cost, 1e-300) if np.isfinite(cost) else np.inf
+        x, cost = sol.x, sol.cost
+        if moved < cfg.round_tol or change < cfg.cost_tol:
             converged = True
             break
     msg = "converged" if converged else \
-        f"not converged in {cfg.rounds} rounds (the last moved {1e3 * moved:.1f} mm)"
+        (f"not converged in {cfg.rounds} rounds (the last changed the cost by "
+         f"{100 * change:.1f} %, moved an unknown by {1e3 * moved:.1f} mm)")
     radii, centers = prob.unpack(x)
     out = Metaballs(balls.bone.copy(), np.array(centers, float), balls.group.copy(),
                     balls.rot.copy(), np.array(radii, float))

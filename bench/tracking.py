@@ -19,6 +19,7 @@ step, where neither predictor has a velocity yet, uses the wide 29 px box for bo
 from __future__ import annotations
 
 import argparse
+import json
 import time
 
 import numpy as np
@@ -74,6 +75,9 @@ def main(argv=None) -> int:
     ap.add_argument("--max-dormant", type=int, default=None,
                     help="frames a lost point stays dormant for re-acquisition "
                          "(default: core.tracking.track's)")
+    ap.add_argument("--track-kw", default="{}",
+                    help='more keyword arguments of core.tracking.track as JSON, e.g. '
+                         '\'{"agree_px": 0.3}\'')
     ap.add_argument("--no-compare", action="store_true",
                     help="skip the EKF-vs-linear prediction comparison")
     args = ap.parse_args(argv)
@@ -94,7 +98,7 @@ def main(argv=None) -> int:
         return [sc.image(c, i) for c in sc.cameras]
 
     t1 = time.perf_counter()
-    kw = {"anchor": not args.no_anchor}
+    kw = {"anchor": not args.no_anchor, **json.loads(args.track_kw)}
     if args.max_dormant is not None:
         kw["max_dormant"] = args.max_dormant
     log: list = []

@@ -11,7 +11,14 @@ clicked frame's initial posture (:mod:`core.fit_init`):
    with the pose held, the points re-segmented with the new shape and solved again;
    the next ``shape_frames − 1`` frames are pose-fitted and join the shape solve; the
    shape is fixed afterwards and every shape frame's pose refitted (the clicked frame
-   with the clicks as joint observations, σ ``sigma_click``);
+   with the clicks as joint observations, σ ``sigma_click``).  With
+   ``settings.shape = "fit"`` (an option; the default ``"template"`` is the above
+   alone) the *whole-body* shape is fitted instead: at least ``shape_fit_frames``
+   shape frames are pose-fitted with the template shape and, their poses held, go to
+   :func:`core.shape_fit.fit_shape` (metaball radii and centres from the template
+   start, the anti-bulge term with the scene's ``cameras``), whose metaballs replace
+   the shape, and those frames' poses are refitted once more; its convergence,
+   message and per-frame flags are recorded (:class:`ShapeRecord`);
 2. **motion** — every other frame is *predicted* (the extended Kalman filter of
    :mod:`core.ekf` over ``[θ, root]``, or constant velocity), its points are
    *segmented* to body parts at the predicted pose (:mod:`core.segment`: points far
@@ -64,6 +71,7 @@ from .fitting import FitSettings, Observations, fit
 from .metaballs import Metaballs, world_frames
 from .progress import Progress
 from .segment import carry_labels, no_labels, segment_points
+from .shape_fit import ShapeSettings, fit_shape
 from .skeleton import Skeleton, anchor_sigma, forward, stiff_sigma
 from .state import FitState, Quality
 
@@ -131,14 +139,43 @@ class SequenceSettings:
     anneal: tuple = ((0.12, 12.0), (0.07, 6.0), (0.04, 3.0), (0.04, 3.0))
     max_nfev: int = 20
     max_nfev_shape: int = 40
+    #: "template": the per-part shape solve of the shape frames only (default);
+    #: "fit": then the whole-body shape fit (:func:`core.shape_fit.fit_shape`)
+    shape: str = "template"
+    shape_fit_frames: int = 3  # shape frames at least, with shape = "fit"
+    shape_fit: ShapeSettings | None = None  # its settings (None: its defaults)
     fit: FitSettings = field(default_factory=lambda: FitSettings(members="neighbours",
                                                                  irls_rounds=2,
                                                                  robust="cauchy"))
 
 
 @dataclass
+class ShapeRecord:
+    """What the whole-body shape fit (``SequenceSettings.shape = "fit"``) did.
+
+    Attributes
+    ----------
+    frames : (K,) int frames whose points and held poses were fitted
+    frame_ok : (K,) bool — False for a frame the shape fit left out (too few points)
+    rms_m : (K,) RMS distance of each frame's inlier points to the fitted surface,
+        metres (NaN where left out)
+    converged : bool — :attr:`core.shape_fit.ShapeFit.converged`
+    message : str — :attr:`core.shape_fit.ShapeFit.message`
+    seconds : float — wall time of the shape fit
+    """
+
+    frames: np.ndarray
+    frame_ok: np.ndarray
+    rms_m: np.ndarray
+    converged: bool
+    message: str
+    seconds: float
+
+
+@dataclass
 class SequenceResult:
-    """Output of :func:`fit_sequence`: the fitted state and per-frame diagnostics."""
+    """Output of :func:`fit_sequence`: the fitted state and per-frame diagnostics
+    (``shape``: the whole-body shape fit's record, None unless it ran)."""
 
     state: FitState
     n_points: np.ndarray  # (F,) points assigned to a part
@@ -147,6 +184,7 @@ class SequenceResult:
     retried: np.ndarray  # (F,) bool: a refit after the limb search was kept
     messages: list
     seconds: float
+    shape: ShapeRecord | None = None
 
 
 def _point_sigma(sigma_m: np.ndarray, model_m: float) -> np.ndarray:
@@ -228,7 +266,8 @@ def _observations(pts: FramePoints, part: np.ndarray, q_pred, sig_pred, n, joint
 def fit_sequence(frames: list[FramePoints], init: Initialisation,
                  settings: SequenceSettings | None = None, fps: float = 25.0,
                  source_scene: str = "", metaball_model: str = "simplified",
-                 progress: Progress | None = None) -> SequenceResult:
+                 progress: Progress | None = None,
+                 cameras: list | None = None) -> SequenceResult:
     """Fit shape and motion to the observations of every frame.
 
     Parameters
@@ -236,6 +275,9 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
     frames : F per-frame observations (any may be empty)
     init : the initial body and posture of frame ``init.frame``
     settings : SequenceSettings
+    cameras : list of :class:`core.camera.Camera` or None — the scene's cameras, for
+        the anti-bulge term of the whole-body shape fit (``settings.shape = "fit"``;
+        without them only its data points, symmetry, smoothness and prior act)
 
     Returns
     -------
@@ -246,6 +288,8 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
     nf = len(frames)
     if nf == 0:
         raise ValueError("no frames to fit")
+    if cfg.shape not in ("template", "fit"):
+        raise ValueError(f"unknown shape option {cfg.shape!r}")
     skel, balls = init.skeleton, init.metaballs.copy()
     n = skel.n_dof
     f0 = min(max(init.frame, 0), nf - 1)
@@ -433,7 +477,8 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
                                "free_centers": cfg.shape_centers,
                                "sigma_radius": cfg.shape_sigma_radius,
                                "sigma_center": cfg.shape_sigma_center})
-    shape_range = list(range(f0, min(nf, f0 + max(cfg.shape_frames, 1))))
+    n_shape = max(cfg.shape_frames, 1, cfg.shape_fit_frames if cfg.shape == "fit" else 1)
+    shape_range = list(range(f0, min(nf, f0 + n_shape)))
     store(f0, np.concatenate([init.theta, init.root_xyz]), True)
     shaped = []
     for k, f in enumerate(shape_range):
@@ -443,7 +488,10 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
             store(f, q, ok)
             if not ok:
                 continue
-        for rnd in range(2):  # segment, solve the shape, segment again with it
+        # segment, solve the shape, segment again with it (the whole-body fit below
+        # starts from the template instead: the per-part radii blend into a surface
+        # that bulges where metaballs overlap)
+        for rnd in range(2 if cfg.shape == "template" else 0):
             obs_s, keep = [], []
             for g in (shaped + [f]) if rnd == 0 else shaped:
                 part, _d = segment_points(frames[g].xyz, skel, balls, theta[g], root[g], s,
@@ -460,17 +508,27 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
             shaped = keep
         if progress is not None:
             progress.update(k + 1, nf + len(shape_range), f"shape: frame {f}")
-    if not shaped:
+    if not shaped and cfg.shape == "template":
         msgs.append("no usable points in the shape frames: the template shape is kept")
-    for f in shape_range:  # the poses with the final shape
-        if div[f]:
-            continue
-        ok, q = fit_frame(f, np.concatenate([theta[f], root[f]]), np.full(n, cfg.sigma_pred_max),
-                          joints=click_obs if f == f0 else None)
-        if ok:
-            store(f, q, True)
-        elif f != f0:
-            store(f, np.concatenate([theta[f], root[f]]), False)
+    def refit_shape_frames():
+        for f in shape_range:  # the poses with the final shape
+            if div[f]:
+                continue
+            ok, q = fit_frame(f, np.concatenate([theta[f], root[f]]),
+                              np.full(n, cfg.sigma_pred_max),
+                              joints=click_obs if f == f0 else None)
+            if ok:
+                store(f, q, True)
+            elif f != f0:
+                store(f, np.concatenate([theta[f], root[f]]), False)
+
+    refit_shape_frames()
+    shape_rec = None
+    if cfg.shape == "fit":
+        balls, radii, shape_rec = _whole_body_shape(
+            skel, init.metaballs, s, theta, root, frames,
+            [f for f in shape_range if not div[f]], cameras, cfg.shape_fit, msgs)
+        refit_shape_frames()
     # 2) motion forwards and backwards from the clicked frame ----------------------
     done = len(shape_range)
     for direction, order in ((1, range(shape_range[-1] + 1, nf)), (-1, range(f0 - 1, -1, -1))):
@@ -510,7 +568,44 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
         msgs.append(f"{int(retried.sum())} frames refitted after the limb search")
     return SequenceResult(state=state, n_points=n_pts, inlier_share=inl, unexplained=unexpl,
                           retried=retried, messages=msgs,
-                          seconds=time.perf_counter() - t_start)
+                          seconds=time.perf_counter() - t_start, shape=shape_rec)
+
+
+def _whole_body_shape(skel: Skeleton, template: Metaballs, s: np.ndarray, theta: np.ndarray,
+                      root: np.ndarray, frames: list[FramePoints], use: list[int],
+                      cameras: list | None, settings: ShapeSettings | None,
+                      msgs: list) -> tuple[Metaballs, np.ndarray, ShapeRecord]:
+    """The whole-body shape of ``frames[use]`` at their held poses.
+
+    Runs :func:`core.shape_fit.fit_shape` from the ``template`` metaballs (its prior)
+    with the bone scales ``s`` (G,), the poses ``theta[use]`` (K, n) radians and
+    ``root[use]`` (K, 3) metres, every point's σ the larger of its own and the shape
+    fit's ``sigma_point`` (metres).  Appends its message to ``msgs``; with no usable
+    frame the template is kept.
+
+    Returns
+    -------
+    (metaballs, radii (M, 3) metres, :class:`ShapeRecord`)
+    """
+    sc = settings or ShapeSettings()
+    t0 = time.perf_counter()
+    use = np.asarray(use, int)
+    if not len(use):
+        msgs.append("whole-body shape fit: no fitted shape frame, the template is kept")
+        rec = ShapeRecord(use, np.zeros(0, bool), np.zeros(0), False,
+                          "no fitted shape frame", 0.0)
+        return template.copy(), template.radii.copy(), rec
+    sf = fit_shape(skel, template, s, theta[use], root[use], [frames[f].xyz for f in use],
+                   cameras, sigma=[np.maximum(frames[f].sigma, sc.sigma_point) for f in use],
+                   settings=sc)
+    rec = ShapeRecord(use, sf.frame_ok.copy(), sf.rms_m.copy(), bool(sf.converged), sf.message,
+                      time.perf_counter() - t0)
+    rms = sf.rms_m[sf.frame_ok]
+    msgs.append(f"whole-body shape fit of frames {use.tolist()}: {sf.message}"
+                + (f" (surface RMS {1e3 * np.mean(rms):.2f} mm)" if len(rms) else ""))
+    if not sf.frame_ok.any():
+        return template.copy(), template.radii.copy(), rec
+    return sf.metaballs, sf.metaballs.radii.copy(), rec
 
 
 # -- observation sources ------------------------------------------------------------------
@@ -559,6 +654,7 @@ class SceneFit:
     timings: dict
     source: str
     n_points: np.ndarray
+    shape: ShapeRecord | None = None  # the whole-body shape fit's record, when it ran
 
 
 def run_scene(scene, observations: str = "auto", model: str = "complete",
@@ -616,11 +712,13 @@ def run_scene(scene, observations: str = "auto", model: str = "complete",
         raise InputError(f"{scene.root / 'clicks.json'}: clicked frame {init.frame} is "
                          f"outside the {nf} fitted frames")
     res = fit_sequence(obs, init, settings, fps=scene.fps, source_scene=str(scene.root),
-                       metaball_model=model, progress=progress)
+                       metaball_model=model, progress=progress, cameras=cameras)
     timings["fit"] = time.perf_counter() - t2
     timings["total"] = time.perf_counter() - t0
+    if res.shape is not None:
+        timings["shape_fit"] = res.shape.seconds
     return SceneFit(state=res.state, messages=msgs + res.messages, timings=timings,
-                    source=source, n_points=res.n_points)
+                    source=source, n_points=res.n_points, shape=res.shape)
 
 
 def fit_scene(scene, progress: Progress | None = None, **kwargs) -> FitState:

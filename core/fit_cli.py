@@ -4,7 +4,9 @@ Runs what the scene needs: calibration from ``wand/`` when ``calibration.toml`` 
 missing, tracking when ``tracks.npz`` is missing and the tracker is available, the
 initialisation from ``clicks.json`` and the fit (:func:`core.fit.run_scene`).
 ``--observations truth`` fits truth-derived surface points instead of tracks (a
-development stand-in, see :mod:`core.truth_points`; the output says so).  Prints the
+development stand-in, see :mod:`core.truth_points`; the output says so).
+``--fit-shape`` adds the whole-body shape fit (``SequenceSettings.shape = "fit"``, see
+:mod:`core.fit`) after the shape frames; its result is printed as a note.  Prints the
 per-frame quality summary, the messages (dropped clicks, diverged frames) and the
 timings; diverged frames are flagged in the file, never written as garbage.
 """
@@ -31,6 +33,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="candidate truth-derived points per frame")
     parser.add_argument("--predictor", choices=("ekf", "constant_velocity"), default="ekf")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--fit-shape", action="store_true",
+                        help="after the shape frames' poses, fit the whole-body metaball "
+                             "shape to their points (core.shape_fit) and refit those poses")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -45,7 +50,8 @@ def run(args: argparse.Namespace) -> int:
     scene = load_scene(args.scene, check_images=False)
     out = args.output if args.output is not None else scene.root / "fit.json"
     res = run_scene(scene, observations=args.observations, model=args.model,
-                    settings=SequenceSettings(predictor=args.predictor),
+                    settings=SequenceSettings(predictor=args.predictor,
+                                              shape="fit" if args.fit_shape else "template"),
                     progress=Progress(), n_points=args.points, seed=args.seed,
                     frames=args.frames)
     st = res.state

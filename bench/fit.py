@@ -17,6 +17,14 @@ in :mod:`core.metaballs`), and prints one table row with per-joint MPJPE and
 per-segment orientation RMSE lines under it.  With ``--observations truth`` the fit
 uses truth-derived surface points — a development stand-in for the tracker, labelled
 as such in the table, never the pipeline's result.
+
+``python -m bench.fit --fit-shape [SCENE] [--frames N]`` instead compares, on one scene
+(default ``walk_line3``) with truth-derived observations, the template shape with the
+whole-body fitted shape (``SequenceSettings(shape="fit")``, :mod:`core.shape_fit`)
+side by side, in-process (:func:`core.fit.run_scene`, :func:`core.evaluate.evaluate_state`):
+MPJPE, segment orientation RMSE and the metaball surface against the true mesh
+(:func:`bench.shape.surface_distances`, both directions, and mesh -> ball over the
+vertices two cameras see, :func:`bench.shape.seen_vertices`).
 """
 
 from __future__ import annotations
@@ -187,6 +195,85 @@ def run_one(scene: Path, frames: int | None, observations: str, model: str) -> d
             "fit_line": fit_line[0] if fit_line else "", "pts": pts_line[0] if pts_line else ""}
 
 
+def shape_comparison(scene_dir: Path, frames: int | None, model: str = "complete",
+                     n_points: int = 3000, seed: int = 0, eval_frames: int = 3) -> list[dict]:
+    """Template shape vs the whole-body fitted shape on one scene, truth-derived points.
+
+    Parameters
+    ----------
+    scene_dir : scene folder with ``truth.npz``
+    frames : fit the first ``frames`` frames (None: all)
+    eval_frames : fitted frames (evenly spread, not diverged) whose surface is measured
+
+    Returns
+    -------
+    list of two dicts (``"template"``, ``"fit"``): ``eval`` (:class:`core.evaluate.Evaluation`
+    over the fitted frames), ``ball_mesh_mm`` / ``mesh_ball_mm`` / ``seen_mesh_ball_mm``
+    mean surface distances (mm), ``seconds`` of the fit, ``shape`` (the
+    :class:`core.fit.ShapeRecord` or None) and ``diverged`` frames.
+    """
+    from bench.shape import seen_vertices, surface_distances
+    from core.evaluate import evaluate_state
+    from core.fit import SequenceSettings, run_scene
+    from core.fit_cli import _pad
+    from core.scene import load_scene
+
+    scene = load_scene(scene_dir, check_images=False)
+    cams = scene.calibration()
+    verts, faces = scene.truth["vertices"], np.asarray(scene.truth["faces"], int)
+    out = []
+    for shape in ("template", "fit"):
+        t0 = time.perf_counter()
+        res = run_scene(scene, observations="truth", model=model, n_points=n_points, seed=seed,
+                        frames=frames, settings=SequenceSettings(shape=shape))
+        sec = time.perf_counter() - t0
+        st = res.state
+        ok = np.flatnonzero(~st.quality.diverged)
+        pick = ok[np.unique(np.linspace(0, len(ok) - 1, eval_frames).round().astype(int))]
+        bm, mb, seen_mb = [], [], []
+        for f in pick:
+            d = surface_distances(st.skeleton, st.theta[f], st.root_xyz[f], st.s, st.metaballs,
+                                  verts[f], faces)
+            bm.append(d["ball_to_mesh"])
+            mb.append(d["mesh_to_ball"])
+            seen_mb.append(d["mesh_to_ball"][seen_vertices(verts[f], faces, cams)[d["vertex_idx"]]])
+        full = _pad(st, scene.n_frames) if st.n_frames < scene.n_frames else st
+        out.append({"shape": shape, "eval": evaluate_state(full, scene.truth),
+                    "ball_mesh_mm": 1e3 * float(np.mean(np.concatenate(bm))),
+                    "mesh_ball_mm": 1e3 * float(np.mean(np.concatenate(mb))),
+                    "seen_mesh_ball_mm": 1e3 * float(np.mean(np.concatenate(seen_mb))),
+                    "eval_frames": pick.tolist(), "seconds": sec, "n_frames": st.n_frames,
+                    "diverged": int(st.quality.diverged.sum()), "record": res.shape})
+    return out
+
+
+def print_shape_comparison(rows: list[dict], scene: Path) -> None:
+    """Print :func:`shape_comparison` as a side-by-side table."""
+    r0 = rows[0]
+    print(f"{scene.name}: template vs whole-body fitted shape, TRUTH-DERIVED OBSERVATIONS "
+          f"(points sampled on the true mesh, 1.5 mm noise, 5 % outliers), {r0['n_frames']} "
+          f"frames; surface on frames {r0['eval_frames']} / {rows[1]['eval_frames']}")
+    print(f"{'':26s}" + "".join(f"{r['shape']:>12s}" for r in rows))
+    lines = [("MPJPE mm", lambda r: r["eval"].mpjpe_mm),
+             ("max joint err % height", lambda r: r["eval"].max_joint_error_pct_height),
+             ("frames <= 1 % height %", lambda r: 100 * r["eval"].frames_within_1pct),
+             ("segment orient. RMSE deg", lambda r: r["eval"].segment_orientation_rmse_deg)]
+    for seg in r0["eval"].per_segment_rmse_deg:
+        lines.append((f"  {seg} deg", lambda r, k=seg: r["eval"].per_segment_rmse_deg[k]))
+    lines += [("ball -> mesh mm", lambda r: r["ball_mesh_mm"]),
+              ("mesh -> ball mm", lambda r: r["mesh_ball_mm"]),
+              ("seen mesh -> ball mm", lambda r: r["seen_mesh_ball_mm"]),
+              ("diverged frames", lambda r: r["diverged"]),
+              ("fit seconds", lambda r: r["seconds"])]
+    for name, get in lines:
+        print(f"{name:26s}" + "".join(f"{get(r):12.2f}" for r in rows))
+    rec = rows[1]["record"]
+    if rec is not None:
+        print(f"shape fit: frames {rec.frames.tolist()}, frame_ok {rec.frame_ok.tolist()}, "
+              f"RMS mm {np.round(1e3 * rec.rms_m, 2).tolist()}, {rec.seconds:.1f} s, "
+              f"converged {rec.converged}: {rec.message}", flush=True)
+
+
 def _resolve(arg: str, renders: Path) -> tuple[Path, float | None]:
     if arg in STUDIO_SCENES:
         return render_studio_scene(arg, renders)
@@ -217,7 +304,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--observations", default="truth", choices=("truth", "tracks", "auto"))
     ap.add_argument("--model", default="complete", choices=("simplified", "complete"))
     ap.add_argument("--renders", type=Path, default=RENDERS, help="studio scene cache folder")
+    ap.add_argument("--fit-shape", action="store_true",
+                    help="compare the template with the whole-body fitted shape on one scene "
+                         "(default walk_line3), truth-derived observations, in-process")
     args = ap.parse_args(argv)
+    if args.fit_shape:
+        scene, _ = _resolve(args.scenes[0], args.renders) if args.scenes else (DEFAULT, None)
+        print_shape_comparison(shape_comparison(scene, args.frames, args.model), scene)
+        return 0
     names = args.scenes or [str(DEFAULT), *DEFAULT_SET]
     scenes = [_resolve(a, args.renders) for a in names]  # renders first, sequentially
     label = ("TRUTH-DERIVED OBSERVATIONS (points sampled on the true mesh, 1.5 mm noise, "

@@ -297,7 +297,7 @@ def _normal_matrix_from_design(gx: np.ndarray, gy: np.ndarray, T: np.ndarray, Jw
 def match(template_images, search_images, uv_template, uv_search, *, half: int = 6,
           affine=None, template_index=None, search_index=None, upsample: bool = True,
           tol_px: float = 0.01, max_iter: int = 20, max_shift_px: float = 4.0,
-          max_sigma_px: float = 0.2, min_texture: float = 3.0, lines=None,
+          max_sigma_px: float = 0.15, min_texture: float = 3.0, lines=None,
           sigma_line_px: float = 0.05, sigma_grey: float = 2.0,
           weight_sigma: float | None = None) -> LSMResult:
     """Least squares matching of N template patches into search images.

@@ -118,7 +118,7 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
           adaptive: bool = True, max_radius: int = 16, agree_px: float = 0.5,
           max_rms_px: float = 1.0, accel_sigma: float = 0.025, gate: float = 5.0,
           max_coast: int = 0, temporal_sigma: float | None = 4.0,
-          max_sigma_px: float = 0.15, fallback: bool = True, regen_every: int = 5,
+          max_sigma_px: float = 0.12, fallback: bool = True, regen_every: int = 5,
           anchor: bool = True, anchor_px: float = 1.0, max_dormant: int = 0,
           reacquire_m: float = 0.01, reacquire_views: int = 2,
           step: int = 2, progress=None,

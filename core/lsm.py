@@ -51,7 +51,6 @@ pseudo-observation with standard deviation ``sigma_line_px`` (a rank-one update 
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 from enum import IntEnum
 
@@ -61,6 +60,15 @@ from .batched_linalg import line_update, spd_inverse
 from .blas_threads import single_blas_thread
 from .camera import Camera
 from .image_stack import ImageStack, PatchSource, resampling_noise_factor, upsample2
+from .lsm_design import (
+    BORDER,
+    compose_inverse,
+    inverse_blocks,
+    normal_matrix,
+    normal_matrix_from_design,
+    row_mean_sd,
+    template_slopes,
+)
 
 __all__ = ["ImageStack", "LSMResult", "Status", "epipolar_lines", "match", "template_patches",
            "upsample2"]
@@ -148,149 +156,33 @@ def template_patches(images, uv: np.ndarray, half: int = 6, index=None,
     uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
     n = len(uv)
     idx = np.zeros(n, np.int64) if index is None else np.asarray(index, np.int64)
-    x, y = _grid(half, _B)
+    x, y = _grid(half, BORDER)
     c = np.rint(uv)
     frac = uv - c
     if np.all(np.abs(frac) < 1e-9):
         _, h, w = stack.shape
-        k = 2 * (half + _B) + 1
+        k = 2 * (half + BORDER) + 1
         if k <= min(h, w):
-            ci = c.astype(np.int64) - half - _B
+            ci = c.astype(np.int64) - half - BORDER
             P = stack.windows(idx, np.clip(ci[:, 0], 0, w - k), np.clip(ci[:, 1], 0, h - k), k)
         else:
             P = stack.pixels(idx[:, None, None], c[:, 0, None, None] + x,
                              c[:, 1, None, None] + y)
     else:
-        src = PatchSource(stack, idx, uv, half + _B + 1, upsample)
+        src = PatchSource(stack, idx, uv, half + BORDER + 1, upsample)
         pu = (src.bu[:, None, None] + src.f * (uv[:, 0, None, None] + x)).astype(np.float32)
         pv = (src.bv[:, None, None] + src.f * (uv[:, 1, None, None] + y)).astype(np.float32)
         s = pu.shape
         P = src.sample(pu.reshape(n, -1), pv.reshape(n, -1)).reshape(s)
         du = (pu - np.rint(pu * 32.0) * (1 / 32.0)) * (1.0 / src.f)
         dv = (pv - np.rint(pv * 32.0) * (1 / 32.0)) * (1.0 / src.f)
-        gu, gv = _gradients(P)
+        gu, gv = template_slopes(P)
         P = P.copy()
-        b = _B
+        b = BORDER
         P[:, b:-b, b:-b] += gu * du.reshape(s)[:, b:-b, b:-b] + gv * dv.reshape(s)[:, b:-b, b:-b]
-    gu, gv = _gradients(P)
-    b = _B
+    gu, gv = template_slopes(P)
+    b = BORDER
     return P[:, b:-b, b:-b], gu, gv
-
-
-def _spline_derivative_taps(n: int = 4) -> np.ndarray:
-    """Weights ``w_1 .. w_n`` of the cubic-spline derivative at a pixel:
-    ``f'(m) = Σ_d w_d (f[m + d] - f[m - d])``.
-
-    ``w_d = -η'(d)`` of the cardinal cubic spline ``η`` (pole ``z = √3 - 2``):
-    ``(√3 / 2) (z^(d-1) - z^(d+1))``, truncated and scaled to an exact unit slope.
-    Unlike central differences (which damp the slope of fine texture by up to 1/3
-    and make the Gauss–Newton steps overshoot), this is the slope of the same
-    spline interpolant that resamples the search patches.
-    """
-    z = np.sqrt(3.0) - 2.0
-    d = np.arange(1, n + 1)
-    w = 0.5 * np.sqrt(3.0) * (z ** (d - 1) - z ** (d + 1))
-    return w / np.sum(2 * d * w)
-
-
-_DERIV = _spline_derivative_taps(4)
-_B = len(_DERIV)
-
-
-@functools.lru_cache(maxsize=8)
-def _derivative_matrix(m: int) -> np.ndarray:
-    """(m + 2B, m) float32: a row of m + 2B pixels @ it = the spline slopes of the
-    central m."""
-    D = np.zeros((m + 2 * _B, m), np.float32)
-    c = np.arange(m)
-    for d, wd in enumerate(_DERIV, start=1):
-        D[_B + c + d, c] = wd
-        D[_B + c - d, c] = -wd
-    return D
-
-
-def _gradients(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Cubic-spline slopes of patches with a border of ``_B`` px (one GEMM per axis):
-    (n, s, s) -> 2 x (n, s - 2B, s - 2B) float32."""
-    n, s, _ = P.shape
-    m = s - 2 * _B
-    D = _derivative_matrix(m)
-    rows = np.ascontiguousarray(P[:, _B:s - _B, :], dtype=np.float32).reshape(n * m, s)
-    gu = (rows @ D).reshape(n, m, m)
-    cols = np.ascontiguousarray(P.transpose(0, 2, 1)[:, _B:s - _B, :],
-                                dtype=np.float32).reshape(n * m, s)
-    gv = np.ascontiguousarray((cols @ D).reshape(n, m, m).transpose(0, 2, 1))
-    return gu, gv
-
-
-# -- linear algebra -------------------------------------------------------------------
-
-_MOM = np.array([[0, 1, 2], [1, 3, 4], [2, 4, 5]])
-
-
-def _normal_matrix(T: np.ndarray, gx: np.ndarray, gy: np.ndarray, xs: np.ndarray,
-                   ys: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """``N = JᵀWJ`` (n, 8, 8) of the design ``J = [gx·(1, x, y), gy·(1, x, y), 1, T]``.
-
-    Built from weighted moments with one GEMM: T, gx, gy (n, P) float32; xs, ys (P,)
-    the template pixel offsets; w (P,) the pixel weights.  Parameter order: a0, a1,
-    a2, b0, b1, b2, r0, r1.
-    """
-    n, npx = T.shape
-    basis = np.stack([np.ones_like(xs), xs, ys, xs * xs, xs * ys, ys * ys], axis=1)  # (P, 6)
-    basis = (basis * w[:, None]).astype(np.float32)
-    Q = np.empty((9, n, npx), np.float32)
-    np.multiply(gx, gx, out=Q[0])
-    np.multiply(gx, gy, out=Q[1])
-    np.multiply(gy, gy, out=Q[2])
-    Q[3] = gx
-    Q[4] = gy
-    np.multiply(gx, T, out=Q[5])
-    np.multiply(gy, T, out=Q[6])
-    Q[7] = T
-    np.multiply(T, T, out=Q[8])
-    M = (Q.reshape(9 * n, npx) @ basis).reshape(9, n, 6).astype(np.float64)
-    N = np.empty((n, 8, 8))
-    for i in range(3):
-        for j in range(3):
-            k = _MOM[i, j]
-            N[:, i, j] = M[0, :, k]
-            N[:, i, 3 + j] = N[:, 3 + j, i] = M[1, :, k]
-            N[:, 3 + i, 3 + j] = M[2, :, k]
-        N[:, i, 6] = N[:, 6, i] = M[3, :, i]
-        N[:, 3 + i, 6] = N[:, 6, 3 + i] = M[4, :, i]
-        N[:, i, 7] = N[:, 7, i] = M[5, :, i]
-        N[:, 3 + i, 7] = N[:, 7, 3 + i] = M[6, :, i]
-    N[:, 6, 6] = float(np.sum(w))
-    N[:, 6, 7] = N[:, 7, 6] = M[7, :, 0]
-    N[:, 7, 7] = M[8, :, 0]
-    return N
-
-def _normal_matrix_from_design(gx: np.ndarray, gy: np.ndarray, T: np.ndarray, Jw: np.ndarray,
-                               xs: np.ndarray, ys: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """``N = JᵀWJ`` (n, 8, 8) as :func:`_normal_matrix`, reusing the weighted design
-    rows ``Jw`` (n, 8, P): the columns of the offset and gain are ``Jw 1`` and ``Jw T``,
-    and only the 6 × 6 geometric block needs moments of ``∇T ∇Tᵀ`` (one GEMM)."""
-    n, npx = T.shape
-    basis = np.stack([np.ones_like(xs), xs, ys, xs * xs, xs * ys, ys * ys], axis=1)  # (P, 6)
-    basis = (basis * w[:, None]).astype(np.float32)
-    Q = np.empty((3, n, npx), np.float32)
-    np.multiply(gx, gx, out=Q[0])
-    np.multiply(gx, gy, out=Q[1])
-    np.multiply(gy, gy, out=Q[2])
-    M = (Q.reshape(3 * n, npx) @ basis).reshape(3, n, 6).astype(np.float64)
-    N = np.empty((n, 8, 8))
-    for i in range(3):
-        for j in range(3):
-            k = _MOM[i, j]
-            N[:, i, j] = M[0, :, k]
-            N[:, i, 3 + j] = N[:, 3 + j, i] = M[1, :, k]
-            N[:, 3 + i, 3 + j] = M[2, :, k]
-    c67 = (Jw @ np.stack([np.ones_like(T), T], axis=2)).astype(np.float64)  # Σ w J_i (1, T)
-    N[:, :, 6] = N[:, 6, :] = c67[:, :, 0]
-    N[:, :, 7] = N[:, 7, :] = c67[:, :, 1]
-    return N
-
 
 
 @single_blas_thread()
@@ -379,7 +271,7 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
     T = T.reshape(n, npx)
     gx = tx.reshape(n, npx)
     gy = ty.reshape(n, npx)
-    t_mean, t_sd = _mean_sd(T)
+    t_mean, t_sd = row_mean_sd(T)
     t_sq = npx * (t_sd ** 2 + t_mean ** 2)                      # Σ T²
     # Normal matrix of the inverse compositional step, inverted once per patch.
     xg, yg = _grid(half)
@@ -397,8 +289,8 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
     np.multiply(gy[:, None, :], bw, out=Jw[:, 3:6])
     Jw[:, 6] = wpx
     np.multiply(T, wpx, out=Jw[:, 7])
-    N = _normal_matrix_from_design(gx, gy, T, Jw, xs, ys, wpx)
-    N2 = N if weight_sigma is None else _normal_matrix(T, gx, gy, xs, ys, wpx * wpx)
+    N = normal_matrix_from_design(gx, gy, T, Jw, xs, ys, wpx)
+    N2 = N if weight_sigma is None else normal_matrix(T, gx, gy, xs, ys, wpx * wpx)
     sw = float(wpx.sum())
     # Texture: smaller eigenvalue of the (weighted) structure tensor, mean of ∇T ∇Tᵀ.
     sxx, syy, sxy = N[:, 0, 0] / sw, N[:, 3, 3] / sw, N[:, 0, 3] / sw
@@ -412,7 +304,7 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
     # ``Ncur`` holds the inverse in use per patch.
     sub = [0, 3, 6, 7]
     Ncur = np.zeros_like(Ninv)
-    Ncur[:, np.ix_(sub, sub)[0], np.ix_(sub, sub)[1]] = _inverse4(N[:, sub][:, :, sub], pd)
+    Ncur[:, np.ix_(sub, sub)[0], np.ix_(sub, sub)[1]] = inverse_blocks(N[:, sub][:, :, sub], pd)
     shift_only = np.ones(n, bool)
     # Redundancy: tr W - tr(N⁻¹ JᵀW²J) (= n - u for uniform weights).
     if weight_sigma is None:
@@ -477,7 +369,7 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
             if new.any():
                 # Radiometric start: match the mean and spread of the grey levels.
                 k = a[new]
-                s_mean, s_sd = _mean_sd(S[new] if not new.all() else S)
+                s_mean, s_sd = row_mean_sd(S[new] if not new.all() else S)
                 g0 = np.where(s_sd > 1e-6, t_sd[k] / np.maximum(s_sd, 1e-6), 1.0)
                 gain[k] = g0
                 offset[k] = t_mean[k] - g0 * s_mean
@@ -499,7 +391,7 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
             ok_step = np.isfinite(dq).all(axis=1)
             dq[~ok_step] = 0.0
             # Compose W <- W ∘ ΔW⁻¹ with ΔW(x) = Δt + (I + ΔA) x; radiometry likewise.
-            An, step = _compose_inverse(A_s, dq)
+            An, step = compose_inverse(A_s, dq)
             uv_new = uv_s - step
             change = uv_new - uv[a]              # of the estimate since the last iteration
             uv[a] = uv_new
@@ -548,7 +440,7 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
                     s_mean = (m_et - o_old[conv]) / go
                     s_sd = np.sqrt(np.maximum(v_et, 0.0)) / np.abs(go)
                 else:
-                    s_mean, s_sd = _mean_sd(S[conv])
+                    s_mean, s_sd = row_mean_sd(S[conv])
                 g1 = np.where(s_sd > 1e-6, t_sd[k] / np.maximum(s_sd, 1e-6), gain[k])
                 offset[k] = t_mean[k] - g1 * s_mean
                 gain[k] = g1
@@ -586,41 +478,6 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
     status[big] = Status.LARGE_SIGMA
     return LSMResult(uv=uv, affine=A, gain=gain, offset=offset, sigma0=sigma0, cov_uv=cov,
                      iterations=iters, status=status, texture=texture)
-
-
-def _inverse4(N: np.ndarray, ok: np.ndarray) -> np.ndarray:
-    """Inverses of the (n, k, k) sub-blocks of positive definite normal matrices (``ok``);
-    identity where not ``ok``."""
-    M = np.where(ok[:, None, None], N, np.eye(N.shape[1]))
-    try:
-        return np.linalg.inv(M)
-    except np.linalg.LinAlgError:
-        return spd_inverse(M)[0]
-
-
-def _mean_sd(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Mean and standard deviation of each row of S (n, P) float32, float64 (n,)."""
-    p = S.shape[1]
-    m = S.sum(axis=1).astype(np.float64) / p
-    sq = np.einsum("np,np->n", S, S).astype(np.float64) / p
-    return m, np.sqrt(np.maximum(sq - m * m, 0.0))
-
-
-def _compose_inverse(A: np.ndarray, dq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``W ∘ ΔW⁻¹`` for the affine parts A (n, 2, 2) and updates dq (n, 8) (a0, a1, a2,
-    b0, b1, b2, …): the new affine part and the shift step ``A ΔM⁻¹ Δt`` (n, 2)."""
-    m00, m01, m10, m11 = 1 + dq[:, 1], dq[:, 2], dq[:, 4], 1 + dq[:, 5]
-    dd = m00 * m11 - m01 * m10
-    dd = np.where(np.abs(dd) > 1e-6, dd, 1.0)
-    i00, i01, i10, i11 = m11 / dd, -m01 / dd, -m10 / dd, m00 / dd
-    An = np.empty_like(A)
-    An[:, 0, 0] = A[:, 0, 0] * i00 + A[:, 0, 1] * i10
-    An[:, 0, 1] = A[:, 0, 0] * i01 + A[:, 0, 1] * i11
-    An[:, 1, 0] = A[:, 1, 0] * i00 + A[:, 1, 1] * i10
-    An[:, 1, 1] = A[:, 1, 0] * i01 + A[:, 1, 1] * i11
-    step = np.stack([An[:, 0, 0] * dq[:, 0] + An[:, 0, 1] * dq[:, 3],
-                     An[:, 1, 0] * dq[:, 0] + An[:, 1, 1] * dq[:, 3]], axis=1)
-    return An, step
 
 
 # -- geometric constraint -------------------------------------------------------------

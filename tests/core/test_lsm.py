@@ -9,7 +9,8 @@ from scipy import ndimage
 from bench.patches import make_pairs
 from core.batched_linalg import cholesky_solve as _cholesky_solve
 from core.camera import Camera
-from core.lsm import _B, Status, _gradients, epipolar_lines, match, template_patches, upsample2
+from core.lsm import Status, epipolar_lines, match, template_patches, upsample2
+from core.lsm_design import BORDER, template_slopes
 
 
 def _match(P, **kw):
@@ -81,9 +82,9 @@ def test_template_slopes_are_the_cubic_spline_derivative():
     ramp = 3.0 * x - 2.0 * y
     f = 0.2                                   # cycles / px: central differences lose 24 %
     wave = np.sin(2 * np.pi * f * x + 0.3)
-    gu, gv = _gradients(np.stack([ramp, wave]).astype(np.float32))
+    gu, gv = template_slopes(np.stack([ramp, wave]).astype(np.float32))
     assert np.allclose(gu[0], 3.0, atol=1e-4) and np.allclose(gv[0], -2.0, atol=1e-4)
-    b = _B
+    b = BORDER
     exact = 2 * np.pi * f * np.cos(2 * np.pi * f * x[b:-b, b:-b] + 0.3)
     assert np.max(np.abs(gu[1] - exact)) < 0.03 * 2 * np.pi * f
     assert np.allclose(gv[1], 0.0, atol=1e-5)

@@ -22,7 +22,8 @@ as such in the table, never the pipeline's result.
 (default ``walk_line3``) with truth-derived observations, the template shape with the
 whole-body fitted shape (``SequenceSettings(shape="fit")``, :mod:`core.shape_fit`)
 side by side, in-process (:func:`core.fit.run_scene`, :func:`core.evaluate.evaluate_state`):
-MPJPE, segment orientation RMSE and the metaball surface against the true mesh
+MPJPE, segment orientation RMSE and the metaball surface (the fitted shape both tracked
+with and only written to the state, ``shape_fit_track``) against the true mesh
 (:func:`bench.shape.surface_distances`, both directions, and mesh -> ball over the
 vertices two cameras see, :func:`bench.shape.seen_vertices`).
 """
@@ -207,10 +208,11 @@ def shape_comparison(scene_dir: Path, frames: int | None, model: str = "complete
 
     Returns
     -------
-    list of two dicts (``"template"``, ``"fit"``): ``eval`` (:class:`core.evaluate.Evaluation`
-    over the fitted frames), ``ball_mesh_mm`` / ``mesh_ball_mm`` / ``seen_mesh_ball_mm``
-    mean surface distances (mm), ``seconds`` of the fit, ``shape`` (the
-    :class:`core.fit.ShapeRecord` or None) and ``diverged`` frames.
+    list of three dicts (``"template"``; ``"fit"``: tracked with the fitted shape;
+    ``"fit-output"``: tracked with the per-part shape, the fitted one written): ``eval``
+    (:class:`core.evaluate.Evaluation` over the fitted frames), ``ball_mesh_mm`` /
+    ``mesh_ball_mm`` / ``seen_mesh_ball_mm`` mean surface distances (mm), ``seconds`` of
+    the fit, ``record`` (the :class:`core.fit.ShapeRecord` or None) and ``diverged`` frames.
     """
     from bench.shape import seen_vertices, surface_distances
     from core.evaluate import evaluate_state
@@ -222,10 +224,11 @@ def shape_comparison(scene_dir: Path, frames: int | None, model: str = "complete
     cams = scene.calibration()
     verts, faces = scene.truth["vertices"], np.asarray(scene.truth["faces"], int)
     out = []
-    for shape in ("template", "fit"):
+    for shape, track in (("template", True), ("fit", True), ("fit", False)):
         t0 = time.perf_counter()
         res = run_scene(scene, observations="truth", model=model, n_points=n_points, seed=seed,
-                        frames=frames, settings=SequenceSettings(shape=shape))
+                        frames=frames,
+                        settings=SequenceSettings(shape=shape, shape_fit_track=track))
         sec = time.perf_counter() - t0
         st = res.state
         ok = np.flatnonzero(~st.quality.diverged)
@@ -238,7 +241,8 @@ def shape_comparison(scene_dir: Path, frames: int | None, model: str = "complete
             mb.append(d["mesh_to_ball"])
             seen_mb.append(d["mesh_to_ball"][seen_vertices(verts[f], faces, cams)[d["vertex_idx"]]])
         full = _pad(st, scene.n_frames) if st.n_frames < scene.n_frames else st
-        out.append({"shape": shape, "eval": evaluate_state(full, scene.truth),
+        out.append({"shape": shape if track else "fit-output",
+                    "eval": evaluate_state(full, scene.truth),
                     "ball_mesh_mm": 1e3 * float(np.mean(np.concatenate(bm))),
                     "mesh_ball_mm": 1e3 * float(np.mean(np.concatenate(mb))),
                     "seen_mesh_ball_mm": 1e3 * float(np.mean(np.concatenate(seen_mb))),
@@ -252,7 +256,7 @@ def print_shape_comparison(rows: list[dict], scene: Path) -> None:
     r0 = rows[0]
     print(f"{scene.name}: template vs whole-body fitted shape, TRUTH-DERIVED OBSERVATIONS "
           f"(points sampled on the true mesh, 1.5 mm noise, 5 % outliers), {r0['n_frames']} "
-          f"frames; surface on frames {r0['eval_frames']} / {rows[1]['eval_frames']}")
+          f"frames; surface on frames {[r['eval_frames'] for r in rows]}")
     print(f"{'':26s}" + "".join(f"{r['shape']:>12s}" for r in rows))
     lines = [("MPJPE mm", lambda r: r["eval"].mpjpe_mm),
              ("max joint err % height", lambda r: r["eval"].max_joint_error_pct_height),
@@ -267,8 +271,7 @@ def print_shape_comparison(rows: list[dict], scene: Path) -> None:
               ("fit seconds", lambda r: r["seconds"])]
     for name, get in lines:
         print(f"{name:26s}" + "".join(f"{get(r):12.2f}" for r in rows))
-    rec = rows[1]["record"]
-    if rec is not None:
+    for rec in (r["record"] for r in rows[1:]):
         print(f"shape fit: frames {rec.frames.tolist()}, frame_ok {rec.frame_ok.tolist()}, "
               f"RMS mm {np.round(1e3 * rec.rms_m, 2).tolist()}, {rec.seconds:.1f} s, "
               f"converged {rec.converged}: {rec.message}", flush=True)

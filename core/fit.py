@@ -17,7 +17,9 @@ clicked frame's initial posture (:mod:`core.fit_init`):
    shape frames, their poses held as just refitted, go to
    :func:`core.shape_fit.fit_shape` (metaball radii and centres from the template
    start, the anti-bulge term with the scene's ``cameras``), whose metaballs replace
-   the shape, and those frames' poses are refitted once more; its convergence,
+   the shape, and those frames' poses are refitted once more (with
+   ``shape_fit_track = False`` the tracking keeps the per-part shape and the fitted
+   one is only written to the state); its convergence,
    message and per-frame flags are recorded (:class:`ShapeRecord`).  (Skipping the
    per-part solve and fitting those poses with the template instead left walk_line3's
    frame 0 with 34 % of its points far from the body and the shape fit at 12.6 mm
@@ -146,6 +148,9 @@ class SequenceSettings:
     #: "fit": then the whole-body shape fit (:func:`core.shape_fit.fit_shape`)
     shape: str = "template"
     shape_fit_frames: int = 3  # shape frames at least, with shape = "fit"
+    #: with shape = "fit": track with the fitted shape (True), or track with the per-part
+    #: shape and write the fitted one to the state only (False)
+    shape_fit_track: bool = True
     shape_fit: ShapeSettings | None = None  # its settings (None: its defaults)
     fit: FitSettings = field(default_factory=lambda: FitSettings(members="neighbours",
                                                                  irls_rounds=2,
@@ -524,11 +529,14 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
 
     refit_shape_frames()
     shape_rec = None
+    fitted_balls = None
     if cfg.shape == "fit":
-        balls, radii, shape_rec = _whole_body_shape(
+        fitted_balls, _, shape_rec = _whole_body_shape(
             skel, init.metaballs, s, theta, root, frames,
             [f for f in shape_range if not div[f]], cameras, cfg.shape_fit, msgs)
-        refit_shape_frames()
+        if cfg.shape_fit_track:
+            balls, radii = fitted_balls, fitted_balls.radii.copy()
+            refit_shape_frames()
     # 2) motion forwards and backwards from the clicked frame ----------------------
     done = len(shape_range)
     for direction, order in ((1, range(shape_range[-1] + 1, nf)), (-1, range(f0 - 1, -1, -1))):
@@ -558,7 +566,7 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
             done += 1
             if progress is not None:
                 progress.update(done, nf + len(shape_range), f"frame {f}")
-    balls_out = balls.copy(radii=radii)
+    balls_out = balls.copy(radii=radii) if fitted_balls is None else fitted_balls.copy()
     q = Quality(rmse_m=rmse, theta_sigma=q_sig, converged=conv & ~div, diverged=div,
                 cameras=[{} for _ in range(nf)])
     state = FitState(skeleton=skel, s=s, metaballs=balls_out, root_xyz=root, theta=theta,

@@ -21,24 +21,12 @@ def read_state(path):
 
 
 def run_fit(scene_dir, out_json, progress=None) -> Path:
-    """Run core's whole pipeline on a scene folder and write ``fit.json``.
-
-    Uses ``core.fit.fit_scene(scene, progress=…)`` when core provides it, else core's
-    command line (``python -m core fit SCENE -o OUT``).
-    """
+    """Run core's whole pipeline on a scene folder and write ``fit.json``
+    (:func:`core.fit_scene.fit_scene`; cancellable through ``progress``)."""
     scene_dir, out_json = Path(scene_dir), Path(out_json)
-    try:
-        fit_mod = _core.load("fit")
-    except ModuleNotFoundError:
-        fit_mod = None
-    if fit_mod is not None and hasattr(fit_mod, "fit_scene"):
-        state = fit_mod.fit_scene(_core.scene.load_scene(scene_dir), progress=progress)
-        _core.state.write_state(out_json, state)
-        return out_json
-    rc = _core.cli.main(["fit", str(scene_dir), "-o", str(out_json)])
-    if rc != 0 or not out_json.is_file():
-        raise _core.errors.InputError(
-            f"{scene_dir}: core fit failed (exit status {rc}); see the messages above")
+    state = _core.load("fit_scene").fit_scene(_core.scene.load_scene(scene_dir),
+                                             progress=progress)
+    _core.state.write_state(out_json, state)
     return out_json
 
 

@@ -21,7 +21,7 @@ as such in the table, never the pipeline's result.
 ``python -m bench.fit --fit-shape [SCENE] [--frames N]`` instead compares, on one scene
 (default ``walk_line3``) with truth-derived observations, the template shape with the
 whole-body fitted shape (``SequenceSettings(shape="fit")``, :mod:`core.shape_fit`)
-side by side, in-process (:func:`core.fit.run_scene`, :func:`core.evaluate.evaluate_state`):
+side by side, in-process (:func:`core.fit_scene.run_scene`, :func:`core.evaluate.evaluate_state`):
 MPJPE, segment orientation RMSE and the metaball surface (the fitted shape both tracked
 with and only written to the state, ``shape_fit_track``) against the true mesh
 (:func:`bench.shape.surface_distances`, both directions, and mesh -> ball over the
@@ -216,8 +216,9 @@ def shape_comparison(scene_dir: Path, frames: int | None, model: str = "complete
     """
     from bench.shape import seen_vertices, surface_distances
     from core.evaluate import evaluate_state
-    from core.fit import SequenceSettings, run_scene
+    from core.fit import SequenceSettings
     from core.fit_cli import _pad
+    from core.fit_scene import run_scene
     from core.scene import load_scene
 
     scene = load_scene(scene_dir, check_images=False)

@@ -55,7 +55,7 @@ clicked frame's initial posture (:mod:`core.fit_init`):
    pose is the prediction (finite), flagged, and not fed to the filter.
 
 Frames before the clicked frame are processed backwards from it the same way.
-:func:`fit_scene` runs what a scene needs (calibration from the wand when
+:func:`core.fit_scene.fit_scene` runs what a scene needs (calibration from the wand when
 ``calibration.toml`` is missing, the initialisation from ``clicks.json``, the
 observations, the fit) and returns a :class:`core.state.FitState`.
 """
@@ -68,9 +68,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .attractor import attractor, gather, member_table
-from .ekf import EKF
-from .errors import InputError
 from .fit_init import Initialisation
+from .fit_predict import PosePredictor
 from .fit_search import explain_cost, explain_distance, search_limbs
 from .fitting import FitSettings, Observations, fit
 from .metaballs import Metaballs, world_frames
@@ -209,55 +208,6 @@ def surface_residuals(skel: Skeleton, balls: Metaballs, theta, root, s, radii,
     Rw, cw = world_frames(skel, pose, balls, s)
     idx, ok = gather(*member_table(skel, balls, members), part)
     return attractor(xyz, idx, ok, Rw[0], cw[0], radii).dist
-
-
-class _Predictor:
-    """Prediction of ``q = [θ, root]`` from the fitted frames so far."""
-
-    def __init__(self, q0: np.ndarray, cfg: SequenceSettings, n_theta: int):
-        self.cfg, self.n = cfg, n_theta
-        self.hist: list[np.ndarray] = [q0.copy()]
-        self.ekf = None
-        if cfg.predictor == "ekf":
-            sig = np.full(q0.size, 0.05)
-            self.ekf = EKF.start(q0, sig, 0.05, cfg.accel_sigma, damping=cfg.damping)
-        elif cfg.predictor != "constant_velocity":
-            raise ValueError(f"unknown predictor {cfg.predictor!r}")
-
-    def predict(self) -> tuple[np.ndarray, np.ndarray]:
-        """Predicted q (n+3,) and the prior σ of the angles (n,)."""
-        cfg = self.cfg
-        if self.ekf is not None:
-            self.ekf.predict()
-            q = self.ekf.q.copy()
-            sig = np.clip(self.ekf.q_sigma[:self.n], cfg.sigma_pred, cfg.sigma_pred_max)
-            return q, sig
-        h = self.hist
-        q = h[-1] + (cfg.damping * (h[-1] - h[-2]) if len(h) > 1 else 0.0)
-        return q, np.full(self.n, cfg.sigma_pred)
-
-    def accept(self, q: np.ndarray, q_sigma: np.ndarray | None) -> np.ndarray:
-        """Feed a fitted frame (σ inf: that parameter was not measured, e.g. a hidden
-        part's angle); returns the filter's σ of the angles (n,) after it — for
-        unmeasured angles the prediction's, growing frame by frame."""
-        self.hist.append(q.copy())
-        if q_sigma is None:
-            q_sigma = np.full(q.size, 0.01)
-        meas = np.isfinite(q_sigma)
-        if self.ekf is not None:
-            if meas.any():
-                sig = np.maximum(q_sigma[meas], 0.005)
-                H = np.eye(q.size)[meas]
-                self.ekf.update(q[meas], lambda x: x[meas], H, sig**2)
-            return self.ekf.q_sigma[:self.n].copy()
-        self.n_hidden = np.where(meas[:self.n], 0, getattr(self, "n_hidden", 0) + 1)
-        return self.cfg.sigma_pred * np.sqrt(1.0 + self.n_hidden)
-
-    def skip(self) -> None:
-        """A diverged frame: the prediction stands in for it."""
-        if self.ekf is None:
-            h = self.hist
-            self.hist.append(h[-1] + (self.cfg.damping * (h[-1] - h[-2]) if len(h) > 1 else 0))
 
 
 def _observations(pts: FramePoints, part: np.ndarray, q_pred, sig_pred, n, joints=None,
@@ -541,7 +491,7 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
     done = len(shape_range)
     for direction, order in ((1, range(shape_range[-1] + 1, nf)), (-1, range(f0 - 1, -1, -1))):
         seq = shape_range if direction == 1 else [f0]
-        pred = _Predictor(np.concatenate([theta[seq[0]], root[seq[0]]]), cfg, n)
+        pred = PosePredictor(np.concatenate([theta[seq[0]], root[seq[0]]]), cfg, n)
         for f in seq[1:]:
             q = np.concatenate([theta[f], root[f]])
             pred.predict()
@@ -614,158 +564,3 @@ def _whole_body_shape(skel: Skeleton, template: Metaballs, s: np.ndarray, theta:
     if not sf.frame_ok.any():
         return template.copy(), template.radii.copy(), rec
     return sf.metaballs, sf.metaballs.radii.copy(), rec
-
-
-# -- observation sources ------------------------------------------------------------------
-def observations_from_tracks(path, n_frames: int) -> list[FramePoints]:
-    """Per-frame observations from a tracker's ``tracks.npz``.
-
-    Reads ``xyz`` (F, P, 3) metres with NaN where a trajectory is not measured, and
-    optionally ``sigma`` (F, P) or ``sigma_xyz`` (F, P, 3) metres (default 3 mm); the
-    trajectory id is the index P.
-    """
-    from pathlib import Path
-
-    path = Path(path)
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{path}: cannot be read as .npz ({exc})") from exc
-    if "xyz" not in data:
-        raise InputError(f"{path}: is missing the array 'xyz' (F, P, 3)")
-    xyz = np.asarray(data["xyz"], float)
-    if xyz.ndim != 3 or xyz.shape[2] != 3 or xyz.shape[0] != n_frames:
-        raise InputError(f"{path}: 'xyz' has shape {list(xyz.shape)}, expected "
-                         f"({n_frames}, P, 3)")
-    sigma = np.asarray(data.get("sigma", np.full(xyz.shape[:2], 0.003)), float)
-    if "sigma" not in data and "sigma_xyz" in data:  # per-axis σ (F, P, 3): their RMS
-        sx = np.asarray(data["sigma_xyz"], float)
-        if sx.shape == xyz.shape:
-            sigma = np.sqrt(np.mean(sx**2, axis=2))
-    if sigma.shape != xyz.shape[:2]:
-        sigma = np.full(xyz.shape[:2], 0.003)
-    ids = np.arange(xyz.shape[1])
-    out = []
-    for f in range(n_frames):
-        ok = np.all(np.isfinite(xyz[f]), axis=1) & np.isfinite(sigma[f]) & (sigma[f] > 0)
-        out.append(FramePoints(xyz=xyz[f, ok], sigma=sigma[f, ok], ids=ids[ok]))
-    return out
-
-
-@dataclass
-class SceneFit:
-    """Result of :func:`run_scene`: the state, the messages, timings (seconds)."""
-
-    state: FitState
-    messages: list
-    timings: dict
-    source: str
-    n_points: np.ndarray
-    shape: ShapeRecord | None = None  # the whole-body shape fit's record, when it ran
-
-
-def run_scene(scene, observations: str = "auto", model: str = "complete",
-              settings: SequenceSettings | None = None, progress: Progress | None = None,
-              n_points: int = 3000, seed: int = 0, frames: int | None = None) -> SceneFit:
-    """The whole pipeline on a loaded :class:`core.scene.Scene`.
-
-    Parameters
-    ----------
-    observations : ``"tracks"`` (``SCENE/tracks.npz``, tracked first when the tracker
-        is available and the file is missing), ``"truth"`` (truth-derived points, for
-        development; needs ``truth.npz``) or ``"auto"`` (tracks when possible, else
-        truth-derived with a message saying so)
-    model : metaball model, ``"simplified"`` or ``"complete"``
-    frames : fit only the first ``frames`` frames (default all)
-    """
-    from .fit_init import initialise
-
-    timings, msgs = {}, []
-    t0 = time.perf_counter()
-    if not scene.calibration_path.is_file():
-        if not scene.has_wand:
-            raise InputError(f"{scene.calibration_path}: not found and the scene has no "
-                             "wand/ sequence to calibrate from")
-        from .calibrate import calibrate_scene
-        from .calibration_io import write_calibration
-
-        rep = calibrate_scene(scene, progress=progress)
-        write_calibration(scene.calibration_path, rep.cameras, rep.metadata())
-        msgs.append(f"calibrated from the wand: {scene.calibration_path}")
-        timings["calibration"] = time.perf_counter() - t0
-    cameras = scene.calibration()
-    nf = scene.n_frames if frames is None else min(int(frames), scene.n_frames)
-    t1 = time.perf_counter()
-    source = _choose_source(scene, observations)
-    if source == "tracks":
-        tracks = scene.root / "tracks.npz"
-        if not tracks.is_file():
-            _run_tracker(scene, tracks, progress)
-            timings["tracking"] = time.perf_counter() - t1
-        obs = observations_from_tracks(tracks, scene.n_frames)[:nf]
-    else:
-        from .truth_points import truth_observations
-
-        if observations == "auto":
-            msgs.append("no tracker output: using truth-derived observations (development)")
-        obs = truth_observations(scene.truth, cameras, n_points=n_points, seed=seed,
-                                 frames=range(nf))
-        timings["observations"] = time.perf_counter() - t1
-    t2 = time.perf_counter()
-    init = initialise(scene.clicks(), cameras, model=model,
-                      path=str(scene.root / "clicks.json"))
-    msgs += init.clicks.messages()
-    if init.frame >= nf:
-        raise InputError(f"{scene.root / 'clicks.json'}: clicked frame {init.frame} is "
-                         f"outside the {nf} fitted frames")
-    res = fit_sequence(obs, init, settings, fps=scene.fps, source_scene=str(scene.root),
-                       metaball_model=model, progress=progress, cameras=cameras)
-    timings["fit"] = time.perf_counter() - t2
-    timings["total"] = time.perf_counter() - t0
-    if res.shape is not None:
-        timings["shape_fit"] = res.shape.seconds
-    return SceneFit(state=res.state, messages=msgs + res.messages, timings=timings,
-                    source=source, n_points=res.n_points, shape=res.shape)
-
-
-def fit_scene(scene, progress: Progress | None = None, **kwargs) -> FitState:
-    """The fitted state of a scene (the Blender add-on's entry point); see
-    :func:`run_scene` for the keyword arguments."""
-    return run_scene(scene, progress=progress, **kwargs).state
-
-
-def _tracker_available() -> bool:
-    import importlib.util
-
-    return (importlib.util.find_spec("core.tracking") is not None
-            and importlib.util.find_spec("core.track_cli") is not None)
-
-
-def _choose_source(scene, observations: str) -> str:
-    if observations not in ("auto", "tracks", "truth"):
-        raise ValueError(f"unknown observation source {observations!r}")
-    if observations == "truth":
-        if not scene.has_truth:
-            raise InputError(f"{scene.root / 'truth.npz'}: truth-derived observations need "
-                             "the scene's truth")
-        return "truth"
-    have = (scene.root / "tracks.npz").is_file() or _tracker_available()
-    if observations == "tracks" or have:
-        if not have:
-            raise InputError(f"{scene.root / 'tracks.npz'}: not found and the tracker "
-                             "(core.tracking) is not available")
-        return "tracks"
-    if not scene.has_truth:
-        raise InputError(f"{scene.root}: has no tracks.npz, the tracker is not available "
-                         "and there is no truth.npz to derive observations from")
-    return "truth"
-
-
-def _run_tracker(scene, out, progress) -> None:
-    """Run ``python -m core track SCENE -o tracks.npz`` in-process."""
-    from .cli import main
-
-    rc = main(["track", str(scene.root), "-o", str(out)])
-    if rc != 0 or not out.is_file():
-        raise InputError(f"{scene.root}: tracking failed (exit status {rc})")

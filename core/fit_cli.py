@@ -2,7 +2,7 @@
 
 Runs what the scene needs: calibration from ``wand/`` when ``calibration.toml`` is
 missing, tracking when ``tracks.npz`` is missing and the tracker is available, the
-initialisation from ``clicks.json`` and the fit (:func:`core.fit.run_scene`).
+initialisation from ``clicks.json`` and the fit (:func:`core.fit_scene.run_scene`).
 ``--observations truth`` fits truth-derived surface points instead of tracks (a
 development stand-in, see :mod:`core.truth_points`; the output says so).
 ``--fit-shape`` adds the whole-body shape fit (``SequenceSettings.shape = "fit"``, see
@@ -40,7 +40,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from .errors import InputError
-    from .fit import SequenceSettings, run_scene
+    from .fit import SequenceSettings
+    from .fit_scene import run_scene
     from .progress import Progress
     from .scene import load_scene
     from .state import write_state

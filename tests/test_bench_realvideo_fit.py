@@ -6,9 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
-from bench.realvideo_fit import (
-    CLICKS,
-    FIT_CAMS,
+from bench.realvideo_fit import CLICKS, FIT_CAMS
+from bench.realvideo_inputs import (
     keep_in_region,
     load_clicks,
     person_region,

@@ -54,6 +54,15 @@ clicked frame's initial posture (:mod:`core.fit_init`):
    more than ``max_unexplained`` of its points far from the body is *diverged*: its
    pose is the prediction (finite), flagged, and not fed to the filter.
 
+**Contours** (``contours``, one :class:`core.fit_contours.ContourFrame` per frame, issue 7
+item 6): the frame's silhouette contours join every pose solve as one more observation
+type (σ in pixels, Huber-weighted, re-paired with the model's rim at every re-weighting
+round, per-part camera selection with the predicted rates); a part with fewer than
+``min_part_matches`` contour pairs *and* too few points is hidden.  A frame with fewer
+than ``min_points`` points (always, with contours alone) is fitted from its contours,
+judged by them (at least ``min_matches`` pairs, inlier RMS ≤ ``max_rms_px``) and has no
+limb search; the cameras each part used are recorded in the quality.
+
 Frames before the clicked frame are processed backwards from it the same way.
 :func:`core.fit_scene.fit_scene` runs what a scene needs (calibration from the wand when
 ``calibration.toml`` is missing, the initialisation from ``clicks.json``, the
@@ -192,6 +201,10 @@ class SequenceResult:
     messages: list
     seconds: float
     shape: ShapeRecord | None = None
+    #: (F,) contour pairs and their inlier RMS (pixels) at the fitted pose; 0 / NaN
+    #: without contours
+    contour_matches: np.ndarray | None = None
+    contour_rms_px: np.ndarray | None = None
 
 
 def _point_sigma(sigma_m: np.ndarray, model_m: float) -> np.ndarray:
@@ -225,7 +238,8 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
                  settings: SequenceSettings | None = None, fps: float = 25.0,
                  source_scene: str = "", metaball_model: str = "simplified",
                  progress: Progress | None = None,
-                 cameras: list | None = None) -> SequenceResult:
+                 cameras: list | None = None,
+                 contours: list | None = None) -> SequenceResult:
     """Fit shape and motion to the observations of every frame.
 
     Parameters
@@ -236,6 +250,9 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
     cameras : list of :class:`core.camera.Camera` or None — the scene's cameras, for
         the anti-bulge term of the whole-body shape fit (``settings.shape = "fit"``;
         without them only its data points, symmetry, smoothness and prior act)
+    contours : list (F) of :class:`core.fit_contours.ContourFrame` (or None per frame),
+        optional — silhouette contours as a further observation type; frames may then
+        have no points at all (contours alone)
 
     Returns
     -------
@@ -248,6 +265,8 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
         raise ValueError("no frames to fit")
     if cfg.shape not in ("template", "fit"):
         raise ValueError(f"unknown shape option {cfg.shape!r}")
+    if contours is not None and len(contours) < nf:
+        raise ValueError(f"{len(contours)} contour frames for {nf} frames")
     skel, balls = init.skeleton, init.metaballs.copy()
     n = skel.n_dof
     f0 = min(max(init.frame, 0), nf - 1)
@@ -263,6 +282,9 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
     unexpl = np.full(nf, np.nan)
     retried = np.zeros(nf, bool)
     hid = np.zeros((nf, n), bool)
+    c_n = np.zeros(nf, int)
+    c_rms = np.full(nf, np.nan)
+    cams_used: list[dict] = [{} for _ in range(nf)]
     msgs: list[str] = []
     ci = init.clicks
     click_obs = (np.array([skel.joint_index(j) for j in ci.names]), ci.xyz, cfg.sigma_click)
@@ -273,13 +295,24 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
 
     dof_bone = np.array([skel.bone_index(d.rsplit("_", 1)[0]) for d in skel.dof_names])
 
-    def hidden_dofs(xyz, q, max_dist):
+    def cframe(f):
+        return None if contours is None else contours[f]
+
+    def hidden_dofs(xyz, q, max_dist, cf=None):
         """(n,) bool: DOFs of parts with fewer than ``min_part_points`` points within
         ``max_dist`` of them at pose q (counted without the ambiguity margin: a limb
-        beside the trunk is seen even where its points are not used)."""
-        part, _ = segment_points(xyz, skel, balls, q[:n], q[n:], s, radii, max_dist, 0.0)
-        cnt = np.bincount(part[part >= 0], minlength=len(skel.bone_names))
-        return cnt[dof_bone] < cfg.min_part_points
+        beside the trunk is seen even where its points are not used) and, with contours
+        ``cf``, fewer than its ``min_part_matches`` contour pairs there."""
+        if len(xyz):
+            part, _ = segment_points(xyz, skel, balls, q[:n], q[n:], s, radii, max_dist, 0.0)
+            cnt = np.bincount(part[part >= 0], minlength=len(skel.bone_names))
+        else:
+            cnt = np.zeros(len(skel.bone_names), int)
+        hidden = cnt[dof_bone] < cfg.min_part_points
+        if cf is not None:
+            cf.freeze(skel, balls.copy(radii=radii), q[:n], q[n:], s)
+            hidden &= cf.part_counts(len(skel.bone_names))[dof_bone] < cf.cfg.min_part_matches
+        return hidden
 
     def prior(hidden, th_pred, sig_pred, th_hold):
         """Target and σ of the prior on the angles: the prediction, σ capped for stiff
@@ -316,6 +349,7 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
         :func:`core.fit_search.search_limbs` (its new angles become the prior's
         target)."""
         pts = frames[f]
+        cf = cframe(f)
         lab = labels
         stages = cfg.anneal if anneal else \
             ((cfg.segment_max_dist, cfg.fit.robust_scale),) * (2 if cfg.resegment else 1)
@@ -326,19 +360,25 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
                 q[:n] = search_limbs(pts.xyz, skel, balls, s, radii, q[:n], q[n:],
                                      tau=cfg.search_tau).theta
                 target_q = q.copy()
-            part, _ = segment_points(pts.xyz, skel, balls, q[:n], q[n:], s, radii,
-                                     max_dist, cfg.segment_margin)
-            part, lab = carry_labels(part, pts.ids, lab)
-            if (part >= 0).sum() < cfg.min_points:
+            if len(pts.xyz):
+                part, _ = segment_points(pts.xyz, skel, balls, q[:n], q[n:], s, radii,
+                                         max_dist, cfg.segment_margin)
+                part, lab = carry_labels(part, pts.ids, lab)
+            else:
+                part = np.zeros(0, int)
+            if (part >= 0).sum() < cfg.min_points and cf is None:
                 if r is None:
                     return (None, None, False,
                             f"frame {f}: only {(part >= 0).sum()} usable points", lab)
                 break
-            target, sig = prior(hidden_dofs(pts.xyz, q, max_dist), target_q[:n], sig_pred,
+            target, sig = prior(hidden_dofs(pts.xyz, q, max_dist, cf), target_q[:n], sig_pred,
                                 None if q_hold is None else q_hold[:n])
             o = _observations(pts, part, target, sig, n, joints)
+            o.contours = cf
             stage_cfg = pose_cfg if knee == pose_cfg.robust_scale else \
                 FitSettings(**{**pose_cfg.__dict__, "robust_scale": knee})
+            if cf is not None and stage_cfg.irls_rounds < cf.cfg.rounds:
+                stage_cfg = FitSettings(**{**stage_cfg.__dict__, "irls_rounds": cf.cfg.rounds})
             r = fit(skel, balls, o, q[:n], q[n:], s, radii, solve="pose", settings=stage_cfg)
             q = np.concatenate([r.theta, r.root_xyz])
         return q, r, True, part, lab
@@ -349,6 +389,20 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
             return False, str(res[3]), None
         q, r, _, part, _ = res
         use = part >= 0
+        cf = cframe(f)
+        cst = None if cf is None else cf.stats(skel, balls.copy(radii=radii), q[:n], q[n:], s)
+        if use.sum() < cfg.min_points and cst is not None:  # judged by its contours alone
+            stats = {"n": 0, "inl": cst["inl"], "rmse": np.nan, "sig": r.theta_sigma,
+                     "conv": bool(r.converged), "unexplained": 1.0 - cst["inl"],
+                     "cost": cst["cost"], "contour": cst}
+            bad = []
+            if not np.all(np.isfinite(q)):
+                bad.append("non-finite solution")
+            if cst["n"] < cf.cfg.min_matches:
+                bad.append(f"only {cst['n']} contour pairs")
+            elif cst["rms_px"] > cf.cfg.max_rms_px:
+                bad.append(f"contour RMS {cst['rms_px']:.1f} px")
+            return not bad, ", ".join(bad), stats
         d = surface_residuals(skel, balls, q[:n], q[n:], s, radii, frames[f].xyz[use],
                               part[use], cfg.fit.members)
         inlier = np.abs(d) < cfg.inlier_m
@@ -358,7 +412,8 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
         stats = {"n": int(use.sum()), "inl": share, "rmse": rm, "sig": r.theta_sigma,
                  "conv": bool(r.converged),
                  "unexplained": float(np.mean(np.abs(d_all) > cfg.inlier_m)),
-                 "cost": float(np.sum(np.minimum(np.abs(d_all), cfg.search_tau) ** 2))}
+                 "cost": float(np.sum(np.minimum(np.abs(d_all), cfg.search_tau) ** 2)),
+                 "contour": cst}
         bad = []
         if not np.all(np.isfinite(q)):
             bad.append("non-finite solution")
@@ -378,9 +433,13 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
             n_pts[f], inl[f], rmse[f], q_sig[f] = (stats["n"], stats["inl"], stats["rmse"],
                                                    stats["sig"])
             unexpl[f] = stats["unexplained"]
+            if stats["contour"] is not None:
+                c_n[f], c_rms[f] = stats["contour"]["n"], stats["contour"]["rms_px"]
         if ok:
             conv[f] = stats["conv"]
             labels = res[4]
+            if cframe(f) is not None:
+                cams_used[f] = cframe(f).cameras_used(skel)
         else:
             msgs.append(f"frame {f}: {why}: marked diverged" if stats is not None
                         else f"{why}: marked diverged")
@@ -400,7 +459,8 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
         fitted pose, or the prediction when no fit is accepted."""
         res = one_frame(f, q_pred, sig_pred, joints, q_hold)
         ok, why, st = assess(f, res)
-        if cfg.search and ok and st["unexplained"] <= cfg.retry_unexplained:
+        search = cfg.search and len(frames[f].xyz) >= cfg.min_points  # needs points
+        if search and ok and st["unexplained"] <= cfg.retry_unexplained:
             sr = search_limbs(frames[f].xyz, skel, balls, s, radii, res[0][:n], res[0][n:],
                               tau=cfg.search_tau, min_gain=cfg.search_min_gain)
             if sr.moved:
@@ -411,7 +471,7 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
                 if ok2 and st2["cost"] < st["cost"]:
                     res, ok, why, st = res2, ok2, why2, st2
                     retried[f] = True
-        elif cfg.search:
+        elif search:
             q0 = search_start(f, np.stack([q_pred, *alternatives]))
             res2 = one_frame(f, q0, sig_pred, joints, q_hold, anneal=True)
             ok2, why2, st2 = assess(f, res2)
@@ -420,7 +480,7 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
                 retried[f] = True
         record(f, res, ok, why, st)
         if ok:
-            hid[f] = hidden_dofs(frames[f].xyz, res[0], cfg.segment_max_dist)
+            hid[f] = hidden_dofs(frames[f].xyz, res[0], cfg.segment_max_dist, cframe(f))
         return ok, (res[0] if ok else q_pred)
 
     def store(f, q, ok):
@@ -464,7 +524,9 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
         if progress is not None:
             progress.update(k + 1, nf + len(shape_range), f"shape: frame {f}")
     if not shaped:
-        msgs.append("no usable points in the shape frames: the template shape is kept")
+        msgs.append("no usable points in the shape frames: the template shape is kept"
+                    if contours is None else "no usable points in the shape frames: the "
+                    "initial shape (e.g. fitted to the silhouettes) is kept")
     def refit_shape_frames():
         for f in shape_range:  # the poses with the final shape
             if div[f]:
@@ -502,6 +564,8 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
         for f in order:
             q_pred, sig_pred = pred.predict()
             q_prev = np.concatenate([theta[f - direction], root[f - direction]])
+            if cframe(f) is not None:  # predicted rates rank the cameras (observability)
+                cframe(f).theta_rate = q_pred[:n] - q_prev[:n]
             ok, q = fit_frame(f, q_pred, sig_pred, [q_prev],
                               q_hold=q_prev if cfg.hold_hidden else None)
             if ok:
@@ -518,7 +582,7 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
                 progress.update(done, nf + len(shape_range), f"frame {f}")
     balls_out = balls.copy(radii=radii) if fitted_balls is None else fitted_balls.copy()
     q = Quality(rmse_m=rmse, theta_sigma=q_sig, converged=conv & ~div, diverged=div,
-                cameras=[{} for _ in range(nf)])
+                cameras=cams_used)
     state = FitState(skeleton=skel, s=s, metaballs=balls_out, root_xyz=root, theta=theta,
                      quality=q, fps=fps, source_scene=source_scene,
                      metaball_model=metaball_model)
@@ -526,7 +590,8 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
         msgs.append(f"{int(retried.sum())} frames refitted after the limb search")
     return SequenceResult(state=state, n_points=n_pts, inlier_share=inl, unexplained=unexpl,
                           retried=retried, messages=msgs,
-                          seconds=time.perf_counter() - t_start, shape=shape_rec)
+                          seconds=time.perf_counter() - t_start, shape=shape_rec,
+                          contour_matches=c_n, contour_rms_px=c_rms)
 
 
 def _whole_body_shape(skel: Skeleton, template: Metaballs, s: np.ndarray, theta: np.ndarray,

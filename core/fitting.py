@@ -9,6 +9,10 @@ Observation equations by type, each weighted by its a-priori σ (eq. 12,
   metres, so that every point weighs like a distance whatever its depth or the size
   of its metaballs;
 * **joint positions** (clicked or predicted): ``(x_joint(θ, s) − obs) / σ_joint``;
+* **occluding contours** (optional, :mod:`core.fit_contours`): the image offset, along
+  the contour normal, of each observed silhouette contour point from the model's paired
+  rim point, ``n · (z − proj(x(θ, root, shape)))`` over σ in pixels, Huber-weighted;
+  the pairs are made afresh at the start of every re-weighting round;
 * **pose prior** (e.g. the prediction from the previous frames):
   ``(θ − θ_pred) / σ_pred``;
 * **soft joint limits** (:func:`core.skeleton.limit_residuals`);
@@ -55,6 +59,8 @@ class Observations:
     joint_xyz : (K, 3) metres
     sigma_joint : σ of a joint observation, metres
     theta_pred, sigma_pred : optional pose prior (n,) radians and its σ (scalar or (n,))
+    contours : optional :class:`core.fit_contours.ContourFrame` — the frame's silhouette
+      contours as a further observation type (σ in pixels, its own settings)
     """
 
     xyz: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
@@ -65,6 +71,7 @@ class Observations:
     sigma_joint: float = 0.01
     theta_pred: np.ndarray | None = None
     sigma_pred: float | np.ndarray = 0.2
+    contours: object | None = None
 
 
 @dataclass
@@ -133,6 +140,11 @@ class _Problem:
         self.frozen = None
         out = []
         for f in range(len(self.obs)):
+            if self.obs[f].contours is not None:  # contour pairs and weights, this state
+                b0 = self.balls
+                self.obs[f].contours.freeze(self.skel, Metaballs(b0.bone, centers, b0.group,
+                                                                 b0.rot, radii),
+                                            theta[f], root[f], s)
             x, _, _, sig = self.gathers[f]
             if not len(x):
                 out.append(np.zeros(0))
@@ -184,6 +196,12 @@ class _Problem:
                 else:
                     Jr_ += [None, None]
                 parts.append(("point", (att.L - LN_T) * w, *Jr_))
+            if o.contours is not None:
+                b0 = self.balls
+                cb = o.contours.block(skel, Metaballs(b0.bone, centers, b0.group, b0.rot, radii),
+                                      theta[f], root[f], s, self.anc, shape=shape)
+                if len(cb[0]):
+                    parts.append(("contour", *cb))
             if len(o.joint_idx):
                 xj, Jt, Js = joint_jacobians(skel, theta[f][None], root[f][None], s)
                 w = 1.0 / o.sigma_joint

@@ -1,0 +1,176 @@
+"""Contours as an observation type of the weighted least-squares fit (issue 7, item 6)."""
+
+import numpy as np
+import pytest
+
+from core import metaballs as mb
+from core import skeleton as sk
+from core.contour_obs import body_ellipsoids
+from core.contours import occluding_contours
+from core.fit import FramePoints, SequenceSettings, fit_sequence
+from core.fit_contours import (
+    ContourFrame,
+    ContourSettings,
+    contour_block,
+    contour_frames,
+    contours_from_frames,
+    match_frame,
+)
+from core.fit_init import initialise
+from core.fitting import FitSettings, Observations, fit
+from core.landmarks import CLICK_JOINTS, METRIC_JOINTS
+from core.model_render import render_parts
+from tests.core._bodyscene import clicks_of, look_at
+
+
+def _cams():
+    """Three cameras around the subject (front, side, diagonal), 512x384."""
+    t = (0.0, 0.0, 1.0)
+    return [look_at(f"cam0{i + 1}", c, t, f=700.0)
+            for i, c in enumerate(((0.0, -4.0, 1.1), (4.0, 0.0, 1.1), (-2.8, -2.8, 1.1)))]
+
+
+def _silhouettes(skel, balls, theta, root, s, cams):
+    """Occluding contours (per camera) of the model's own rendered silhouette."""
+    c, a, r, p = body_ellipsoids(skel, theta, root, s, balls)
+    return [occluding_contours(render_parts(cam, c, a, r, p).mask, spacing=1.5) for cam in cams]
+
+
+def _pose(skel):
+    theta = np.zeros(skel.n_dof)
+    for name, val in (("l_shoulder_y", -0.8), ("r_shoulder_y", 0.9), ("l_elbow_x", -0.6),
+                      ("r_knee_x", 0.5), ("r_hip_x", -0.4), ("l_hip_y", -0.25)):
+        theta[skel.dof_index(name)] = val
+    return theta, np.array([0.0, 0.0, 1.0])
+
+
+@pytest.fixture(scope="module")
+def body():
+    skel = sk.make_skeleton()
+    s = np.ones(skel.n_groups)
+    balls = mb.make_metaballs(skel, "simplified", s)
+    theta, root = _pose(skel)
+    cams = _cams()
+    return skel, balls, s, theta, root, cams, _silhouettes(skel, balls, theta, root, s, cams)
+
+
+def test_contour_jacobians_match_finite_differences(body):
+    skel, balls, s, theta, root, cams, observed = body
+    rng = np.random.default_rng(3)
+    th = theta + rng.normal(0, 0.03, theta.shape)
+    rt = root + np.array([0.01, -0.01, 0.005])
+    s1 = s * np.exp(rng.normal(0, 0.03, s.shape))
+    b1 = balls.copy(radii=balls.radii * np.exp(rng.normal(0, 0.05, balls.radii.shape)))
+    b1.center0 = b1.center0 + rng.normal(0, 0.005, b1.center0.shape)
+    pairs, _ = match_frame(skel, b1, th, rt, s1, cams, observed, ContourSettings())
+    assert len(pairs) > 200
+    r, Jt, Jr, Js, Jrad, Jc = contour_block(skel, b1, th, rt, s1, cams, pairs)
+    assert np.abs(r).max() > 0.5  # off the true pose: the residuals are not trivial
+
+    def res(th=th, rt=rt, s=s1, radii=b1.radii, centers=b1.center0):
+        b = b1.copy(radii=radii)
+        b.center0 = centers
+        return contour_block(skel, b, th, rt, s, cams, pairs, shape=False)[0]
+
+    def fd(x, make, cols_k, eps=1e-6):
+        cols = []
+        for k in cols_k:
+            d = np.zeros(x.size)
+            d[k] = eps
+            cols.append((res(**make((x.ravel() + d).reshape(x.shape)))
+                         - res(**make((x.ravel() - d).reshape(x.shape)))) / (2 * eps))
+        return np.stack(cols, axis=1)
+
+    for J, x, make in ((Jt, th, lambda v: {"th": v}), (Jr, rt, lambda v: {"rt": v}),
+                       (Js, s1, lambda v: {"s": v}),
+                       (Jrad, b1.radii, lambda v: {"radii": v}),
+                       (Jc, b1.center0, lambda v: {"centers": v})):
+        # the columns that any pair depends on, and a few that none does (zero)
+        live = np.flatnonzero(np.abs(J).max(axis=0) > 0)
+        dead = np.flatnonzero(np.abs(J).max(axis=0) == 0)
+        cols_k = np.concatenate([rng.choice(live, min(12, len(live)), replace=False),
+                                 dead[:2]])
+        num = fd(x, make, cols_k)
+        scale = np.abs(num).max()
+        assert scale > 0
+        np.testing.assert_allclose(J[:, cols_k], num, atol=1e-5 * scale)
+
+
+def test_pose_from_contours_alone_recovers_a_perturbed_pose(body):
+    """The weighted LM of core.fitting with contour observations only (no points): five
+    limb angles perturbed by 0.12 rad and the root by 2-3 cm come back to the silhouettes'
+    pose (every DOF free; the prior, like the sequence fit's, is loose on the perturbed
+    angles and tight elsewhere)."""
+    skel, balls, s, theta, root, cams, observed = body
+    rng = np.random.default_rng(12)
+    names = ("l_shoulder_y", "r_shoulder_x", "r_knee_x", "l_hip_x", "l_elbow_x")
+    th0 = theta.copy()
+    th0[[skel.dof_index(n) for n in names]] += rng.choice([-1, 1], len(names)) * 0.12
+    rt0 = root + np.array([0.02, -0.015, 0.01])
+    truth = sk.joint_positions(skel, theta, root, s)
+    err0 = np.linalg.norm(sk.joint_positions(skel, th0, rt0, s) - truth, axis=1).max()
+    cf = ContourFrame(cams, observed, ContourSettings(sigma_px=1.0, huber_px=2.0))
+    sig = np.full(skel.n_dof, 0.03)
+    sig[[skel.dof_index(n) for n in names]] = 0.5
+    obs = Observations(theta_pred=th0, sigma_pred=sig, contours=cf)
+    r = fit(skel, balls, obs, th0, rt0, s, solve="pose",
+            settings=FitSettings(irls_rounds=6, max_nfev=30))
+    err = np.linalg.norm(sk.joint_positions(skel, r.theta, r.root_xyz, s) - truth, axis=1)
+    assert err0 > 0.05
+    assert np.median(err) < 0.005 and err.max() < 0.02, (err0, np.median(err), err.max())
+    assert np.all(np.isfinite(r.theta_sigma))
+    # every part recorded which cameras it used (visibility >= 0.2)
+    used = cf.cameras_used(skel)
+    assert used["pelvis"] and set(used["pelvis"]) <= {c.name for c in cams}
+
+
+@pytest.mark.slow
+def test_sequence_from_contours_alone_and_a_frame_without_contours():
+    """fit_sequence with no points at all: contours carry the motion; a frame whose
+    contours are missing is marked diverged with a finite pose; cameras recorded."""
+    skel = sk.make_skeleton()
+    s = np.ones(skel.n_groups)
+    balls = mb.make_metaballs(skel, "simplified", s)
+    nf = 4
+    base, _ = _pose(skel)
+    theta = np.repeat(base[None], nf, axis=0)
+    theta[:, skel.dof_index("l_elbow_x")] += np.linspace(0.0, -0.3, nf)
+    theta[:, skel.dof_index("r_knee_x")] += np.linspace(0.0, 0.2, nf)
+    root = np.array([[0.0, 0.02 * f, 1.0] for f in range(nf)])
+    cams = _cams()
+    cons = [_silhouettes(skel, balls, theta[f], root[f], s, cams) for f in range(nf)]
+    cons[2] = [[] for _ in cams]  # nothing segmented in frame 2
+    init = initialise(clicks_of(skel, theta[0], root[0], s, cams, CLICK_JOINTS), cams,
+                      model="simplified")
+    init.metaballs = balls.copy()  # the silhouettes' own shape
+    frames = [FramePoints(np.zeros((0, 3)), np.zeros(0)) for _ in range(nf)]
+    cfr = contour_frames(cams, cons, ContourSettings(sigma_px=1.0, huber_px=2.0))
+    res = fit_sequence(frames, init, SequenceSettings(max_nfev=15, shape_frames=1),
+                       contours=cfr)
+    st, q = res.state, res.state.quality
+    assert q.diverged.tolist() == [False, False, True, False]
+    for arr in (st.theta, st.root_xyz):
+        assert np.all(np.isfinite(arr))
+    idx = [skel.joint_index(j) for j in METRIC_JOINTS]
+    err = np.linalg.norm(st.joints_xyz()[:, idx] - sk.joint_positions(skel, theta, root, s)[:, idx],
+                         axis=-1)
+    assert err[[0, 1, 3]].mean() < 0.015, err.mean(axis=1)
+    assert res.contour_matches[3] > 200 and res.contour_rms_px[3] < 2.0
+    names = {c.name for c in cams}
+    assert q.cameras[3] and all(set(v) <= names for v in q.cameras[3].values())
+    assert q.cameras[2] == {}  # nothing observed, nothing used
+
+
+def test_unusable_background_gives_no_contours_and_a_flag():
+    """A camera whose every frame is fresh noise has no stable background: its views
+    are flagged and give no contours (instead of a mask of everything)."""
+    rng = np.random.default_rng(0)
+    noise = rng.integers(0, 256, (6, 48, 64, 3), dtype=np.uint8)
+    cons, ok = contours_from_frames(noise)
+    assert not ok.any() and all(c == [] for c in cons)
+    # a static grey scene with a moving bright square: plausible masks and contours
+    frames = np.full((8, 48, 96, 3), 60, np.uint8)
+    for i in range(8):
+        frames[i, 10:30, 2 + 11 * i:18 + 11 * i] = 220
+    cons, ok = contours_from_frames(frames)
+    assert ok.all() and all(len(c) == 1 for c in cons)

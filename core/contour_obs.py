@@ -184,3 +184,144 @@ def _rim_jacobians(skel, pose, Rb, pb, rim, s, anc):
     group = np.full(len(bone), -1)
     x, J_theta, J_s = point_jacobians(skel, pose, bone, q0, group, s, anc)
     return x[0], J_theta[0], J_s[0]
+
+
+def contour_mask(contours: list[Contour], size: tuple[int, int]) -> np.ndarray:
+    """The foreground enclosed by occluding contours, shape (H, W) bool.
+
+    Outer contours are filled, holes cleared again (``size`` is ``(W, H)``).
+    """
+    import cv2
+
+    w, h = size
+    m = np.zeros((h, w), np.uint8)
+    outer = [np.round(c.uv).astype(np.int32) for c in contours if not c.hole and len(c) >= 3]
+    holes = [np.round(c.uv).astype(np.int32) for c in contours if c.hole and len(c) >= 3]
+    if outer:
+        cv2.fillPoly(m, outer, 1)
+    if holes:
+        cv2.fillPoly(m, holes, 0)
+    return m.astype(bool)
+
+
+@dataclass
+class SilhouetteField:
+    """Distance outside the observed foreground of one camera.
+
+    Attributes
+    ----------
+    dist : ndarray, shape (H, W)
+        Pixels from each background pixel to the nearest foreground pixel (0 inside).
+    grad : ndarray, shape (H, W, 2)
+        Its image gradient ``(d/du, d/dv)``, pixels per pixel.
+    """
+
+    dist: np.ndarray
+    grad: np.ndarray
+
+    def sample(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Bilinear distance (M,) and gradient (M, 2) at ``uv`` (M, 2); NaN outside."""
+        h, w = self.dist.shape
+        u, v = uv[:, 0], uv[:, 1]
+        ok = np.isfinite(u) & np.isfinite(v) & (u >= 0) & (v >= 0) & (u <= w - 1) & (v <= h - 1)
+        u0 = np.clip(np.floor(np.where(ok, u, 0)).astype(int), 0, w - 2)
+        v0 = np.clip(np.floor(np.where(ok, v, 0)).astype(int), 0, h - 2)
+        a = (np.where(ok, u, 0) - u0)[:, None]
+        b = (np.where(ok, v, 0) - v0)[:, None]
+        stack = np.concatenate([self.dist[..., None], self.grad], axis=2)
+        val = ((1 - a) * (1 - b) * stack[v0, u0] + a * (1 - b) * stack[v0, u0 + 1]
+               + (1 - a) * b * stack[v0 + 1, u0] + a * b * stack[v0 + 1, u0 + 1])
+        val[~ok] = np.nan
+        return val[:, 0], val[:, 1:]
+
+
+def silhouette_field(contours: list[Contour], size: tuple[int, int]) -> SilhouetteField:
+    """:class:`SilhouetteField` of the foreground enclosed by ``contours`` (``size`` (W, H))."""
+    import cv2
+
+    fg = contour_mask(contours, size)
+    dist = cv2.distanceTransform((~fg).astype(np.uint8), cv2.DIST_L2, 5).astype(float)
+    gv, gu = np.gradient(dist)
+    return SilhouetteField(dist, np.stack([gu, gv], axis=-1))
+
+
+#: Sample points of a metaball for the containment term, in units of its visible radii:
+#: the centre and half-way to the surface along each principal axis.
+_INNER = np.vstack([np.zeros(3), 0.5 * np.eye(3), -0.5 * np.eye(3)])
+
+
+@dataclass
+class ContainmentObservations:
+    """The body must project inside the foreground of every camera.
+
+    Attributes
+    ----------
+    residual : ndarray, shape (M,)
+        Distance outside the foreground of each sample point's projection minus the
+        tolerance, pixels (≥ 0 where it counts; 0 inside).
+    J_theta : ndarray, shape (M, n); J_root : ndarray, shape (M, 3)
+        Its derivatives, pixels per radian / per metre.
+    part : ndarray, shape (M,), int; camera : ndarray, shape (M,), int
+    outside : ndarray, shape (M,), bool
+        The point projects further than ``tol_px`` outside the foreground.
+    """
+
+    residual: np.ndarray
+    J_theta: np.ndarray
+    J_root: np.ndarray
+    part: np.ndarray
+    camera: np.ndarray
+    outside: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.residual)
+
+
+def containment_observations(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray,
+                             s: np.ndarray, balls: Metaballs, cameras: list[Camera],
+                             fields: list[SilhouetteField], tol_px: float = 2.0
+                             ) -> ContainmentObservations:
+    """Silhouette containment: points inside every metaball must project into the foreground.
+
+    Unlike a contour, this holds in every camera whatever occludes the part (a limb in
+    front of the trunk still projects inside the silhouette), and its capture range is
+    as wide as the distance field: a limb that left the silhouette is pulled back
+    towards the nearest foreground.  Seven points per metaball (:data:`_INNER`), each
+    a residual ``max(D(proj(x)) - tol_px, 0)`` with the distance field ``D`` of
+    :func:`silhouette_field`; points projecting outside the image are left out.
+    """
+    theta = np.asarray(theta, float)
+    root_xyz = np.asarray(root_xyz, float)
+    centers, axes, radii, part = body_ellipsoids(skel, theta, root_xyz, s, balls)
+    K = len(_INNER)
+    xyz = (centers[:, None] + np.einsum("eij,ekj->eki", axes, _INNER[None] * radii[:, None])
+           ).reshape(-1, 3)
+    bone = np.repeat(part, K)
+    pose = forward(skel, theta[None], root_xyz[None], s)
+    Rb, pb = bone_frames(skel, pose)
+    anc = skel.ancestors()
+    q0 = np.einsum("mji,mj->mi", Rb[0, bone], xyz - pb[0, bone])
+    _, J_th, _ = point_jacobians(skel, pose, bone, q0, np.full(len(bone), -1), s, anc)
+    J_th = J_th[0]
+    res, Jt, Jr, parts, cams, outside = [], [], [], [], [], []
+    for c, (cam, fld) in enumerate(zip(cameras, fields, strict=True)):
+        uv, _, J_xyz = camera_project_jacobians(cam, xyz)
+        d, g = fld.sample(uv)
+        ok = np.isfinite(d)
+        if not ok.any():
+            continue
+        gJ = np.einsum("mi,mij->mj", g[ok], J_xyz[ok])  # (m, 3)
+        on = d[ok] > tol_px
+        res.append(np.where(on, d[ok] - tol_px, 0.0))
+        Jt.append(np.einsum("mj,mjk->mk", gJ, J_th[ok]) * on[:, None])
+        Jr.append(gJ * on[:, None])
+        parts.append(bone[ok])
+        cams.append(np.full(int(ok.sum()), c))
+        outside.append(on)
+    n = skel.n_dof
+    if not res:
+        return ContainmentObservations(np.zeros(0), np.zeros((0, n)), np.zeros((0, 3)),
+                                       np.zeros(0, int), np.zeros(0, int), np.zeros(0, bool))
+    return ContainmentObservations(np.concatenate(res), np.vstack(Jt), np.vstack(Jr),
+                                   np.concatenate(parts), np.concatenate(cams),
+                                   np.concatenate(outside))

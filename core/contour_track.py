@@ -29,7 +29,7 @@ import numpy as np
 import scipy.linalg
 
 from .camera import Camera
-from .contour_obs import contour_observations
+from .contour_obs import containment_observations, contour_observations, silhouette_field
 from .contours import Contour
 from .ekf import EKF
 from .metaballs import Metaballs
@@ -56,6 +56,17 @@ class ContourTrackSettings:
     accel_theta: float = 0.04        # process noise [rad/frame²]
     accel_root: float = 0.01         # [m/frame²]
     damping: float = 0.9             # rate decay per frame
+    containment: bool = True         # the body must project inside every foreground
+    sigma_in_px: float = 2.0         # σ of a containment observation [px]
+    huber_in_px: float = 6.0         # its Huber threshold [px]
+    tol_in_px: float = 2.0           # distance outside the foreground that is free [px]
+    diverge_outside: float = 0.15    # diverged: more model points this far outside ...
+    diverge_outside_px: float = 8.0  # ... the foreground [px], or
+    diverge_unexplained: float = 0.2  # more observed contour points this far from ...
+    diverge_unexplained_px: float = 8.0  # ... the model's silhouette [px]
+    recover: bool = True             # re-solve a diverged frame from a widened prior
+    recover_sigma_theta: float = 0.35  # prior σ of the suspect parts' angles then [rad]
+    recover_dist_px: float = 30.0    # contour pairing distance then [px]
 
 
 @dataclass
@@ -69,6 +80,12 @@ class FrameTrack:
     n_matches : contour observations used
     updated : False when the frame kept the prediction (too few matches)
     use : (P, C) bool — cameras used per part
+    diverged : the model lost the body in this frame (:func:`divergence`): more than
+        ``diverge_outside`` of its points project outside the foreground, or more than
+        ``diverge_unexplained`` of the observed contour is far from its silhouette
+    outside_frac, unexplained_frac : those two fractions (NaN: not measured)
+    recovered : the frame was diverged after the usual update and a re-solve from a
+        widened prior (:func:`update_with_contours`) was kept
     """
 
     theta: np.ndarray
@@ -78,6 +95,10 @@ class FrameTrack:
     n_matches: int
     updated: bool
     use: np.ndarray
+    diverged: bool = False
+    outside_frac: float = float("nan")
+    unexplained_frac: float = float("nan")
+    recovered: bool = False
 
 
 def _limits(skel: Skeleton) -> tuple[np.ndarray, np.ndarray]:
@@ -99,38 +120,55 @@ def start_filter(skel: Skeleton, theta0: np.ndarray, root0: np.ndarray,
                      lower=lo, upper=hi)
 
 
-def update_with_contours(ekf: EKF, skel: Skeleton, s: np.ndarray, balls: Metaballs,
-                         cameras: list[Camera], contours: list[list[Contour]],
-                         cfg: ContourTrackSettings, rays=None) -> FrameTrack:
-    """Iterated EKF update of ``ekf`` (in place) with one frame's contours."""
+def bone_dofs(skel: Skeleton) -> list[np.ndarray]:
+    """The DOFs that rotate each bone relative to its parent bone, list (B) of int arrays."""
+    out = []
+    for b in range(len(skel.bone_names)):
+        pb = skel.bone_parent[b]
+        stop = skel.bone_dof[pb] if pb >= 0 else -1
+        k, dofs = skel.bone_dof[b], []
+        while k >= 0 and k != stop:
+            dofs.append(k)
+            k = skel.dof_parent[k]
+        out.append(np.array(dofs[::-1], int))
+    return out
+
+
+def _solve(x_pred, P_pred, skel, s, balls, cameras, contours, cfg, rays, fields, max_dist_px,
+           iterations):
+    """Iterated information-form update from the prior (x_pred, P_pred).
+
+    Returns (x, P, obs) — P None and x the prior when too few contour matches.
+    """
     n = skel.n_dof
     m = n + 3
-    x_pred, P_pred = ekf.x.copy(), ekf.P.copy()
     N = x_pred.size
     P_inv = scipy.linalg.cho_solve(scipy.linalg.cho_factor(P_pred + 1e-12 * np.eye(N)),
                                    np.eye(N))
     rate = x_pred[m:m + n]
     x_i = x_pred.copy()
-    obs = None
-    info = None
-    for _ in range(max(1, cfg.iterations)):
+    obs = info = None
+    for _ in range(max(1, iterations)):
         theta, root = x_i[:n], x_i[n:m]
         obs = contour_observations(skel, theta, root, s, balls, cameras, contours,
                                    theta_rate=rate if cfg.select and cfg.observability
                                    else None,
-                                   sigma_px=cfg.sigma_px, max_dist_px=cfg.max_dist_px,
+                                   sigma_px=cfg.sigma_px, max_dist_px=max_dist_px,
                                    select=cfg.select, rays=rays)
         if len(obs) < cfg.min_matches:
-            ekf.x, ekf.P = x_pred, P_pred
-            return FrameTrack(x_pred[:n].copy(), x_pred[n:m].copy(),
-                              np.sqrt(np.diag(P_pred)[:m]), float("nan"), len(obs), False,
-                              obs.selection.use)
+            return x_pred, None, obs
         J = np.zeros((len(obs), N))
         J[:, :n], J[:, n:m] = obs.J_theta, obs.J_root
         r = obs.residual
-        a = np.abs(r)
-        w = np.where(a <= cfg.huber_px, 1.0, cfg.huber_px / np.maximum(a, 1e-12))
-        w = w / cfg.sigma_px**2
+        w = _huber(r, cfg.huber_px) / cfg.sigma_px**2
+        if fields is not None and cfg.containment:
+            co = containment_observations(skel, theta, root, s, balls, cameras, fields,
+                                          tol_px=cfg.tol_in_px)
+            Jc = np.zeros((len(co), N))
+            Jc[:, :n], Jc[:, n:m] = co.J_theta, co.J_root
+            J = np.vstack([J, Jc])
+            r = np.concatenate([r, co.residual])
+            w = np.concatenate([w, _huber(co.residual, cfg.huber_in_px) / cfg.sigma_in_px**2])
         # linearised about x_i: r(x) ≈ r_i + J (x − x_i); minimise
         # |x − x_pred|²_{P⁻¹} + |r_i + J (x − x_i)|²_W
         JW = J.T * w
@@ -140,13 +178,138 @@ def update_with_contours(ekf: EKF, skel: Skeleton, s: np.ndarray, balls: Metabal
         x_i = x_i + delta
         if np.max(np.abs(delta[:m])) < 1e-5:
             break
-    ekf.x = x_i
-    ekf.P = scipy.linalg.cho_solve(scipy.linalg.cho_factor(info), np.eye(N))
-    ekf.P = 0.5 * (ekf.P + ekf.P.T)
+    P = scipy.linalg.cho_solve(scipy.linalg.cho_factor(info), np.eye(N))
+    return x_i, 0.5 * (P + P.T), obs
+
+
+def _huber(r: np.ndarray, k: float) -> np.ndarray:
+    a = np.abs(r)
+    return np.where(a <= k, 1.0, k / np.maximum(a, 1e-12))
+
+
+def divergence(skel: Skeleton, theta: np.ndarray, root: np.ndarray, s: np.ndarray,
+               balls: Metaballs, cameras: list[Camera], contours: list[list[Contour]],
+               fields: list, renders: list, cfg: ContourTrackSettings
+               ) -> tuple[float, float, np.ndarray]:
+    """How far the model at a pose has lost the observed silhouettes.
+
+    Returns
+    -------
+    outside_frac : float
+        Fraction of the model's inner points (:func:`core.contour_obs.containment_observations`,
+        every camera) projecting more than ``cfg.diverge_outside_px`` outside the
+        foreground — a part where there is no body.
+    unexplained_frac : float
+        Fraction of the observed contour points further than ``cfg.diverge_unexplained_px``
+        from the model's rendered silhouette (``renders``, :class:`PartRender` per
+        camera) — body the model does not explain.
+    part_outside : ndarray, shape (B,)
+        Per part, the largest fraction of its points outside in any camera.
+    """
+    import cv2
+
+    co = containment_observations(skel, theta, root, s, balls, cameras, fields,
+                                  tol_px=cfg.diverge_outside_px)
+    B = len(skel.bone_names)
+    part_out = np.zeros(B)
+    if len(co):
+        for c in range(len(cameras)):
+            k = co.camera == c
+            cnt = np.bincount(co.part[k], minlength=B)[:B]
+            bad = np.bincount(co.part[k], weights=co.outside[k], minlength=B)[:B]
+            part_out = np.maximum(part_out, np.where(cnt > 0, bad / np.maximum(cnt, 1), 0.0))
+    outside = float(co.outside.mean()) if len(co) else float("nan")
+    far = total = 0
+    for cons, rnd in zip(contours, renders, strict=True):
+        if not cons:
+            continue
+        uv = np.vstack([c.uv for c in cons])
+        d = cv2.distanceTransform((~rnd.mask).astype(np.uint8), cv2.DIST_L2, 5)
+        h, w = d.shape
+        iu = np.clip(np.round(uv[:, 0]).astype(int), 0, w - 1)
+        iv = np.clip(np.round(uv[:, 1]).astype(int), 0, h - 1)
+        far += int((d[iv, iu] > cfg.diverge_unexplained_px).sum())
+        total += len(uv)
+    unexplained = far / total if total else float("nan")
+    return outside, unexplained, part_out
+
+
+def _is_diverged(outside: float, unexplained: float, cfg: ContourTrackSettings) -> bool:
+    return bool(outside > cfg.diverge_outside or unexplained > cfg.diverge_unexplained)
+
+
+def update_with_contours(ekf: EKF, skel: Skeleton, s: np.ndarray, balls: Metaballs,
+                         cameras: list[Camera], contours: list[list[Contour]],
+                         cfg: ContourTrackSettings, rays=None, fields=None) -> FrameTrack:
+    """Iterated EKF update of ``ekf`` (in place) with one frame's contours.
+
+    ``fields`` (list (C) of :class:`core.contour_obs.SilhouetteField`, optional) adds the
+    silhouette containment term (``cfg.containment``) and lets the frame be checked for
+    divergence (:func:`divergence`).  A diverged frame is re-solved once
+    (``cfg.recover``) from the prediction with the angles of the suspect parts (those
+    with points outside the foreground, or every part when none is) widened to
+    ``cfg.recover_sigma_theta`` and their rates zeroed, pairing contours up to
+    ``cfg.recover_dist_px``; the re-solve is kept when it explains the silhouettes
+    better.  A frame still diverged after that is marked ``diverged`` and its covariance
+    is left widened, so that the next frames can pull the parts back.
+    """
+    n = skel.n_dof
+    m = n + 3
+    x_pred, P_pred = ekf.x.copy(), ekf.P.copy()
+    x, P, obs = _solve(x_pred, P_pred, skel, s, balls, cameras, contours, cfg, rays, fields,
+                       cfg.max_dist_px, cfg.iterations)
+    if P is None:
+        ekf.x, ekf.P = x_pred, P_pred
+        return FrameTrack(x_pred[:n].copy(), x_pred[n:m].copy(),
+                          np.sqrt(np.diag(P_pred)[:m]), float("nan"), len(obs), False,
+                          obs.selection.use, diverged=True)
+    ekf.x, ekf.P = x, P
     ekf._apply_limits()
+    out_f = unexp = float("nan")
+    diverged = recovered = False
+    if fields is not None:
+        out_f, unexp, part_out = divergence(skel, ekf.x[:n], ekf.x[n:m], s, balls, cameras,
+                                            contours, fields, obs.renders, cfg)
+        diverged = _is_diverged(out_f, unexp, cfg)
+        if diverged and cfg.recover:
+            suspects = np.flatnonzero(part_out > 0.3)
+            dofs = bone_dofs(skel)
+            idx = (np.concatenate([dofs[b] for b in suspects]) if len(suspects)
+                   else np.arange(n))
+            P2 = P_pred.copy()
+            x2 = x_pred.copy()
+            P2[idx, idx] += cfg.recover_sigma_theta**2
+            x2[m + idx] = 0.0
+            P2[m + idx, m + idx] += cfg.rate_sigma_theta**2
+            xr, Pr, obs_r = _solve(x2, P2, skel, s, balls, cameras, contours, cfg, rays,
+                                   fields, cfg.recover_dist_px, 2 * cfg.iterations)
+            if Pr is not None:
+                # tighten the pairing again from the recovered pose
+                xr, Pr2, obs_r2 = _solve(xr, Pr, skel, s, balls, cameras, contours, cfg, rays,
+                                         fields, cfg.max_dist_px, cfg.iterations)
+                if Pr2 is not None:
+                    Pr, obs_r = Pr2, obs_r2
+                lo, hi = _limits(skel)
+                xr[:m] = np.clip(xr[:m], lo, hi)
+                o2, u2, _ = divergence(skel, xr[:n], xr[n:m], s, balls, cameras, contours,
+                                       fields, obs_r.renders, cfg)
+                if o2 + u2 < out_f + unexp:
+                    ekf.x, ekf.P, obs = xr, Pr, obs_r
+                    out_f, unexp = o2, u2
+                    recovered = True
+                    diverged = _is_diverged(out_f, unexp, cfg)
+        if diverged:
+            ekf.P[:m, :m] += np.diag(np.concatenate([np.full(n, cfg.q_sigma_theta),
+                                                     np.full(3, cfg.q_sigma_root)]) ** 2)
     rms = float(np.sqrt(np.mean(obs.residual**2)))
     return FrameTrack(ekf.x[:n].copy(), ekf.x[n:m].copy(), np.sqrt(np.diag(ekf.P)[:m]), rms,
-                      len(obs), True, obs.selection.use)
+                      len(obs), True, obs.selection.use, diverged=diverged,
+                      outside_frac=out_f, unexplained_frac=unexp, recovered=recovered)
+
+
+def frame_fields(cameras: list[Camera], contours: list[list[Contour]]) -> list:
+    """:func:`core.contour_obs.silhouette_field` of every camera of one frame, list (C)."""
+    return [silhouette_field(cons, cam.size) for cons, cam in zip(contours, cameras, strict=True)]
 
 
 def track_contours(skel: Skeleton, s: np.ndarray, balls: Metaballs, theta0: np.ndarray,
@@ -178,7 +341,8 @@ def track_contours(skel: Skeleton, s: np.ndarray, balls: Metaballs, theta0: np.n
         if f:
             ekf.predict()
         out.append(update_with_contours(ekf, skel, s, balls, cameras, frame_contours, cfg,
-                                        rays=rays))
+                                        rays=rays, fields=frame_fields(cameras,
+                                                                       frame_contours)))
         if progress is not None:
             progress.update(f + 1, len(contours), f"contour tracking: frame {f + 1}")
     return out

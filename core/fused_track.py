@@ -23,7 +23,13 @@ from __future__ import annotations
 import numpy as np
 
 from .camera import Camera
-from .contour_track import ContourTrackSettings, FrameTrack, start_filter, update_with_contours
+from .contour_track import (
+    ContourTrackSettings,
+    FrameTrack,
+    frame_fields,
+    start_filter,
+    update_with_contours,
+)
 from .contours import Contour
 from .metaballs import Metaballs
 from .model_render import camera_rays
@@ -88,7 +94,8 @@ def track_fused(skel: Skeleton, s: np.ndarray, balls: Metaballs, theta0: np.ndar
             ekf.update(q_points[f, k], lambda q, k=k: q[k], H, sig[k] ** 2)
             n_used[f] = len(k)
         out.append(update_with_contours(ekf, skel, s, balls, cameras, frame_contours, cfg,
-                                        rays=rays))
+                                        rays=rays, fields=frame_fields(cameras,
+                                                                       frame_contours)))
         if progress is not None:
             progress.update(f + 1, len(contours), f"texture + contour tracking: frame {f + 1}")
     return out, n_used

@@ -1,0 +1,187 @@
+"""Per-part camera selection against all cameras fused, on self-occluding studio scenes.
+
+``python -m bench.selection [--scenes dance_line3,dance_ortho3,pirouette_line3,pirouette_ortho3]
+[--frames N]``
+
+The second paper's claim (issue 7): tracking each body part only from the cameras that see
+it (visibility index ≥ 0.2) and observe its motion survives self-occlusion better than
+fusing every camera.  For each scene: the occluding contours of every frame come from our
+own foreground (:func:`core.background.fit_background`, a robust temporal median — no
+truth masks), the key-joint clicks give the first pose, the metaball shape is fitted to
+the first frame's silhouettes (:func:`core.contour_track.fit_shape_to_contours`), then the
+contour EKF (:func:`core.contour_track.track_contours`) runs twice — with per-part camera
+selection and with all cameras fused — and one row each is printed side by side: MPJPE
+(all frames, diverged ones included), limb segment orientation RMSE
+(:func:`core.evaluate.evaluate`), frames the tracker marked diverged, frames whose MPJPE
+exceeds ``--lost-mm`` (an independent check against the truth), s/frame (CPU time), and
+the agreement of the cameras each part used with the truth's visibility (which cameras
+see ≥ 20 % of the part in the true mesh, :mod:`bench.visibility`).
+
+Scenes: the dance scenes are :data:`bench.fit.STUDIO_SCENES` (rendered and cached by
+:func:`bench.fit.render_studio_scene`); the pirouette scenes (``pirouette.bvh``, CMU
+"Daz-friendly" joint names, from BVH frame 120 — the clip's busiest 2 s: the hips turn
+about 700 degrees) are rendered here, once, from a copy of the clip whose joints are
+renamed to the CMU names the studio's character expects (:data:`DAZ_TO_CMU`), and cached
+under ``out/bench_fit/<name>``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+DEFAULT_SCENES = ("dance_line3", "dance_ortho3", "pirouette_line3", "pirouette_ortho3")
+
+#: Daz-friendly CMU joint -> the CMU (MotionBuilder) name the studio character uses.
+DAZ_TO_CMU = {"hip": "Hips", "abdomen": "LowerBack", "chest": "Spine", "neck": "Neck",
+              "head": "Head"}
+for _s, _S in (("l", "Left"), ("r", "Right")):
+    DAZ_TO_CMU.update({f"{_s}Collar": f"{_S}Shoulder", f"{_s}Shldr": f"{_S}Arm",
+                       f"{_s}ForeArm": f"{_S}ForeArm", f"{_s}Hand": f"{_S}Hand",
+                       f"{_s}Mid1": f"{_S}FingerBase", f"{_s}Mid2": f"{_S}HandIndex1",
+                       f"{_s}Buttock": f"{_s.upper()}HipJoint", f"{_s}Thigh": f"{_S}UpLeg",
+                       f"{_s}Shin": f"{_S}Leg", f"{_s}Foot": f"{_S}Foot"})
+
+#: Pirouette scenes: name -> (rig, first BVH frame).
+PIROUETTE_SCENES = {"pirouette_line3": ("line3", 120), "pirouette_ortho3": ("orthogonal3", 120)}
+
+
+def renamed_bvh(src: Path, dst: Path) -> Path:
+    """Copy of the BVH ``src`` with Daz-friendly joint names replaced (:data:`DAZ_TO_CMU`)."""
+    text = src.read_text()
+    out = re.sub(r"^(\s*(?:ROOT|JOINT)\s+)(\S+)",
+                 lambda m: m.group(1) + DAZ_TO_CMU.get(m.group(2), m.group(2)), text,
+                 flags=re.M)
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    dst.write_text(out)
+    return dst
+
+
+def scene_dir(name: str) -> Path:
+    """The cached scene folder of ``name``, rendered first when missing."""
+    from bench.fit import FPS, FRAMES, MOCAP, RENDERS, SIZE, render_studio_scene
+
+    if name not in PIROUETTE_SCENES:
+        return render_studio_scene(name)[0]
+    out = RENDERS / name
+    if (out / "scene.toml").is_file() and (out / "truth.npz").is_file():
+        return out
+    rig, start = PIROUETTE_SCENES[name]
+    bvh = renamed_bvh(MOCAP / "pirouette.bvh", RENDERS / "pirouette_cmu.bvh")
+    cmd = [sys.executable, "-m", "sample_scenes.studio", "--out", str(out), "--bvh", str(bvh),
+           "--rig", rig, "--start", str(start), "--frames", str(FRAMES), "--fps", str(FPS),
+           "--size", SIZE, "--wand-positions", "0"]
+    print(f"rendering {name}: python {' '.join(cmd[1:])}", flush=True)
+    p = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
+    if p.returncode != 0 or not (out / "truth.npz").is_file():
+        raise RuntimeError(f"studio failed for {name}: {p.stderr.strip().splitlines()[-1:]}")
+    return out
+
+
+def scene_contours(scene, n_frames: int, spacing: float = 2.0):
+    """Occluding contours (F, C) from our own foreground of every camera."""
+    from core.background import fit_background
+    from core.contours import occluding_contours
+
+    contours = [[] for _ in range(n_frames)]
+    for cam in scene.cameras:
+        frames = np.array([scene.image(cam, i, color=True) for i in range(scene.n_frames)])
+        model = fit_background(frames)
+        for f in range(n_frames):
+            contours[f].append(occluding_contours(model.foreground(frames[f]), spacing=spacing))
+    return contours
+
+
+def _joints_like_truth(skel, theta, root, s, names):
+    """Fitted joints (F, J, 3) in the order of the truth's ``names``."""
+    from core.skeleton import joint_positions
+
+    xyz = joint_positions(skel, theta, root, s)
+    order = [skel.joint_names.index(n) for n in names]
+    return xyz[:, order]
+
+
+def run_scene(name: str, n_frames: int, lost_mm: float = 100.0, settings: dict | None = None):
+    """Track one scene with selection and fused; returns a list of result dicts."""
+    from core.contour_track import ContourTrackSettings, fit_shape_to_contours, track_contours
+    from core.evaluate import evaluate, truth_joints
+    from core.fit_init import initialise
+    from core.model_render import camera_rays
+    from core.scene import load_scene
+
+    scene = load_scene(scene_dir(name))
+    cams = scene.calibration()
+    nf = min(n_frames, scene.n_frames)
+    t0 = time.process_time()
+    contours = scene_contours(scene, nf)
+    t_seg = time.process_time() - t0
+    init = initialise(scene.clicks(), cams, model="simplified")
+    rays = [camera_rays(c) for c in cams]
+    tight = ContourTrackSettings(q_sigma_theta=0.01, q_sigma_root=0.002)
+    t0 = time.process_time()
+    balls, th0, rt0, rms = fit_shape_to_contours(init.skeleton, init.s, init.metaballs,
+                                                 init.theta, init.root_xyz, cams, contours[0],
+                                                 tight, rays=rays)
+    t_shape = time.process_time() - t0
+    txyz, names = truth_joints(scene.truth)
+    txyz = txyz[:nf]
+    height = float(scene.truth["height_m"])
+    print(f"\n{name}: {len(cams)} cameras, {nf} frames; contours {t_seg:.0f} s CPU; shape "
+          f"fitted to frame 0 (RMS {rms:.2f} px, {t_shape:.0f} s CPU)", flush=True)
+    rows = []
+    for select, label in ((True, "per-part selection"), (False, "all fused")):
+        cfg = ContourTrackSettings(select=select, **(settings or {}))
+        t0 = time.process_time()
+        out = track_contours(init.skeleton, init.s, balls, th0, rt0, cams, contours, cfg)
+        dt = (time.process_time() - t0) / nf
+        th = np.array([t.theta for t in out])
+        rt = np.array([t.root for t in out])
+        fxyz = _joints_like_truth(init.skeleton, th, rt, init.s, names)
+        ev = evaluate(fxyz, txyz, names, height)
+        diverged = np.array([getattr(t, "diverged", not t.updated) for t in out])
+        lost = ev.curves["mpjpe_mm"] > lost_mm
+        rows.append({"scene": name, "method": label, "mpjpe_mm": ev.mpjpe_mm,
+                     "seg_rmse_deg": ev.segment_orientation_rmse_deg,
+                     "diverged": int(diverged.sum()), "lost": int(lost.sum()),
+                     "s_per_frame": dt, "curve": ev.curves["mpjpe_mm"], "track": out,
+                     "diverged_mask": diverged})
+    return rows
+
+
+def print_rows(rows, lost_mm: float) -> None:
+    print(f"{'scene':18s} {'cameras':20s} {'MPJPE mm':>9s} {'seg RMSE deg':>12s} "
+          f"{'diverged':>8s} {f'>{lost_mm:g} mm':>8s} {'s/frame':>7s}   MPJPE per 5 frames")
+    for r in rows:
+        curve = " ".join(f"{e:4.0f}" for e in r["curve"][::5])
+        print(f"{r['scene']:18s} {r['method']:20s} {r['mpjpe_mm']:9.1f} {r['seg_rmse_deg']:12.1f} "
+              f"{r['diverged']:8d} {r['lost']:8d} {r['s_per_frame']:7.2f}   {curve}", flush=True)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenes", default=",".join(DEFAULT_SCENES),
+                    help="comma-separated scene names (bench.fit.STUDIO_SCENES or pirouette_*)")
+    ap.add_argument("--frames", type=int, default=50, help="frames per scene")
+    ap.add_argument("--lost-mm", type=float, default=100.0,
+                    help="a frame with MPJPE above this counts as lost (truth check)")
+    args = ap.parse_args(argv)
+    rows = []
+    for name in args.scenes.split(","):
+        rows += run_scene(name.strip(), args.frames, args.lost_mm)
+        print_rows(rows[-2:], args.lost_mm)
+    load = " ".join(f"{x:.2f}" for x in os.getloadavg())
+    print(f"\nAll scenes (load average {load}):")
+    print_rows(rows, args.lost_mm)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -353,6 +353,8 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
         lab = labels
         stages = cfg.anneal if anneal else \
             ((cfg.segment_max_dist, cfg.fit.robust_scale),) * (2 if cfg.resegment else 1)
+        if cf is not None and len(pts.xyz) < cfg.min_points:  # contours alone: no
+            stages = stages[:1]  # segmentation to redo (they re-pair every round)
         q, target_q = q_pred.copy(), q_pred.copy()
         r = part = None
         for k, (max_dist, knee) in enumerate(stages):

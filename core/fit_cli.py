@@ -5,6 +5,12 @@ missing, tracking when ``tracks.npz`` is missing and the tracker is available, t
 initialisation from ``clicks.json`` and the fit (:func:`core.fit_scene.run_scene`).
 ``--observations truth`` fits truth-derived surface points instead of tracks (a
 development stand-in, see :mod:`core.truth_points`; the output says so).
+``--cues`` chooses the observation types of every frame's weighted least squares:
+``texture`` (the default: the 3-D surface points of the tracker, or the truth-derived
+ones), ``contours`` (the silhouettes' occluding contours from every camera's
+foreground, σ in pixels; no tracker; the metaball shape is fitted to the clicked
+frame's silhouettes) or ``both``; with contours the cameras each part used are written
+per frame in the state's quality (SPEC: ``quality.cameras``).
 ``--fit-shape`` adds the whole-body shape fit (``SequenceSettings.shape = "fit"``, see
 :mod:`core.fit`) after the shape frames; its result is printed as a note.  Prints the
 per-frame quality summary, the messages (dropped clicks, diverged frames) and the
@@ -33,6 +39,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="candidate truth-derived points per frame")
     parser.add_argument("--predictor", choices=("ekf", "constant_velocity"), default="ekf")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--cues", choices=("texture", "contours", "both"), default="texture",
+                        help="observations of the fit: texture (3-D surface points, the "
+                             "default), contours (silhouette contours from each camera's "
+                             "foreground: no tracker, shape fitted to the clicked frame's "
+                             "silhouettes) or both")
+    parser.add_argument("--contour-sigma", type=float, default=None, metavar="PX",
+                        help="a-priori sigma of one contour observation, pixels "
+                             "(default 2)")
     parser.add_argument("--fit-shape", action="store_true",
                         help="after the shape frames' poses, fit the whole-body metaball "
                              "shape to their points (core.shape_fit) and refit those poses")
@@ -48,20 +62,29 @@ def run(args: argparse.Namespace) -> int:
 
     if args.frames is not None and args.frames < 1:
         raise InputError("--frames must be at least 1")
+    if args.contour_sigma is not None and not args.contour_sigma > 0:
+        raise InputError("--contour-sigma must be a positive number of pixels")
     scene = load_scene(args.scene, check_images=False)
+    csettings = None
+    if args.contour_sigma is not None:
+        from .fit_contours import ContourSettings
+
+        csettings = ContourSettings(sigma_px=args.contour_sigma)
     out = args.output if args.output is not None else scene.root / "fit.json"
     res = run_scene(scene, observations=args.observations, model=args.model,
                     settings=SequenceSettings(predictor=args.predictor,
                                               shape="fit" if args.fit_shape else "template"),
                     progress=Progress(), n_points=args.points, seed=args.seed,
-                    frames=args.frames)
+                    frames=args.frames, cues=args.cues, contour_settings=csettings)
     st = res.state
     if st.n_frames < scene.n_frames:  # pad unfitted frames: hold the last pose, flagged
         st = _pad(st, scene.n_frames)
     write_state(out, st)
     q = st.quality
-    label = "truth-derived observations (development stand-in)" if res.source == "truth" \
-        else "tracks"
+    label = {"truth": "truth-derived observations (development stand-in)",
+             "contours": "silhouette contours alone"}.get(res.source, "tracks")
+    if res.source != "contours" and args.cues == "both":
+        label += " and silhouette contours"
     print(f"fitted {res.state.n_frames} of {scene.n_frames} frames from {label}")
     for m in res.messages:
         print(f"  note: {m}")
@@ -69,6 +92,10 @@ def run(args: argparse.Namespace) -> int:
     print(f"points per frame: median {int(np.median(res.n_points))}; surface RMS median "
           f"{1000 * np.median(rm) if len(rm) else float('nan'):.2f} mm; diverged frames "
           f"{int(q.diverged.sum())}")
+    if res.contour_matches is not None:
+        cr = res.contour_rms_px[np.isfinite(res.contour_rms_px)]
+        print(f"contour pairs per frame: median {int(np.median(res.contour_matches))}; "
+              f"contour RMS median {np.median(cr) if len(cr) else float('nan'):.2f} px")
     tm = res.timings
     print("seconds: " + ", ".join(f"{k} {v:.1f}" for k, v in tm.items())
           + f"; fit {tm['fit'] / res.state.n_frames:.2f} s/frame")

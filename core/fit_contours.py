@@ -59,6 +59,9 @@ class ContourSettings:
     max_rms_px: float = 6.0        # ... or with a larger RMS of its inlier pairs [px]
     min_part_matches: int = 6      # a part with fewer pairs is hidden to the contours
     spacing_px: float = 2.0        # sampling of the image contours [px]
+    rim_samples: int = 32          # model rim samples per metaball
+    outer_px: float = 3.0          # only rim points with no model pixel this far out (0: all)
+    background_frames: int = 20    # frames (evenly spaced) in the background medians
     rounds: int = 3                # re-pairing (re-weighting) rounds per pose solve, at least
     min_fg_frac: float = 0.002     # a foreground mask covering less of the image, ...
     max_fg_frac: float = 0.5       # ... or more, gives no contours for that view
@@ -124,7 +127,10 @@ def match_frame(skel: Skeleton, balls: Metaballs, theta: np.ndarray, root: np.nd
         r = render_parts(cam, centers, axes, radii, balls.bone, n_parts,
                          rays=None if rays is None else rays[c])
         renders.append(r)
-        rims.append(rim_points(cam, centers, axes, radii, balls.bone, render=r))
+        rim = rim_points(cam, centers, axes, radii, balls.bone, n_per=cfg.rim_samples, render=r)
+        if cfg.outer_px > 0:
+            rim = rim.select(outer_rim(cam, rim, r.part_id >= 0, cfg.outer_px))
+        rims.append(rim)
     vis = np.stack([r.visibility_index for r in renders], axis=1)  # (P, C)
     observ = None
     if cfg.select and theta_rate is not None:
@@ -143,6 +149,7 @@ def match_frame(skel: Skeleton, balls: Metaballs, theta: np.ndarray, root: np.nd
         sel = select_cameras(vis, observ, min_visibility=cfg.min_visibility)
     else:
         sel = select_cameras(np.where(np.isfinite(vis), 1.0, np.nan))
+    sel.use[:, [not contours[c] for c in range(len(cameras))]] = False  # nothing to pair
     out = []
     for c, (cam, rim) in enumerate(zip(cameras, rims, strict=True)):
         use_parts = np.flatnonzero(sel.use[:, c])
@@ -160,6 +167,29 @@ def match_frame(skel: Skeleton, balls: Metaballs, theta: np.ndarray, root: np.nd
         return _empty_pairs(), sel
     return ContourPairs(*(np.concatenate([getattr(p, k) for p in out]) for k in
                           ("camera", "ellipsoid", "bone", "p_unit", "z", "normal"))), sel
+
+
+def outer_rim(camera: Camera, rim, mask: np.ndarray, offset_px: float = 3.0) -> np.ndarray:
+    """Which rim points lie on the outline of the model's whole silhouette, shape (M,) bool.
+
+    An image contour is the outline of the person's foreground, so only model rim points
+    with background just outside them can correspond to it: a limb's rim in front of the
+    trunk (an internal occluding contour) is inside the silhouette and has no image
+    contour to pair with.  The test samples ``mask`` (H, W) (the model's rendering) at
+    ``offset_px`` along the projected outward surface normal.
+    """
+    if len(rim) == 0:
+        return np.zeros(0, bool)
+    step = 0.01  # metres along the 3-D normal, to get its image direction
+    d = camera.project(rim.xyz + step * rim.normal) - rim.uv
+    nd = np.linalg.norm(d, axis=1, keepdims=True)
+    d = np.where(nd > 1e-9, d / np.maximum(nd, 1e-9), 0.0)
+    p = np.round(rim.uv + offset_px * d).astype(int)
+    h, w = mask.shape
+    inside = (p[:, 0] >= 0) & (p[:, 0] < w) & (p[:, 1] >= 0) & (p[:, 1] < h)
+    covered = np.zeros(len(p), bool)
+    covered[inside] = mask[p[inside, 1], p[inside, 0]]
+    return ~covered
 
 
 def _rim_point_jacobian(skel, pose, bone, xyz, s, anc):
@@ -205,7 +235,7 @@ def contour_block(skel: Skeleton, balls: Metaballs, theta: np.ndarray, root: np.
     Rb, _ = bone_frames(skel, pose)
     e, bone = pairs.ellipsoid, pairs.bone
     local = VISIBLE * balls.radii[e] * pairs.p_unit  # (K, 3) in the metaball's axes
-    xyz = cw[0, e] + np.einsum("kij,kj->ki", Rw[0, e], local)
+    xyz = cw[0, e] + (Rw[0, e] @ local[:, :, None])[:, :, 0]
     _, J_th = _rim_point_jacobian(skel, pose, bone, xyz, s, anc)
     nJ = np.zeros((K, 3))  # n^T d proj / d x
     for c, cam in enumerate(cameras):
@@ -213,9 +243,9 @@ def contour_block(skel: Skeleton, balls: Metaballs, theta: np.ndarray, root: np.
         if not len(k):
             continue
         uv, _, J_xyz = camera_project_jacobians(cam, xyz[k])
-        r[k] = np.einsum("ki,ki->k", pairs.normal[k], pairs.z[k] - uv)
-        nJ[k] = np.einsum("ki,kij->kj", pairs.normal[k], J_xyz)
-    J_t[:] = -np.einsum("kj,kjn->kn", nJ, J_th)
+        r[k] = np.sum(pairs.normal[k] * (pairs.z[k] - uv), axis=1)
+        nJ[k] = (pairs.normal[k][:, None, :] @ J_xyz)[:, 0]
+    J_t[:] = -(nJ[:, None, :] @ J_th)[:, 0]
     J_r[:] = -nJ
     if shape:
         # bone scales: the DOF offsets above the point (point_jacobians' J_s of a point
@@ -374,7 +404,7 @@ def contours_from_frames(frames: np.ndarray, cfg: ContourSettings | None = None
     from .background import fit_background
 
     cfg = cfg or ContourSettings()
-    model = fit_background(frames)
+    model = fit_background(frames, max_frames=cfg.background_frames)
     out, ok = [], np.zeros(len(frames), bool)
     for i, img in enumerate(frames):
         mask = model.foreground(img)

@@ -5,6 +5,14 @@ add-on's entry point.  Observations come from the tracker (``SCENE/tracks.npz``,
 on first use) or, for development, from the truth (points on the true mesh with noise
 and outliers, :mod:`core.truth_points`); the fit itself is
 :func:`core.fit.fit_sequence`.
+
+Cues (``cues``, issue 7 item 6): ``"texture"`` (the default) fits those 3-D points
+alone; ``"contours"`` needs no tracker: every camera's foreground (robust temporal
+median background) gives each frame's occluding contours
+(:func:`core.fit_contours.scene_contours`), the metaball shape is fitted to the clicked
+frame's silhouettes after the click initialisation
+(:func:`core.contour_track.fit_shape_to_contours`), and every frame is fitted to its
+contours; ``"both"`` adds the contours to the points in every pose solve.
 """
 
 from __future__ import annotations
@@ -67,11 +75,16 @@ class SceneFit:
     source: str
     n_points: np.ndarray
     shape: ShapeRecord | None = None  # the whole-body shape fit's record, when it ran
+    cues: str = "texture"
+    #: (F,) contour pairs and their inlier RMS (px) at the fitted pose (None: no contours)
+    contour_matches: np.ndarray | None = None
+    contour_rms_px: np.ndarray | None = None
 
 
 def run_scene(scene, observations: str = "auto", model: str = "complete",
               settings: SequenceSettings | None = None, progress: Progress | None = None,
-              n_points: int = 3000, seed: int = 0, frames: int | None = None) -> SceneFit:
+              n_points: int = 3000, seed: int = 0, frames: int | None = None,
+              cues: str = "texture", tracks=None, contour_settings=None) -> SceneFit:
     """The whole pipeline on a loaded :class:`core.scene.Scene`.
 
     Parameters
@@ -82,8 +95,16 @@ def run_scene(scene, observations: str = "auto", model: str = "complete",
         truth-derived with a message saying so)
     model : metaball model, ``"simplified"`` or ``"complete"``
     frames : fit only the first ``frames`` frames (default all)
+    cues : ``"texture"`` (3-D points only), ``"contours"`` (silhouette contours only, no
+        tracker, no points) or ``"both"``
+    tracks : path of the tracker's output to use (default ``SCENE/tracks.npz``; tracked
+        there first when missing)
+    contour_settings : :class:`core.fit_contours.ContourSettings` (None: its defaults)
     """
     from .fit_init import initialise
+
+    if cues not in CUES:
+        raise ValueError(f"unknown cues {cues!r} (expected one of {CUES})")
 
     timings, msgs = {}, []
     t0 = time.perf_counter()
@@ -101,9 +122,15 @@ def run_scene(scene, observations: str = "auto", model: str = "complete",
     cameras = scene.calibration()
     nf = scene.n_frames if frames is None else min(int(frames), scene.n_frames)
     t1 = time.perf_counter()
-    source = _choose_source(scene, observations)
-    if source == "tracks":
-        tracks = scene.root / "tracks.npz"
+    source = "contours" if cues == "contours" else _choose_source(scene, observations)
+    if source == "contours":
+        from .fit import FramePoints
+
+        obs = [FramePoints(np.zeros((0, 3)), np.zeros(0)) for _ in range(nf)]
+    elif source == "tracks":
+        from pathlib import Path
+
+        tracks = scene.root / "tracks.npz" if tracks is None else Path(tracks)
         if not tracks.is_file():
             _run_tracker(scene, tracks, progress)
             timings["tracking"] = time.perf_counter() - t1
@@ -116,6 +143,13 @@ def run_scene(scene, observations: str = "auto", model: str = "complete",
         obs = truth_observations(scene.truth, cameras, n_points=n_points, seed=seed,
                                  frames=range(nf))
         timings["observations"] = time.perf_counter() - t1
+    cframes = None
+    if cues != "texture":
+        t3 = time.perf_counter()
+        cframes, cmsgs = _scene_contour_frames(scene, cameras, nf, cues, contour_settings,
+                                               progress)
+        msgs += cmsgs
+        timings["contours"] = time.perf_counter() - t3
     t2 = time.perf_counter()
     init = initialise(scene.clicks(), cameras, model=model,
                       path=str(scene.root / "clicks.json"))
@@ -123,14 +157,66 @@ def run_scene(scene, observations: str = "auto", model: str = "complete",
     if init.frame >= nf:
         raise InputError(f"{scene.root / 'clicks.json'}: clicked frame {init.frame} is "
                          f"outside the {nf} fitted frames")
+    if cues == "contours":
+        init = _shape_from_silhouettes(init, cameras, cframes[init.frame], msgs)
     res = fit_sequence(obs, init, settings, fps=scene.fps, source_scene=str(scene.root),
-                       metaball_model=model, progress=progress, cameras=cameras)
+                       metaball_model=model, progress=progress, cameras=cameras,
+                       contours=cframes)
     timings["fit"] = time.perf_counter() - t2
     timings["total"] = time.perf_counter() - t0
     if res.shape is not None:
         timings["shape_fit"] = res.shape.seconds
     return SceneFit(state=res.state, messages=msgs + res.messages, timings=timings,
-                    source=source, n_points=res.n_points, shape=res.shape)
+                    source=source, n_points=res.n_points, shape=res.shape, cues=cues,
+                    contour_matches=None if cframes is None else res.contour_matches,
+                    contour_rms_px=None if cframes is None else res.contour_rms_px)
+
+
+#: The observation types ``run_scene`` / ``python -m core fit --cues`` can fit.
+CUES = ("texture", "contours", "both")
+
+
+def _scene_contour_frames(scene, cameras, nf: int, cues: str, cfg, progress):
+    """Per-frame :class:`core.fit_contours.ContourFrame` list (or None when no camera
+    is usable with ``cues="both"``) and the messages; with ``cues="contours"`` and no
+    usable camera, InputError."""
+    from .fit_contours import contour_frames, scene_contours
+
+    sc = scene_contours(scene, cameras, nf, cfg, progress=progress)
+    msgs = list(sc.messages)
+    if not sc.camera_ok.any():
+        if cues == "contours":
+            raise InputError(f"{scene.root / 'images'}: no camera gives a usable foreground "
+                             "(a plausible person mask in at least half of the frames), so "
+                             "--cues contours has no silhouettes to fit")
+        msgs.append("no camera gives a usable foreground: the contours are not used")
+        return None, msgs
+    missing = int((~sc.view_ok[:, sc.camera_ok]).sum())
+    if missing:
+        msgs.append(f"{missing} camera views of usable cameras gave no plausible foreground "
+                    "(no contours there)")
+    return contour_frames(cameras, sc.contours, cfg), msgs
+
+
+def _shape_from_silhouettes(init, cameras, cframe, msgs):
+    """The initialisation with its metaball radii (and a refined pose) fitted to the
+    clicked frame's silhouettes (:func:`core.contour_track.fit_shape_to_contours`; the
+    clicked pose held tightly)."""
+    from dataclasses import replace
+
+    from .contour_track import ContourTrackSettings, fit_shape_to_contours
+
+    tight = ContourTrackSettings(q_sigma_theta=0.01, q_sigma_root=0.002)
+    balls, th, rt, rms = fit_shape_to_contours(init.skeleton, init.s, init.metaballs,
+                                               init.theta, init.root_xyz, cameras,
+                                               cframe.contours, tight, rays=cframe.rays)
+    if not np.isfinite(rms) or not (np.all(np.isfinite(th)) and np.all(np.isfinite(rt))):
+        msgs.append(f"frame {init.frame}: too few silhouette contour pairs for the shape: "
+                    "the template shape is kept")
+        return init
+    msgs.append(f"shape fitted to frame {init.frame}'s silhouettes (contour RMS {rms:.2f} px "
+                "before the last step)")
+    return replace(init, metaballs=balls, theta=th, root_xyz=rt)
 
 
 def fit_scene(scene, progress: Progress | None = None, **kwargs) -> FitState:

@@ -174,3 +174,81 @@ def test_unusable_background_gives_no_contours_and_a_flag():
         frames[i, 10:30, 2 + 11 * i:18 + 11 * i] = 220
     cons, ok = contours_from_frames(frames)
     assert ok.all() and all(len(c) == 1 for c in cons)
+
+
+def _silhouette_scene(root, noise_cams=()):
+    """A scene folder whose images are the model's own silhouettes walking across a grey
+    background (6 frames, three 512x384 cameras); ``noise_cams``: cameras whose images
+    are fresh noise in every frame (no usable background)."""
+    import json
+
+    import cv2
+
+    from core.calibration_io import write_calibration
+    from tests.core._bodyscene import cameras as line_cameras
+
+    skel = sk.make_skeleton()
+    s = np.ones(skel.n_groups)
+    balls = mb.make_metaballs(skel, "simplified", s)
+    theta, _ = _pose(skel)
+    cams = line_cameras()
+    nf = 6
+    rng = np.random.default_rng(5)
+    (root / "scene.toml").write_text(
+        f'name = "silhouettes"\nfps = 25.0\nframes = {nf}\n'
+        f'cameras = {json.dumps([c.name for c in cams])}\nsize = [512, 384]\nfield = "none"\n')
+    for c, cam in enumerate(cams):
+        (root / "images" / cam.name).mkdir(parents=True)
+        for f in range(nf):
+            rt = np.array([-0.6 + 0.25 * f, 0.0, 1.0])
+            cen, ax, rad, part = body_ellipsoids(skel, theta, rt, s, balls)
+            img = np.full((384, 512, 3), 90, np.uint8)
+            img[render_parts(cam, cen, ax, rad, part).mask] = (200, 170, 150)
+            if c in noise_cams:
+                img = rng.integers(0, 256, img.shape, dtype=np.uint8)
+            cv2.imwrite(str(root / "images" / cam.name / f"{f:06d}.png"), img)
+    write_calibration(root / "calibration.toml", cams)
+    clicks = clicks_of(skel, theta, np.array([-0.6, 0.0, 1.0]), s, cams, CLICK_JOINTS)
+    clicks["joints"] = {j: {k: [float(x) for x in uv] for k, uv in v.items()}
+                        for j, v in clicks["joints"].items()}
+    (root / "clicks.json").write_text(json.dumps(clicks))
+
+
+def test_cli_rejects_an_unknown_cue(tmp_path):
+    from core.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["fit", str(tmp_path), "--cues", "shading"])
+    assert exc.value.code == 2
+
+
+@pytest.mark.slow
+def test_contours_without_any_usable_background_is_a_clear_error(tmp_path, capsys):
+    from core.cli import main
+
+    _silhouette_scene(tmp_path, noise_cams=(0, 1, 2))
+    assert main(["fit", str(tmp_path), "--cues", "contours", "--model", "simplified"]) == 2
+    err = capsys.readouterr().err
+    assert "no camera gives a usable foreground" in err and "images" in err
+    assert not (tmp_path / "fit.json").exists()
+
+
+@pytest.mark.slow
+def test_cli_contours_alone_with_one_unusable_camera(tmp_path, capsys):
+    """``core fit --cues contours``: one camera shows only noise — it is named and left
+    out, the other two fit every frame; finite output, cameras recorded per part."""
+    from core.cli import main
+    from core.state import read_state
+
+    _silhouette_scene(tmp_path, noise_cams=(1,))
+    assert main(["fit", str(tmp_path), "--cues", "contours", "--model", "simplified"]) == 0
+    out = capsys.readouterr().out
+    assert "camera cam02: no usable background" in out
+    assert "silhouette contours alone" in out
+    st = read_state(tmp_path / "fit.json")
+    for arr in (st.theta, st.root_xyz, st.s, st.metaballs.radii):
+        assert np.all(np.isfinite(arr))
+    assert st.quality.diverged.sum() <= 1
+    used = {c for f in range(st.n_frames) if not st.quality.diverged[f]
+            for cams in st.quality.cameras[f].values() for c in cams}
+    assert used and "cam02" not in used

@@ -1,6 +1,6 @@
 """LSM precision and throughput, side by side with OpenCV, on the same patches.
 
-``python -m bench.lsm [--n 2000] [--seed 0]``
+``python -m bench.lsm [--n 2000] [--seed 0] [--workers W]``
 
 Every method matches the same 13 × 13 templates into the same search images (41 × 41
 px, exact warps from :mod:`bench.patches`, noise σ = 2 grey levels, 8-bit), starting
@@ -18,14 +18,16 @@ Cases: pure shift; gain 1.3 and offset +20 in the search image; affine (scales
 0.9–1.1, shears ±0.1).  Columns: fraction of matches returned as valid, mean and
 RMS position error of the valid ones (px), for LSM the RMS error over its own
 predicted σ, and matches per second (all patches of the case, best of ``--repeat``
-runs): wall clock, OpenCV with its default threads (:func:`core.lsm.match` runs
-OpenBLAS on one thread), and per CPU second of the process (all its threads; the
-steadier figure on a shared machine).
+runs): wall clock, OpenCV with its default threads (:func:`core.lsm.match` splits
+the patches over one thread per core, ``--workers``, each running OpenBLAS on one
+thread), and per CPU second of the process (all its threads; the steadier figure
+on a shared machine).  The load average of the machine is printed before and after.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import time
 
 import cv2
@@ -39,11 +41,14 @@ ECC_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-3)
 KLT_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)
 
 
+WORKERS = {"n": None}          # match(workers=...), set by --workers
+
+
 def run_lsm(P: PatchPairs, upsample: bool):
     n = len(P.template)
     start = np.full((n, 2), P.centre)
     r = match(P.template, P.search, start, start, half=HALF, template_index=np.arange(n),
-              search_index=np.arange(n), upsample=upsample)
+              search_index=np.arange(n), upsample=upsample, workers=WORKERS["n"])
     return r.uv, r.ok, r.sigma_uv
 
 
@@ -117,10 +122,17 @@ def main(argv=None) -> int:
     ap.add_argument("--n", type=int, default=2000, help="patches per case")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--repeat", type=int, default=3, help="timing: best of this many runs")
+    ap.add_argument("--workers", type=int, default=None,
+                    help="LSM threads (default: core.lsm.match's, one per core)")
     args = ap.parse_args(argv)
+    WORKERS["n"] = args.workers
+    load0 = os.getloadavg()
     rows = evaluate(args.n, args.seed, args.repeat)
+    load1 = os.getloadavg()
     print(f"LSM vs OpenCV: {args.n} patches per case, 13x13 templates, noise sigma 2, "
-          f"OpenCV {cv2.__version__}")
+          f"OpenCV {cv2.__version__}; {os.cpu_count()} CPUs, load average (1 min) "
+          f"{load0[0]:.2f} before, {load1[0]:.2f} after; LSM workers "
+          f"{'default' if args.workers is None else args.workers}")
     print(f"{'case':14s} {'method':13s} {'valid':>6s} {'mean|e| px':>10s} {'rms px':>8s} "
           f"{'rms/pred':>8s} {'matches/s':>10s} {'/cpu-s':>8s}")
     for r in rows:

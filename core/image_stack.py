@@ -4,13 +4,14 @@
 border gap, so that patches from many images are sampled by one ``cv2.remap`` call;
 :func:`upsample2` doubles an image's resolution by cubic B-spline interpolation (a
 symmetric 12-tap half-pixel filter: no phase error); :class:`PatchSource` samples N
-patches bilinearly from the 2× upsampled mosaic, or from a mosaic of upsampled windows
+patches bilinearly from the 2× upsampled mosaic, or from a stack of upsampled windows
 around the patches when that is smaller.  Pixel coordinates as in :mod:`core.camera`.
 """
 
 from __future__ import annotations
 
 import functools
+import threading
 
 import cv2
 import numpy as np
@@ -118,22 +119,28 @@ class ImageStack:
         self.images = arr
         self._mosaic = None
         self._up = None
+        self._lock = threading.RLock()       # threads sharing the stack build it once
 
     def _build(self):
-        self._mosaic, self.origin_u, self.origin_v = _tile(self.images, self.GAP)
+        mosaic, self.origin_u, self.origin_v = _tile(self.images, self.GAP)
+        self._mosaic = mosaic
 
     @property
     def mosaic(self) -> np.ndarray:
         """All images tiled into one float32 mosaic (``origin_u``, ``origin_v`` per image)."""
         if self._mosaic is None:
-            self._build()
+            with self._lock:
+                if self._mosaic is None:
+                    self._build()
         return self._mosaic
 
     @property
     def up(self) -> np.ndarray:
         """The mosaic upsampled 2× (:func:`upsample2`), float32."""
         if self._up is None:
-            self._up = upsample2(self.mosaic)
+            with self._lock:
+                if self._up is None:
+                    self._up = upsample2(self.mosaic)
         return self._up
 
     def inside(self, u: np.ndarray, v: np.ndarray, margin: float) -> np.ndarray:
@@ -173,6 +180,18 @@ def _half_matrix(wr: int) -> np.ndarray:
     return H
 
 
+@functools.lru_cache(maxsize=16)
+def _upsample_matrix(wr: int) -> np.ndarray:
+    """Upsampling matrix (ws, 4 wr + 1): a row of a window of ``ws`` pixels @ it gives
+    its central ``2 wr + 1`` pixels (even outputs, copied) interleaved with the
+    half-pixel values between them (odd outputs, :func:`_half_matrix`)."""
+    m = _TAP_MARGIN
+    U = np.zeros((2 * (wr + m) + 1, 4 * wr + 1), np.float32)
+    U[:, 1::2] = _half_matrix(wr)
+    U[m + np.arange(2 * wr + 1), np.arange(0, 4 * wr + 1, 2)] = 1.0
+    return U
+
+
 def _windows(stack: ImageStack, index: np.ndarray, u0: np.ndarray, v0: np.ndarray,
              ws: int, transposed: bool = False) -> np.ndarray:
     """Windows ``ws`` × ``ws`` with top-left pixels ``(u0, v0)`` (N,), float32 (N, ws, ws)
@@ -205,8 +224,9 @@ def _upsample_windows(win_t: np.ndarray, wr: int) -> np.ndarray:
 
     ``win_t`` (N, ws, ws) with row = u, ``ws = 2 (wr + m) + 1``: returns (N, 4 wr + 1,
     4 wr + 1) float32 (row = v) covering the central ``2 wr + 1`` pixels, the same
-    values as :func:`upsample2`.  Per axis, the pixels are copied to the even samples
-    and one GEMM with the banded half-pixel matrix gives the odd ones.
+    values as :func:`upsample2`.  Along v, the pixels are copied to the even samples
+    and one GEMM with the banded half-pixel matrix gives the odd ones; along u, one
+    GEMM with the interleaving :func:`_upsample_matrix` gives both.
     """
     n, ws, _ = win_t.shape
     m = _TAP_MARGIN
@@ -215,10 +235,7 @@ def _upsample_windows(win_t: np.ndarray, wr: int) -> np.ndarray:
     x = np.empty((n, size, ws), np.float32)           # (n, v', u)
     x[:, 0::2, :] = win_t[:, :, m:m + 2 * wr + 1].transpose(0, 2, 1)
     x[:, 1::2, :] = (win_t.reshape(n * ws, ws) @ H).reshape(n, ws, 2 * wr).transpose(0, 2, 1)
-    out = np.empty((n, size, size), np.float32)       # (n, v', u')
-    out[:, :, 0::2] = x[:, :, m:m + 2 * wr + 1]
-    out[:, :, 1::2] = (x.reshape(n * size, ws) @ H).reshape(n, size, 2 * wr)
-    return out
+    return (x.reshape(n * size, ws) @ _upsample_matrix(wr)).reshape(n, size, size)
 
 
 class PatchSource:
@@ -227,9 +244,9 @@ class PatchSource:
     A position ``(u, v)`` of patch k's image lies at ``(bu[k] + f u, bv[k] + f v)``
     (``f`` = 2 upsampled, 1 not) in the image ``chunk_image(chunk[k])``: either the
     stack's whole (upsampled) mosaic, or a stack of small windows around the
-    patches, upsampled only where they are sampled (when that is smaller).
-    ``lo``/``hi`` (N, 2) bound the positions whose samples are valid (inside the
-    window), pixels.
+    patches, upsampled only where they are sampled (when that is smaller), in chunks
+    below cv2.remap's 32767 rows.  ``lo``/``hi`` (N, 2) bound the positions whose
+    samples are valid (inside the window), pixels.
 
     Parameters
     ----------
@@ -283,28 +300,38 @@ class PatchSource:
         self.lo = (c - wr + 0.01).astype(np.float64)
         self.hi = (c + wr - 0.01).astype(np.float64)
 
-    def sample(self, pu: np.ndarray, pv: np.ndarray, rows: np.ndarray | None = None):
+    def sample(self, pu: np.ndarray, pv: np.ndarray, rows: np.ndarray | None = None,
+               out: np.ndarray | None = None) -> np.ndarray:
         """Values at positions ``pu``, ``pv`` (n_a, P) float32 of patches ``rows``.
 
         ``rows`` (n_a,) ascending indices of the patches (default all, in order);
         positions are ``(bu + f u, bv + f v)`` of those patches.  Returns the values
-        (n_a, P) float32.
+        (n_a, P) float32, written into ``out`` when given (one remap per chunk).
         """
-        if self._whole:
-            return remap_bilinear(self.up, pu, pv)
         na = len(pu)
+        if out is None:
+            out = np.empty(pu.shape, np.float32)
+        if self._whole:
+            for i in range(0, na, self.MAX_ROWS):
+                j = slice(i, i + self.MAX_ROWS)
+                cv2.remap(self.up, pu[j], pv[j], cv2.INTER_LINEAR, dst=out[j],
+                          borderMode=cv2.BORDER_REPLICATE)
+            return out
         rows = np.arange(na) if rows is None else rows
-        ch = rows // self.rows_per_chunk
-        if na == 0 or ch[0] == ch[-1]:
-            return self._remap_chunk(ch[0] if na else 0, pu, pv)
-        cuts = np.flatnonzero(np.diff(ch)) + 1
-        parts = np.split(np.arange(na), cuts)
-        return np.concatenate([self._remap_chunk(ch[p[0]], pu[p], pv[p]) for p in parts])
-
-    def _remap_chunk(self, ch: int, pu: np.ndarray, pv: np.ndarray) -> np.ndarray:
-        r0 = ch * self.rows_per_chunk * self.size
-        img = self.up[r0:r0 + self.rows_per_chunk * self.size]
-        return cv2.remap(img, pu, pv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        rpc = self.rows_per_chunk
+        # Chunks of ascending rows: contiguous row ranges of the positions.
+        cuts = np.searchsorted(rows, np.arange(rpc, rows[-1] + 1, rpc)) if na else []
+        start = 0
+        for stop in [*cuts, na]:
+            if stop > start:
+                ch = rows[start] // rpc
+                r0 = ch * rpc * self.size
+                img = self.up[r0:r0 + rpc * self.size]
+                j = slice(start, stop)
+                cv2.remap(img, pu[j], pv[j], cv2.INTER_LINEAR, dst=out[j],
+                          borderMode=cv2.BORDER_REPLICATE)
+            start = stop
+        return out
 
 
 def resampling_noise_factor(u: np.ndarray, v: np.ndarray, upsample: bool = True) -> np.ndarray:

@@ -51,7 +51,9 @@ pseudo-observation with standard deviation ``sigma_line_px`` (a rank-one update 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import os
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, fields
 from enum import IntEnum
 
 import numpy as np
@@ -65,13 +67,20 @@ from .lsm_design import (
     compose_inverse,
     inverse_blocks,
     normal_matrix,
-    normal_matrix_from_design,
     row_mean_sd,
     template_slopes,
 )
 
 __all__ = ["ImageStack", "LSMResult", "Status", "epipolar_lines", "match", "template_patches",
            "upsample2"]
+
+
+#: Drift allowed for in a search window beyond the patch footprint, pixels (a patch
+#: that walks farther gets a new window).
+_DRIFT_PX = 1.0
+
+#: :func:`match` splits its patches over threads only in parts of at least this many.
+MIN_PATCHES_PER_WORKER = 512
 
 
 class Status(IntEnum):
@@ -191,7 +200,7 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
           tol_px: float = 0.01, max_iter: int = 20, max_shift_px: float = 4.0,
           max_sigma_px: float = 0.15, min_texture: float = 3.0, lines=None,
           sigma_line_px: float = 0.05, sigma_grey: float = 2.0,
-          weight_sigma: float | None = None) -> LSMResult:
+          weight_sigma: float | None = None, workers: int | None = None) -> LSMResult:
     """Least squares matching of N template patches into search images.
 
     Parameters
@@ -229,6 +238,11 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
         effective patch biases the match less, while the whole patch still helps
         convergence.  The covariance is then the sandwich ``N⁻¹ (JᵀW²J) N⁻¹ σ²`` with
         ``σ² = vᵀWv / (tr W - tr(N⁻¹ JᵀW²J))``.  Default: uniform weights (Gruen).
+    workers : int, optional
+        Threads over which the patches are split (contiguous parts, matched
+        independently; numpy, OpenBLAS and OpenCV release the GIL in the heavy
+        steps).  Default: one per usable CPU core, at most one per
+        ``MIN_PATCHES_PER_WORKER`` patches; 1 runs in the calling thread.
 
     Returns
     -------
@@ -248,6 +262,41 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
         raise ValueError("template_index / search_index outside the image stacks")
     A = np.broadcast_to(np.eye(2) if affine is None else np.asarray(affine, float),
                         (n, 2, 2)).copy()
+    if lines is not None:
+        lines = (np.asarray(lines[0], float).reshape(n, 2), np.asarray(lines[1], float).reshape(n))
+    opts = dict(half=half, upsample=upsample, tol_px=tol_px, max_iter=max_iter,
+                max_shift_px=max_shift_px, max_sigma_px=max_sigma_px, min_texture=min_texture,
+                sigma_line_px=sigma_line_px, sigma_grey=sigma_grey, weight_sigma=weight_sigma)
+    nw = _n_workers(workers, n)
+    if nw <= 1:
+        return _match_part(tstack, sstack, uv_t, uv_s0, ti, si, A, lines, **opts)
+
+    def part(k):
+        ln = None if lines is None else (lines[0][k], lines[1][k])
+        return _match_part(tstack, sstack, uv_t[k], uv_s0[k], ti[k], si[k], A[k], ln, **opts)
+
+    with ThreadPoolExecutor(nw) as ex:
+        res = list(ex.map(part, np.array_split(np.arange(n), nw)))
+    return LSMResult(**{f.name: np.concatenate([getattr(r, f.name) for r in res])
+                        for f in fields(LSMResult)})
+
+
+def _n_workers(workers: int | None, n: int) -> int:
+    if workers is not None:
+        return max(1, min(int(workers), n))
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:                   # not on every platform
+        cores = os.cpu_count() or 1
+    return max(1, min(cores, n // MIN_PATCHES_PER_WORKER))
+
+
+def _match_part(tstack: ImageStack, sstack: ImageStack, uv_t, uv_s0, ti, si, A, lines, *,
+                half, upsample, tol_px, max_iter, max_shift_px, max_sigma_px, min_texture,
+                sigma_line_px, sigma_grey, weight_sigma) -> LSMResult:
+    """:func:`match` of validated arrays (uv_t, uv_s0 (n, 2), ti, si (n,), A (n, 2, 2)
+    owned here, lines None or (normal (n, 2), d (n,)))."""
+    n = len(uv_t)
     status = np.full(n, Status.NOT_CONVERGED, dtype=np.int8)
     iters = np.zeros(n, np.int32)
     gain = np.ones(n)
@@ -280,16 +329,14 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
     basis = np.stack([np.ones_like(xs), xs, ys])                # (3, P)
     if weight_sigma is None:
         wpx = np.ones(npx, np.float32)
+        Tw = T
     else:
         wpx = np.exp(-(xs * xs + ys * ys) / (2.0 * weight_sigma ** 2)).astype(np.float32)
-    # Weighted design rows per patch (n, 8, P) float32: b = Jᵀ W e is one batched GEMV.
-    Jw = np.empty((n, 8, npx), np.float32)
-    bw = basis * wpx                                            # (3, P)
-    np.multiply(gx[:, None, :], bw, out=Jw[:, 0:3])
-    np.multiply(gy[:, None, :], bw, out=Jw[:, 3:6])
-    Jw[:, 6] = wpx
-    np.multiply(T, wpx, out=Jw[:, 7])
-    N = normal_matrix_from_design(gx, gy, T, Jw, xs, ys, wpx)
+        Tw = T * wpx
+    # b = Jᵀ W e per iteration: (w gx e, w gy e, w e) against 1, x, y (three GEMVs:
+    # faster in OpenBLAS than one (M, P) @ (P, 3) GEMM).
+    basis_w = basis * wpx                                       # (3, P)
+    N = normal_matrix(T, gx, gy, xs, ys, wpx)
     N2 = N if weight_sigma is None else normal_matrix(T, gx, gy, xs, ys, wpx * wpx)
     sw = float(wpx.sum())
     # Texture: smaller eigenvalue of the (weighted) structure tensor, mean of ∇T ∇Tᵀ.
@@ -298,10 +345,10 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
     texture = np.sqrt(np.maximum(lam_min, 0.0))
     status[finite & t_in & (texture < min_texture)] = Status.WEAK_TEXTURE
     N[status != Status.NOT_CONVERGED] = np.eye(8)
-    Ninv, pd = spd_inverse(N)
     # Shifts and radiometry only in the first iteration (and until the shift settles
     # below 1 px, at most 3): the affine part of a far-off start would diverge.
     # ``Ncur`` holds the inverse in use per patch.
+    Ninv, pd = spd_inverse(N)
     sub = [0, 3, 6, 7]
     Ncur = np.zeros_like(Ninv)
     Ncur[:, np.ix_(sub, sub)[0], np.ix_(sub, sub)[1]] = inverse_blocks(N[:, sub][:, :, sub], pd)
@@ -315,48 +362,40 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
     status[(status == Status.NOT_CONVERGED) & ~pd] = Status.DEGENERATE
 
     if lines is not None:
-        ln_n = np.asarray(lines[0], float).reshape(n, 2)
-        ln_d = np.asarray(lines[1], float).reshape(n)
+        ln_n, ln_d = lines
         w_line = (sigma_grey / sigma_line_px) ** 2
     _, h_img, w_img = sstack.shape
     img_lo = np.array([1.0, 1.0])
     img_hi = np.array([w_img - 2.0, h_img - 2.0])
-    bu = np.zeros(n)
-    bv = np.zeros(n)
-    lo = np.zeros((n, 2))
-    hi = np.zeros((n, 2))
     fresh = np.ones(n, bool)             # radiometry not yet initialised
     it_left = np.full(n, max_iter)
 
     todo = np.flatnonzero(status == Status.NOT_CONVERGED)
     while todo.size:
-        # Search windows around the current positions: the patch footprint and 1.5 px
-        # of drift; patches that walk out of their window (within max_shift_px) get a
-        # new one in the next round.
-        reach = half * np.max(np.abs(A[todo]).sum(axis=2), axis=1) + 1.5
+        # Search windows around the current positions: the patch footprint and
+        # ``_DRIFT_PX`` of drift; patches that walk out of their window (within
+        # max_shift_px) get a new one in the next round.
+        reach = half * np.max(np.abs(A[todo]).sum(axis=2), axis=1) + _DRIFT_PX
         src = PatchSource(sstack, si[todo], uv[todo], reach, upsample)
         f = src.f
-        bu[todo], bv[todo], lo[todo], hi[todo] = src.bu, src.bv, src.lo, src.hi
+        bases, w_lo, w_hi = np.stack([src.bu, src.bv]), src.lo, src.hi
         # Working set: the patches still iterating in this window round, with their
-        # template arrays; compacted when it has shrunk by a quarter.
-        wk, wrow = todo, np.arange(len(todo))
-        Tw, Jww = (T, Jw) if len(todo) == n else (T[todo], Jw[todo])
-        act = wrow
+        # template arrays (compacted as patches finish).
+        a, wrow = todo, np.arange(len(todo))
+        if len(todo) == n:
+            Ta, Twa, gxa, gya = T, Tw, gx, gy
+        else:
+            Ta, Twa, gxa, gya = T[todo], Tw[todo], gx[todo], gy[todo]
         rewindow = []
-        while act.size:
-            if act.size <= 0.75 * len(wk):
-                wk, wrow, Tw, Jww = wk[act], wrow[act], Tw[act], Jww[act]
-                act = np.arange(len(wk))
-            Ta, Ja = (Tw, Jww) if act.size == len(wk) else (Tw[act], Jww[act])
-            a = wk[act]
+        while a.size:
             na = len(a)
             Aa = A[a]
-            # Sampling positions in the source: one GEMM each for u and v.
+            # Sampling positions in the source: one GEMM for u and v.
             # cv2.remap samples at positions rounded to 1/32 px of its source: the warp
             # is snapped to that grid (offset and slopes multiples of 1/32, so that
             # every sample position is exact in float32 and for cv2), and the update
             # below starts from the snapped warp actually sampled.
-            base = np.stack([bu[a], bv[a]])                         # (2, n_a)
+            base = bases[:, wrow]                                   # (2, n_a)
             M = np.empty((2, na, 3))                                # [u; v] x (1, x, y)
             M[:, :, 0] = base + f * uv[a].T
             M[:, :, 1:] = f * Aa.transpose(1, 0, 2)
@@ -364,7 +403,7 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
             uv_s = ((M[:, :, 0] - base) / f).T
             A_s = M[:, :, 1:].transpose(1, 0, 2) / f
             puv = M.reshape(2 * na, 3).astype(np.float32) @ basis   # (2 n_a, P)
-            S = src.sample(puv[:na], puv[na:], wrow[act])
+            S = src.sample(puv[:na], puv[na:], wrow)
             new = fresh[a]
             if new.any():
                 # Radiometric start: match the mean and spread of the grey levels.
@@ -375,10 +414,21 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
                 offset[k] = t_mean[k] - g0 * s_mean
                 fresh[k] = False
             # Residuals e = r1 S + r0 - T; b = Jᵀ W e (n_a, 8) and vᵀWv.
-            e = S * gain[a, None].astype(np.float32)
+            Q = np.empty((3, na, npx), np.float32)
+            e = Q[2]
+            np.multiply(S, gain[a, None].astype(np.float32), out=e)
             e += offset[a, None].astype(np.float32)
             e -= Ta
-            b = (Ja @ e[:, :, None])[:, :, 0].astype(np.float64)
+            np.multiply(gxa, e, out=Q[0])
+            np.multiply(gya, e, out=Q[1])
+            Q2 = Q.reshape(3 * na, npx)
+            b = np.empty((na, 8))
+            b[:, [0, 3, 6]] = (Q2 @ basis_w[0]).reshape(3, na).T
+            b[:, 1] = Q2[:na] @ basis_w[1]
+            b[:, 2] = Q2[:na] @ basis_w[2]
+            b[:, 4] = Q2[na:2 * na] @ basis_w[1]
+            b[:, 5] = Q2[na:2 * na] @ basis_w[2]
+            b[:, 7] = np.einsum("np,np->n", Twa, e)
             ew = e if weight_sigma is None else e * wpx
             vv = np.einsum("np,np->n", ew, e).astype(np.float64)
             g_old, o_old, b67, vv0 = gain[a], offset[a], b[:, 6:8].copy(), vv
@@ -413,12 +463,12 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
                 k = a[leave]
                 shift_only[k] = False
                 Ncur[k] = Ninv[k]
-            drift = np.hypot(*(uv[a] - uv_s0[a]).T) > max_shift_px
+            drift = np.hypot(*(uv_new - uv_s0[a]).T) > max_shift_px
             # Footprint of the warped patch: half-extent per axis, pixels.
             ext = half * np.abs(An).sum(axis=2)
-            ua = uv[a]
-            in_img = np.all((ua - ext >= img_lo) & (ua + ext <= img_hi), axis=1)
-            in_win = np.all((ua - ext >= lo[a]) & (ua + ext <= hi[a]), axis=1)
+            e_lo, e_hi = uv_new - ext, uv_new + ext
+            in_img = np.all((e_lo >= img_lo) & (e_hi <= img_hi), axis=1)
+            in_win = np.all((e_lo >= w_lo[wrow]) & (e_hi <= w_hi[wrow]), axis=1)
             sc = np.abs(An[:, 0, 0] * An[:, 1, 1] - An[:, 0, 1] * An[:, 1, 0])
             g = gain[a]
             degen = ~ok_step | (sc < 0.25) | (sc > 4.0) | (g < 0.1) | (g > 10.0)
@@ -447,7 +497,11 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
             going = st == Status.NOT_CONVERGED
             left = it_left[a] > 0
             rewindow.append(a[going & ~in_win & left])
-            act = act[going & in_win & left]
+            keep = going & in_win & left
+            if not keep.all():
+                a, wrow = a[keep], wrow[keep]
+                Ta, gxa, gya = Ta[keep], gxa[keep], gya[keep]
+                Twa = Ta if weight_sigma is None else Twa[keep]
         todo = np.sort(np.concatenate(rewindow))
 
     # Covariance of the matched point: Σ = σ0² N⁻¹ (shifts), mapped by the affine part.

@@ -3,7 +3,7 @@
 Helpers of :func:`core.lsm.match` (inverse compositional LSM with 8 parameters
 ``a0, a1, a2, b0, b1, b2, r0, r1``): the cubic-spline slopes of template patches, the
 normal matrix ``N = JᵀWJ`` of the design ``J = [gx·(1, x, y), gy·(1, x, y), 1, T]``
-built from weighted moments with one GEMM, small batched inverses, row statistics
+built from weighted moments with two GEMMs, small batched inverses, row statistics
 and the composition of an affine warp with an inverse update.  All batched over
 patches (leading axis ``n``); no Python loop over patches.
 """
@@ -68,68 +68,63 @@ def template_slopes(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 _MOM = np.array([[0, 1, 2], [1, 3, 4], [2, 4, 5]])
 
 
+def _normal_index():
+    """Where the entries of N (8 × 8, flattened) come from in the packed moment sums."""
+    # Packed sums (per patch): [0:6] gx² m6, [6:12] gx gy m6, [12:18] gy² m6,
+    # [18:21] gx m3, [21:24] gy m3, [24:27] gx T m3, [27:30] gy T m3, [30] Σw, [31] ΣwT,
+    # [32] ΣwT², with m6 = w (1, x, y, x², xy, y²) and m3 = w (1, x, y).
+    src = np.empty((8, 8), np.int64)
+    for i in range(3):
+        for j in range(3):
+            k = _MOM[i, j]
+            src[i, j] = k
+            src[i, 3 + j] = src[3 + j, i] = 6 + k
+            src[3 + i, 3 + j] = 12 + k
+        src[i, 6] = src[6, i] = 18 + i
+        src[3 + i, 6] = src[6, 3 + i] = 21 + i
+        src[i, 7] = src[7, i] = 24 + i
+        src[3 + i, 7] = src[7, 3 + i] = 27 + i
+    src[6, 6] = 30
+    src[6, 7] = src[7, 6] = 31
+    src[7, 7] = 32
+    return src.ravel()
+
+
+_N_SRC = _normal_index()
+
+
 def normal_matrix(T: np.ndarray, gx: np.ndarray, gy: np.ndarray, xs: np.ndarray,
                    ys: np.ndarray, w: np.ndarray) -> np.ndarray:
     """``N = JᵀWJ`` (n, 8, 8) of the design ``J = [gx·(1, x, y), gy·(1, x, y), 1, T]``.
 
-    Built from weighted moments with one GEMM: T, gx, gy (n, P) float32; xs, ys (P,)
+    Built from weighted moments with two GEMMs: T, gx, gy (n, P) float32; xs, ys (P,)
     the template pixel offsets; w (P,) the pixel weights.  Parameter order: a0, a1,
-    a2, b0, b1, b2, r0, r1.
+    a2, b0, b1, b2, r0, r1.  Sums in float32 over the P pixels, N in float64.
     """
     n, npx = T.shape
-    basis = np.stack([np.ones_like(xs), xs, ys, xs * xs, xs * ys, ys * ys], axis=1)  # (P, 6)
-    basis = (basis * w[:, None]).astype(np.float32)
-    Q = np.empty((9, n, npx), np.float32)
-    np.multiply(gx, gx, out=Q[0])
-    np.multiply(gx, gy, out=Q[1])
-    np.multiply(gy, gy, out=Q[2])
-    Q[3] = gx
-    Q[4] = gy
-    np.multiply(gx, T, out=Q[5])
-    np.multiply(gy, T, out=Q[6])
-    Q[7] = T
-    np.multiply(T, T, out=Q[8])
-    M = (Q.reshape(9 * n, npx) @ basis).reshape(9, n, 6).astype(np.float64)
-    N = np.empty((n, 8, 8))
-    for i in range(3):
-        for j in range(3):
-            k = _MOM[i, j]
-            N[:, i, j] = M[0, :, k]
-            N[:, i, 3 + j] = N[:, 3 + j, i] = M[1, :, k]
-            N[:, 3 + i, 3 + j] = M[2, :, k]
-        N[:, i, 6] = N[:, 6, i] = M[3, :, i]
-        N[:, 3 + i, 6] = N[:, 6, 3 + i] = M[4, :, i]
-        N[:, i, 7] = N[:, 7, i] = M[5, :, i]
-        N[:, 3 + i, 7] = N[:, 7, 3 + i] = M[6, :, i]
-    N[:, 6, 6] = float(np.sum(w))
-    N[:, 6, 7] = N[:, 7, 6] = M[7, :, 0]
-    N[:, 7, 7] = M[8, :, 0]
-    return N
-
-def normal_matrix_from_design(gx: np.ndarray, gy: np.ndarray, T: np.ndarray, Jw: np.ndarray,
-                               xs: np.ndarray, ys: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """``N = JᵀWJ`` (n, 8, 8) as :func:`normal_matrix`, reusing the weighted design
-    rows ``Jw`` (n, 8, P): the columns of the offset and gain are ``Jw 1`` and ``Jw T``,
-    and only the 6 × 6 geometric block needs moments of ``∇T ∇Tᵀ`` (one GEMM)."""
-    n, npx = T.shape
-    basis = np.stack([np.ones_like(xs), xs, ys, xs * xs, xs * ys, ys * ys], axis=1)  # (P, 6)
-    basis = (basis * w[:, None]).astype(np.float32)
+    # Moments (P, 8): w (1, x, y, x², xy, y²) and two zero columns (OpenBLAS runs
+    # (M, K) @ (K, 8) about twice as fast as (M, K) @ (K, 6) or (K, 3)).
+    m6 = np.zeros((npx, 8), np.float32)
+    m6[:, :6] = np.stack([np.ones_like(xs), xs, ys, xs * xs, xs * ys, ys * ys], axis=1) * w[:, None]
     Q = np.empty((3, n, npx), np.float32)
     np.multiply(gx, gx, out=Q[0])
     np.multiply(gx, gy, out=Q[1])
     np.multiply(gy, gy, out=Q[2])
-    M = (Q.reshape(3 * n, npx) @ basis).reshape(3, n, 6).astype(np.float64)
-    N = np.empty((n, 8, 8))
-    for i in range(3):
-        for j in range(3):
-            k = _MOM[i, j]
-            N[:, i, j] = M[0, :, k]
-            N[:, i, 3 + j] = N[:, 3 + j, i] = M[1, :, k]
-            N[:, 3 + i, 3 + j] = M[2, :, k]
-    c67 = (Jw @ np.stack([np.ones_like(T), T], axis=2)).astype(np.float64)  # Σ w J_i (1, T)
-    N[:, :, 6] = N[:, 6, :] = c67[:, :, 0]
-    N[:, :, 7] = N[:, 7, :] = c67[:, :, 1]
-    return N
+    R = np.empty((4, n, npx), np.float32)
+    R[0] = gx
+    R[1] = gy
+    np.multiply(gx, T, out=R[2])
+    np.multiply(gy, T, out=R[3])
+    sums = np.empty((n, 33))
+    sums[:, 0:18] = (Q.reshape(3 * n, npx) @ m6).reshape(3, n, 8)[:, :, :6].transpose(
+        1, 0, 2).reshape(n, 18)
+    sums[:, 18:30] = (R.reshape(4 * n, npx) @ m6).reshape(4, n, 8)[:, :, :3].transpose(
+        1, 0, 2).reshape(n, 12)
+    sums[:, 30] = float(np.sum(w))
+    wT = T * w.astype(np.float32)
+    sums[:, 31] = wT.sum(axis=1)
+    sums[:, 32] = np.einsum("np,np->n", wT, T)
+    return sums[:, _N_SRC].reshape(n, 8, 8)
 
 
 def inverse_blocks(N: np.ndarray, ok: np.ndarray) -> np.ndarray:

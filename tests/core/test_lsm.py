@@ -10,7 +10,7 @@ from bench.patches import make_pairs
 from core.batched_linalg import cholesky_solve as _cholesky_solve
 from core.camera import Camera
 from core.lsm import Status, epipolar_lines, match, template_patches, upsample2
-from core.lsm_design import BORDER, template_slopes
+from core.lsm_design import BORDER, normal_matrix, template_slopes
 
 
 def _match(P, **kw):
@@ -207,3 +207,30 @@ def test_gaussian_weighting_keeps_predicted_sigma_consistent():
     # Fewer effective pixels: larger predicted and real errors than the uniform patch.
     assert np.median(r.sigma_uv) > 1.1 * np.median(u.sigma_uv)
     assert abs(np.median(r.sigma0) - np.median(u.sigma0)) < 0.3
+
+
+def test_normal_matrix_is_the_weighted_design_product(rng):
+    n, half = 20, 6
+    r = np.arange(-half, half + 1, dtype=np.float32)
+    yg, xg = np.meshgrid(r, r, indexing="ij")
+    xs, ys = xg.ravel(), yg.ravel()
+    T = (100 + 25 * rng.normal(size=(n, xs.size))).astype(np.float32)
+    gx, gy = (8 * rng.normal(size=(2, n, xs.size))).astype(np.float32)
+    w = np.exp(-(xs ** 2 + ys ** 2) / 18.0).astype(np.float32)
+    m = np.stack([np.ones_like(xs), xs, ys]).astype(float)
+    J = np.concatenate([gx[:, None] * m, gy[:, None] * m, np.ones((n, 1, xs.size)),
+                        T[:, None]], axis=1)                       # (n, 8, P) float64
+    exact = np.einsum("nip,p,njp->nij", J, w.astype(float), J)
+    N = normal_matrix(T, gx, gy, xs, ys, w)
+    scale = np.sqrt(np.einsum("nii->ni", exact))
+    assert np.max(np.abs(N - exact) / (scale[:, :, None] * scale[:, None, :])) < 1e-5
+
+
+def test_threads_split_the_patches_without_changing_the_matches():
+    P = make_pairs(300, seed=15, max_shift=1.0, noise=2.0, scale=(0.95, 1.05), shear=0.05)
+    one = _match(P, workers=1)
+    three = _match(P, workers=3)
+    assert np.array_equal(one.status, three.status)
+    assert np.max(np.abs(one.uv - three.uv)) < 1e-6
+    assert np.allclose(one.cov_uv, three.cov_uv, rtol=1e-5, atol=1e-12)
+    assert np.array_equal(one.iterations, three.iterations)

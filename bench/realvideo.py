@@ -216,6 +216,10 @@ def main(argv=None) -> int:
     ap.add_argument("--scale", type=float, default=0.5)
     ap.add_argument("--step", type=int, default=2)
     ap.add_argument("--regen", type=int, default=5)
+    ap.add_argument("--max-sigma", type=float, default=0.15,
+                    help="largest LSM σ of a spatial match (surface, tracking), pixels")
+    ap.add_argument("--max-sigma-temporal", type=float, default=0.12,
+                    help="largest LSM σ of a temporal match, pixels")
     ap.add_argument("--png", type=Path, default=Path("out/realvideo/trajectories.png"))
     a = ap.parse_args(argv)
     t0 = time.perf_counter()
@@ -238,7 +242,7 @@ def main(argv=None) -> int:
     seeds = epipolar_seeds(st0, cams, 0, SEEDS_REF)
     print(f"seeds: {len(seeds)} of {len(SEEDS_REF)} matched along the epipolar lines")
     t1 = time.perf_counter()
-    surf = measure_surface(st0, cams, seeds, ref=0, step=a.step)
+    surf = measure_surface(st0, cams, seeds, ref=0, step=a.step, max_sigma_px=a.max_sigma)
     seen = np.isfinite(surf.uv[..., 0])
     print(f"surface at frame 0: {len(surf)} points ({time.perf_counter() - t1:.1f} s); "
           "seen per camera " + ", ".join(f"{n} {int(s)}" for n, s in zip(names, seen.sum(0),
@@ -246,7 +250,8 @@ def main(argv=None) -> int:
     t2 = time.perf_counter()
     log: list = []
     tr = track(lambda i: [vids[n][i] for n in names], cams, surf, a.frames, 60.0,
-               step=a.step, regen_every=a.regen, log=log)
+               step=a.step, regen_every=a.regen, log=log, spatial_sigma_px=a.max_sigma,
+               max_sigma_px=a.max_sigma_temporal)
     dt = time.perf_counter() - t2
     alive = tr.alive
     p0 = len(surf)

@@ -22,6 +22,7 @@ from .errors import InputError
 from .intersect import triangulate
 from .lsm import ImageStack, match
 from .ncc import search
+from .track_smooth import depth_outliers
 
 #: Default Gaussian weighting σ of the LSM patches, pixels (measured on the sample scene).
 WEIGHT_SIGMA = 4.0
@@ -86,7 +87,8 @@ def seeds_from_clicks(clicks: dict, cameras: list[str], max_seeds: int = 5) -> n
 
 def _match_views(stack: ImageStack, cams: list[Camera], ref: int, uv_ref: np.ndarray,
                  uv_pred: np.ndarray, aff_pred: np.ndarray, *, half: int, ncc_radius: int,
-                 max_rms_px: float, sigma_px: float, weight_sigma: float | None = None):
+                 max_rms_px: float, sigma_px: float, weight_sigma: float | None = None,
+                 max_sigma_px: float = 0.15):
     """Match reference points into all other cameras; returns uv, affine, sigma, xyz, ok."""
     n, c = uv_pred.shape[:2]
     others = [j for j in range(c) if j != ref]
@@ -105,7 +107,8 @@ def _match_views(stack: ImageStack, cams: list[Camera], ref: int, uv_ref: np.nda
         start = np.where(nc.ok[:, None], nc.uv, pred)
     r = match(stack, stack, tmpl, start, half=half, affine=aff_pred[:, others].reshape(-1, 2, 2),
               template_index=np.full(len(tmpl), ref), search_index=sidx,
-              max_shift_px=max(3.0, ncc_radius + 1.0), weight_sigma=weight_sigma)
+              max_shift_px=max(3.0, ncc_radius + 1.0), weight_sigma=weight_sigma,
+              max_sigma_px=max_sigma_px)
     ok = r.ok.reshape(n, len(others))
     uv[:, others] = np.where(ok[..., None], r.uv.reshape(n, len(others), 2), np.nan)
     # Failed matches keep the predicted affine part (a diverged one would poison the
@@ -123,7 +126,9 @@ def measure_surface(images, cameras: list[Camera], seeds_uv: np.ndarray, *, ref:
                     max_jump_m: float = 0.03, max_points: int = 50000, progress=None,
                     occupied_uv: np.ndarray | None = None,
                     weight_sigma: float | None = WEIGHT_SIGMA,
-                    refine_sigma: float | None = REFINE_SIGMA) -> Surface:
+                    refine_sigma: float | None = REFINE_SIGMA,
+                    max_sigma_px: float = 0.15,
+                    max_depth_dev_m: float | None = None) -> Surface:
     """Grow a dense point cloud over the textured surface seen by all cameras.
 
     Parameters
@@ -149,6 +154,13 @@ def measure_surface(images, cameras: list[Camera], seeds_uv: np.ndarray, *, ref:
         lies behind the convex surface).
     refine_sigma : float or None
         After growing, re-match all points with this narrower weighting (:func:`refine`).
+    max_sigma_px : float
+        Largest LSM σ of an accepted match, pixels (:func:`core.lsm.match`); real video
+        with weak skin texture may need a looser one than synthetic renders.
+    max_depth_dev_m : float, optional
+        Finally drop points whose depth differs from the median of their 8 nearest
+        neighbours' by more than this, metres (:func:`core.track_smooth.depth_outliers`,
+        seen from the mean camera centre); None (default): keep all.
     occupied_uv : ndarray, shape (K, 2), optional
         Reference-image points already measured (e.g. live tracks): their grid cells are
         not grown again, but growth passes through them.
@@ -184,7 +196,8 @@ def measure_surface(images, cameras: list[Camera], seeds_uv: np.ndarray, *, ref:
     aff0 = np.tile(np.eye(2), (len(g), c, 1, 1))
     uv, aff, sig, inter, good = _match_views(stack, cameras, ref, uv_ref, pred, aff0, half=half,
                                              ncc_radius=12, max_rms_px=max_rms_px,
-                                             sigma_px=0.05, weight_sigma=weight_sigma)
+                                             sigma_px=0.05, weight_sigma=weight_sigma,
+                                             max_sigma_px=max_sigma_px)
     inb = (g[:, 0] >= 0) & (g[:, 0] < gw) & (g[:, 1] >= 0) & (g[:, 1] < gh)
     good &= inb
     visited[g[inb, 1], g[inb, 0]] = True
@@ -219,7 +232,8 @@ def measure_surface(images, cameras: list[Camera], seeds_uv: np.ndarray, *, ref:
         uv, aff, sig, inter, good = _match_views(stack, cameras, ref, uv_ref, pu, faff[parent],
                                                  half=half, ncc_radius=0,
                                                  max_rms_px=max_rms_px, sigma_px=0.05,
-                                                 weight_sigma=weight_sigma)
+                                                 weight_sigma=weight_sigma,
+                                                 max_sigma_px=max_sigma_px)
         jump = np.linalg.norm(inter.xyz - fxyz[parent], axis=1)
         good &= jump < max_jump_m
         for k, v in (("g", cand), ("uv", uv), ("aff", aff), ("sig", sig), ("xyz", inter.xyz),
@@ -238,12 +252,24 @@ def measure_surface(images, cameras: list[Camera], seeds_uv: np.ndarray, *, ref:
                    sigma_uv=cat["sig"][k], rms=cat["rms"][k], ref=ref)
     if refine_sigma is not None and len(surf):
         surf = refine(stack, cameras, surf, half=half, weight_sigma=refine_sigma,
-                      max_rms_px=max_rms_px)
+                      max_rms_px=max_rms_px, max_sigma_px=max_sigma_px)
+    if max_depth_dev_m is not None and len(surf):
+        out = depth_outliers(surf.xyz, np.mean([cam.center for cam in cameras], axis=0),
+                             max_depth_dev_m)
+        surf = subset(surf, ~out)
     return surf
 
 
+def subset(surf: Surface, keep: np.ndarray) -> Surface:
+    """The points ``keep`` (bool (N,) or indices) of a surface."""
+    return Surface(xyz=surf.xyz[keep], cov=surf.cov[keep], uv=surf.uv[keep],
+                   affine=surf.affine[keep], sigma_uv=surf.sigma_uv[keep], rms=surf.rms[keep],
+                   ref=surf.ref)
+
+
 def refine(images, cameras: list[Camera], surf: Surface, *, half: int = 6,
-           weight_sigma: float = REFINE_SIGMA, max_rms_px: float = 1.0) -> Surface:
+           weight_sigma: float = REFINE_SIGMA, max_rms_px: float = 1.0,
+           max_sigma_px: float = 0.15) -> Surface:
     """Re-match every point of a surface with narrower patch weights, then re-intersect.
 
     Growing needs the robustness of wide patches; the final coordinates are less biased
@@ -258,7 +284,8 @@ def refine(images, cameras: list[Camera], surf: Surface, *, half: int = 6,
     pi, ci = np.nonzero(np.isfinite(surf.uv[..., 0]) & (np.arange(c) != ref)[None])
     r = match(stack, stack, surf.uv[pi, ref], surf.uv[pi, ci], half=half,
               affine=surf.affine[pi, ci], template_index=np.full(len(pi), ref),
-              search_index=ci, max_shift_px=1.0, weight_sigma=weight_sigma)
+              search_index=ci, max_shift_px=1.0, weight_sigma=weight_sigma,
+              max_sigma_px=max_sigma_px)
     uv = surf.uv.copy()
     uv[pi[r.ok], ci[r.ok]] = r.uv[r.ok]
     aff = surf.affine.copy()

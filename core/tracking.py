@@ -55,7 +55,9 @@ from .ncc import search
 from .surface import Surface, measure_surface
 from .track_anchor import KeyTemplates, reanchor
 from .track_filter import COV_FLOOR, PointFilter, neighbour_rates, predict_in_image
+from .track_occlusion import occluded
 from .track_reacquire import dormant_step
+from .track_smooth import depth_outliers
 from .track_trajectories import (
     FilterResult,
     bridge_gaps,
@@ -118,8 +120,12 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
           adaptive: bool = True, max_radius: int = 16, agree_px: float = 0.5,
           max_rms_px: float = 1.0, accel_sigma: float = 0.025, gate: float = 5.0,
           max_coast: int = 0, temporal_sigma: float | None = 4.0,
-          max_sigma_px: float = 0.12, fallback: bool = True, regen_every: int = 5,
-          anchor: bool = True, anchor_px: float = 1.0, max_dormant: int = 0,
+          max_sigma_px: float = 0.12, spatial_sigma_px: float = 0.15,
+          fallback: bool = True, regen_every: int = 5,
+          anchor: bool = True, anchor_px: float = 1.0, confirm_rekey: bool = False,
+          occlusion_m: float | None = None, reacquire_radius: int = 0,
+          depth_dev_m: float | None = None,
+          max_dormant: int = 0,
           reacquire_m: float = 0.01, reacquire_views: int = 2,
           step: int = 2, progress=None,
           log: list | None = None) -> Tracks:
@@ -158,6 +164,9 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
         Gaussian weighting σ of the temporal LSM patches, pixels (None: uniform).
     max_sigma_px : float
         Largest σ of an accepted temporal match, pixels.
+    spatial_sigma_px : float
+        Largest σ of an accepted spatial match (and of the regenerated surface points),
+        pixels.
     fallback : bool
         Where the accepted cameras fail the intersection or the gate, try the
         temporal matches alone (also those a spatial match vetoed).
@@ -172,6 +181,25 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
     anchor_px : float
         Largest distance between the key match and the temporal match, pixels; beyond
         it (or where the key match fails) the key is reset to the new measurement.
+    confirm_rekey : bool
+        A temporal match whose key match failed (its key would be reset to it) is
+        accepted only where a spatial match from another camera converged within
+        ``agree_px`` of it (the appearance changed: occlusion, or a slip onto other
+        texture), and it is not used by the fallback.
+    occlusion_m : float, optional
+        Cameras in which a point's prediction lies more than this behind the surface
+        of the other live points' predictions (:func:`core.track_occlusion.occluded`)
+        are not matched for it in that frame.  None (default): no test.
+    reacquire_radius : int
+        Where fewer than two cameras have a temporal match, the spatial matches into
+        the others start at the predicted point: search them first by NCC (template:
+        the spatial template camera's match) in a box of ``3 σ + 1`` of the prediction,
+        at most this half width, pixels.  0 (default): LSM from the prediction.
+    depth_dev_m : float, optional
+        A point whose intersection lies farther than this in depth from the median of
+        its 8 nearest measured neighbours in the same frame
+        (:func:`core.track_smooth.depth_outliers`) is not measured there; regenerated
+        surfaces are filtered the same way.  None (default): no test.
     max_dormant : int
         Frames a lost point is kept dormant (after ``max_coast``) and searched again
         (:mod:`core.track_reacquire`): predicted from the rigid motion of its
@@ -193,7 +221,8 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
         Receives one dict per frame step with the counts of (point, camera) pairs
         through each stage (``seen``, ``ncc_ok``, ``temporal_ok``, ``spatial_ok``,
         ``agree``) and of points (``live_before``, ``measured``, ``coasting``,
-        ``gated``, ``regenerated``).
+        ``gated``, ``regenerated``; ``lost_by_temporal``: points that stopped being
+        measured in this step, by their number of temporal matches 0, 1, 2, 3+).
 
     Returns
     -------
@@ -202,6 +231,7 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
     if predict not in ("ekf", "linear"):
         raise ValueError(f"predict must be 'ekf' or 'linear', got {predict!r}")
     c = len(cameras)
+    viewpoint = np.mean([cam.center for cam in cameras], axis=0)
     ref = surface.ref
     p0 = len(surface)
     uv_hist = [surface.uv.copy()]                    # measured, per frame (P, C, 2)
@@ -241,6 +271,12 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
             proj[:, j], sig_p[:, j] = predict_in_image(cam, xyz_p, cov_p)
         age = i + 1 - last_f
         pairs = ~dead[:, None] & (last_f >= 0) & (age <= max_coast + 1) & nxt.valid[None]
+        occ = np.zeros((n, c), bool)
+        if occlusion_m is not None:
+            occ = occluded(cameras, np.where(dead[:, None], np.nan, xyz_p),
+                           margin_m=occlusion_m)
+            pairs &= ~occ
+            stage["occluded"] = int(occ.sum())
         # --- temporal: NCC then LSM from each camera's last measurement into i+1 ---
         if predict == "ekf":
             pred = proj
@@ -257,6 +293,7 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
         uv_t = np.full((n, c, 2), np.nan)
         key_aff = np.full((n, c, 2, 2), np.nan)      # key -> i+1 where re-anchored
         key_ok = np.zeros((n, c), bool)
+        rekey = np.zeros((n, c), bool)               # key match failed: appearance changed
         if len(pi):
             if predict == "ekf" and adaptive:
                 rad = np.clip(np.ceil(3.0 * sig_p[pi, ci]) + 1, 3, max_radius).astype(int)
@@ -293,36 +330,58 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
                 uv_t[pi[k], ci[k]] = uv_a
                 key_aff[pi[k], ci[k]] = aff_a
                 key_ok[pi[k], ci[k]] = ok_a
+                if confirm_rekey:
+                    rekey[pi[k], ci[k]] = ~ok_a
                 stage["anchored"] = int(ok_a.sum())
             stage.update(seen=len(pi), ncc_ok=int(ncc_ok.sum()), temporal_ok=int(ok_t.sum()),
                          temporal_status=np.bincount(rt.status, minlength=8).tolist(),
                          radius_mean=float(rad.mean()))
         # --- spatial LSM at i+1 from the reference camera (or the first temporal one) ---
         has_t = np.all(np.isfinite(uv_t), axis=2)
-        tcam = np.where(has_t[:, ref], ref, np.argmax(has_t, axis=1))
+        # the spatial template: the reference camera's temporal match, else the first
+        # camera's, preferring matches whose key held
+        sure = has_t & ~rekey
+        tcam = np.where(sure[:, ref], ref, np.where(sure.any(axis=1), np.argmax(sure, axis=1),
+                        np.where(has_t[:, ref], ref, np.argmax(has_t, axis=1))))
         based = has_t[np.arange(n), tcam] & ~dead
         # Cameras without a temporal match start at the intersection of the temporal
         # matches (two or more) projected, or else at the predicted point projected.
         it_ = triangulate(cameras, uv_t, sigma_px=0.3)
-        xyz_s = np.where((it_.ok & (it_.rms < max_rms_px))[:, None], it_.xyz, xyz_p)
+        from_t = it_.ok & (it_.rms < max_rms_px)
+        xyz_s = np.where(from_t[:, None], it_.xyz, xyz_p)
         proj_s = np.stack([cam.project(xyz_s) for cam in cameras], axis=1)
         start_s = np.where(has_t[..., None], uv_t, proj_s)
         qi, qc = np.nonzero(based[:, None] & (np.arange(c)[None] != tcam[:, None])
-                            & np.all(np.isfinite(start_s), axis=2) & nxt.valid[None])
+                            & np.all(np.isfinite(start_s), axis=2) & nxt.valid[None] & ~occ)
         uv_acc = np.full((n, c, 2), np.nan)
         uv_acc[based, tcam[based]] = uv_t[based, tcam[based]]
         uv_tonly = uv_acc.copy()
+        if len(qi) and reacquire_radius:
+            # re-acquisitions started at the predicted point: NCC in a box around it
+            k = np.flatnonzero(~has_t[qi, qc] & ~from_t[qi])
+            if len(k):
+                r_k = np.clip(np.ceil(3.0 * sig_p[qi[k], qc[k]]) + 1, 3, reacquire_radius)
+                r_k = np.where(np.isfinite(r_k), r_k, reacquire_radius).astype(int)
+                for r in np.unique(r_k):
+                    kk = k[r_k == r]
+                    nc = search(nxt.stack, nxt.stack, uv_t[qi[kk], tcam[qi[kk]]],
+                                start_s[qi[kk], qc[kk]], half=half, radius=int(r),
+                                template_index=tcam[qi[kk]], search_index=qc[kk],
+                                min_score=0.7)
+                    start_s[qi[kk[nc.ok]], qc[kk[nc.ok]]] = nc.uv[nc.ok]
         if len(qi):
             tc = tcam[qi]
             aff0 = np.where((tc == ref)[:, None, None], aff_sp[qi, qc], np.eye(2))
             rs = match(nxt.stack, nxt.stack, uv_t[qi, tc], start_s[qi, qc], half=half,
-                       affine=aff0, template_index=tc, search_index=qc, max_shift_px=3.0)
+                       affine=aff0, template_index=tc, search_index=qc, max_shift_px=3.0,
+                       max_sigma_px=spatial_sigma_px)
             d = np.linalg.norm(rs.uv - uv_t[qi, qc], axis=1)
             # A temporal match is vetoed only by a spatial match that converged elsewhere;
             # a failed spatial match (occlusion edge, weak texture in that view) leaves
             # the check to the forward intersection.  Re-acquisitions need the spatial.
             ht = has_t[qi, qc]
             agree = np.where(ht, ~rs.ok | (d < agree_px), rs.ok)
+            agree &= ~rekey[qi, qc] | (rs.ok & (d < agree_px))
             use_uv = np.where(ht[:, None], uv_t[qi, qc], rs.uv)
             uv_acc[qi[agree], qc[agree]] = use_uv[agree]
             kt = agree & ht
@@ -337,8 +396,9 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
         cov_new = np.full((n, 3, 3), np.nan)
         chosen = np.zeros(n, bool)
         n_gated = 0
-        cands = (uv_acc, uv_tonly) + ((np.where(based[:, None, None], uv_t, np.nan),)
-                                      if fallback else ())
+        uv_tsure = np.where((based[:, None] & (~rekey | np.all(np.isfinite(uv_acc), axis=2)))
+                            [..., None], uv_t, np.nan)
+        cands = (uv_acc, uv_tonly) + ((uv_tsure,) if fallback else ())
         for cand in cands:
             inter = triangulate(cameras, cand, sigma_px=0.3)
             m2 = kf.mahalanobis2(inter.xyz, inter.cov + COV_FLOOR)
@@ -348,6 +408,12 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
             ok &= m2 < gate ** 2
             uv_new[ok], xyz_new[ok], cov_new[ok] = cand[ok], inter.xyz[ok], inter.cov[ok]
             chosen |= ok
+        if depth_dev_m is not None:
+            out = chosen & depth_outliers(np.where(chosen[:, None], xyz_new, np.nan),
+                                          viewpoint, depth_dev_m)
+            uv_new[out], xyz_new[out], cov_new[out] = np.nan, np.nan, np.nan
+            chosen &= ~out
+            stage["depth_outliers"] = int(out.sum())
         rows = np.flatnonzero(chosen)
         kf.update(xyz_new[rows], cov_new[rows] + COV_FLOOR, rows)
         coast = np.where(chosen, 0, coast + 1)
@@ -378,8 +444,12 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
                            np.where(got[..., None], np.nan, prev_uv))
         last_uv = np.where(got[..., None], uv_new, last_uv)
         last_f = np.where(got, i + 1, last_f)
+        lost_now = ~chosen & (coast == 1)
+        n_t = has_t.sum(axis=1)
         stage.update(measured=int(chosen.sum()), gated=n_gated,
-                     coasting=int((~dead & ~chosen).sum()))
+                     coasting=int((~dead & ~chosen).sum()),
+                     lost_by_temporal=np.bincount(np.minimum(n_t[lost_now], 3),
+                                                  minlength=4).tolist())
         uv_hist.append(uv_new)
         xyz_hist.append(xyz_new)
         sig_hist.append(np.sqrt(np.abs(np.diagonal(cov_new, axis1=1, axis2=2))))
@@ -391,7 +461,9 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
             seeds = uv_new[chosen][:: max(1, int(chosen.sum()) // 20)]
             seeds = seeds[np.all(np.isfinite(seeds[:, ref]), axis=1)]
             new = (measure_surface(nxt.stack, cameras, seeds, ref=ref, step=step, half=half,
-                                   occupied_uv=occ) if len(seeds) else None)
+                                   occupied_uv=occ, max_sigma_px=spatial_sigma_px,
+                                   max_depth_dev_m=depth_dev_m)
+                   if len(seeds) else None)
             if new is not None and len(new):
                 k = len(new)
                 uv_hist = [_pad(u, k) for u in uv_hist]

@@ -33,7 +33,7 @@ from __future__ import annotations
 import numpy as np
 
 from core.contour_obs import body_ellipsoids
-from core.model_render import camera_rays, render_parts
+from core.model_render import camera_rays, neighbour_parts, render_parts
 from core.skeleton import Skeleton
 
 MIN_AREA_PX = 80  # parts covering fewer pixels (ignoring occlusion) are not scored
@@ -129,12 +129,14 @@ def splat_visibility(camera, xyz, part, n_parts):
 
 
 def compare(state, truth: dict, cameras, frames, per_face: int = 8, seed: int = 0,
-            labels: str = "model", surface: str = "lone"):
+            labels: str = "model", surface: str = "lone", outer_only: bool = False):
     """Mean |VI_ours - VI_ref| and the agreement of the VI ≥ 0.2 decision.
 
     ``labels``: how the true mesh is split into parts, ``"model"`` or ``"segments"``
     (see the module docstring); ``surface``: how our body is rendered, see
-    :func:`body_render`.
+    :func:`body_render`; ``outer_only``: our area ignoring occlusion counts only the
+    parts' outer surface (:func:`core.model_render.render_parts`, buried by the
+    kinematic neighbours' ellipsoids), like the mesh's.
 
     Returns a dict with ``mean_abs_diff``, ``decision_agreement``, ``n`` (scored
     part-camera-frame triples) and per-part mean differences.
@@ -148,6 +150,11 @@ def compare(state, truth: dict, cameras, frames, per_face: int = 8, seed: int = 
     j0 = {n: truth["joints_xyz"][0, i] for i, n in enumerate(names)}
     vpart = vertex_parts(skel, truth["vertices"][0], j0)
     rays = [camera_rays(c) for c in cameras]
+    # a part's surface is buried inside a kinematic neighbour at least as large (the
+    # neck and clavicles inside the chest, a wrist inside the forearm), not the other way
+    vol = np.bincount(state.metaballs.bone, weights=np.prod(state.metaballs.radii, axis=1),
+                      minlength=n_parts)[:n_parts]
+    adj = neighbour_parts(skel.bone_parent) & (vol[None, :] >= vol[:, None])
     diffs, agree, per_part = [], [], [[] for _ in range(n_parts)]
     for f in frames:
         centers, axes, radii, bone = body_render(state, f, surface)
@@ -156,7 +163,8 @@ def compare(state, truth: dict, cameras, frames, per_face: int = 8, seed: int = 
         xyz, part = surface_samples(truth["vertices"][f], truth["faces"], vpart, per_face, rng)
         for cam, r in zip(cameras, rays, strict=True):
             ref, full = splat_visibility(cam, xyz, part, n_parts)
-            ours = render_parts(cam, centers, axes, radii, bone, n_parts, rays=r)
+            ours = render_parts(cam, centers, axes, radii, bone, n_parts, rays=r,
+                                outer_only=outer_only, buried_by=adj)
             vi = ours.visibility_index
             scored = (full >= MIN_AREA_PX) & np.isfinite(vi) & np.isfinite(ref)
             d = np.abs(vi - ref)[scored]

@@ -23,7 +23,7 @@ segmentation.  The shape (scales ``s`` and metaball radii) is held fixed.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg
@@ -67,6 +67,8 @@ class ContourTrackSettings:
     recover: bool = True             # re-solve a diverged frame from a widened prior
     recover_sigma_theta: float = 0.35  # prior σ of the suspect parts' angles then [rad]
     recover_dist_px: float = 30.0    # contour pairing distance then [px]
+    search: bool = True              # limb search before the update (core.contour_search)
+    search_sigma_theta: float = 0.15  # prior σ of a re-posed limb's angles [rad]
 
 
 @dataclass
@@ -86,6 +88,7 @@ class FrameTrack:
     outside_frac, unexplained_frac : those two fractions (NaN: not measured)
     recovered : the frame was diverged after the usual update and a re-solve from a
         widened prior (:func:`update_with_contours`) was kept
+    searched : limbs re-posed by the search before the update (:mod:`core.contour_search`)
     """
 
     theta: np.ndarray
@@ -99,6 +102,7 @@ class FrameTrack:
     outside_frac: float = float("nan")
     unexplained_frac: float = float("nan")
     recovered: bool = False
+    searched: list = field(default_factory=list)
 
 
 def _limits(skel: Skeleton) -> tuple[np.ndarray, np.ndarray]:
@@ -255,6 +259,26 @@ def update_with_contours(ekf: EKF, skel: Skeleton, s: np.ndarray, balls: Metabal
     """
     n = skel.n_dof
     m = n + 3
+    moved: list = []
+    if fields is not None and cfg.search:
+        from .contour_search import LIMBS, search_limbs
+
+        found = search_limbs(skel, ekf.x[:n], ekf.x[n:m], s, balls, cameras, contours, fields,
+                             rays=rays)
+        for name in found.moved:
+            idx = np.array([skel.dof_index(d) for d in LIMBS[name][1]])
+            if name == "trunk":
+                ekf.x[n:m] = found.root
+                ekf.P[n:m, n:m] += np.eye(3) * (2 * cfg.q_sigma_root) ** 2
+            ekf.x[idx] = found.theta[idx]
+            ekf.x[m + idx] = 0.0
+            ekf.P[idx, :] = 0.0
+            ekf.P[:, idx] = 0.0
+            ekf.P[m + idx, :] = 0.0
+            ekf.P[:, m + idx] = 0.0
+            ekf.P[idx, idx] = cfg.search_sigma_theta**2
+            ekf.P[m + idx, m + idx] = cfg.rate_sigma_theta**2
+        moved = found.moved
     x_pred, P_pred = ekf.x.copy(), ekf.P.copy()
     x, P, obs = _solve(x_pred, P_pred, skel, s, balls, cameras, contours, cfg, rays, fields,
                        cfg.max_dist_px, cfg.iterations)
@@ -304,7 +328,8 @@ def update_with_contours(ekf: EKF, skel: Skeleton, s: np.ndarray, balls: Metabal
     rms = float(np.sqrt(np.mean(obs.residual**2)))
     return FrameTrack(ekf.x[:n].copy(), ekf.x[n:m].copy(), np.sqrt(np.diag(ekf.P)[:m]), rms,
                       len(obs), True, obs.selection.use, diverged=diverged,
-                      outside_frac=out_f, unexplained_frac=unexp, recovered=recovered)
+                      outside_frac=out_f, unexplained_frac=unexp, recovered=recovered,
+                      searched=moved)
 
 
 def frame_fields(cameras: list[Camera], contours: list[list[Contour]]) -> list:

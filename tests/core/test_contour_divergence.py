@@ -79,9 +79,9 @@ def test_containment_jacobian_matches_finite_differences(rig):
     assert ok.mean() > 0.9
 
 
-def _update(rig, theta, root, recover):
+def _update(rig, theta, root, recover, search=False):
     skel, balls, s, cams, _, _, contours = rig
-    cfg = ct.ContourTrackSettings(recover=recover)
+    cfg = ct.ContourTrackSettings(recover=recover, search=search)
     ekf = ct.start_filter(skel, theta, root, cfg)
     fields = ct.frame_fields(cams, contours)
     return ct.update_with_contours(ekf, skel, s, balls, cams, contours, cfg, fields=fields)
@@ -105,6 +105,11 @@ def test_divergence_flag_fires_on_a_lost_pose(rig):
     out = _update(rig, lost, root + np.array([0.25, 0.0, 0.0]), recover=False)
     assert out.diverged
     assert out.outside_frac > 0.15 or out.unexplained_frac > 0.2
+    # the limb search and the re-solve bring it back
+    back = _update(rig, lost, root + np.array([0.25, 0.0, 0.0]), recover=True, search=True)
+    assert back.searched
+    assert back.outside_frac + back.unexplained_frac < 0.5 * (out.outside_frac
+                                                              + out.unexplained_frac)
 
 
 def test_selection_uses_only_cameras_that_see_the_part(rig):

@@ -51,3 +51,31 @@ def test_part_outside_image_has_nan_index():
     out = render_parts(cam, np.array([[10.0, 0.0, 0.0]]), np.eye(3)[None],
                        np.array([[0.1, 0.1, 0.1]]), np.array([0]))
     assert np.isnan(out.visibility_index[0])
+
+
+def test_outer_only_leaves_out_the_buried_surface():
+    """A small sphere half inside a big one (a clavicle in the chest): seen side by side,
+    the buried half is no skin — with ``outer_only`` its index is about 1, not ~0.6."""
+    from core.model_render import neighbour_parts
+
+    cam = _camera()
+    centers = np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 0.0]])
+    axes = np.repeat(np.eye(3)[None], 2, axis=0)
+    radii = np.array([[0.3] * 3, [0.1] * 3])
+    part = np.array([0, 1])
+    plain = render_parts(cam, centers, axes, radii, part)
+    outer = render_parts(cam, centers, axes, radii, part, outer_only=True)
+    np.testing.assert_array_equal(plain.part_id, outer.part_id)
+    np.testing.assert_array_equal(plain.visible_area, outer.visible_area)
+    assert plain.visibility_index[1] < 0.8
+    assert outer.visibility_index[1] > 0.9
+    assert outer.full_area[1] < plain.full_area[1]
+    # the big sphere's surface inside the small one is buried too (a little)
+    assert outer.full_area[0] <= plain.full_area[0]
+    # burial restricted to "part 1 inside part 0" leaves part 0's area whole
+    only = np.array([[False, False], [True, False]])
+    sel = render_parts(cam, centers, axes, radii, part, outer_only=True, buried_by=only)
+    assert sel.full_area[0] == plain.full_area[0]
+    assert sel.full_area[1] == outer.full_area[1]
+    np.testing.assert_array_equal(neighbour_parts(np.array([-1, 0, 1])),
+                                  [[1, 1, 0], [1, 1, 1], [0, 1, 1]])

@@ -15,7 +15,9 @@ selection and with all cameras fused — and one row each is printed side by sid
 (:func:`core.evaluate.evaluate`), frames the tracker marked diverged, frames whose MPJPE
 exceeds ``--lost-mm`` (an independent check against the truth), s/frame (CPU time), and
 the agreement of the cameras each part used with the truth's visibility (which cameras
-see ≥ 20 % of the part in the true mesh, :mod:`bench.visibility`).
+see ≥ 20 % of the part in the true mesh, :func:`truth_visibility`, every 5th frame):
+``hid.used`` — fraction of the part-views used that the truth says are hidden;
+``seen.unused`` — fraction of the truth's visible part-views left out.
 
 Scenes: the dance scenes are :data:`bench.fit.STUDIO_SCENES` (rendered and cached by
 :func:`bench.fit.render_studio_scene`); the pirouette scenes (``pirouette.bvh``, CMU
@@ -100,6 +102,52 @@ def scene_contours(scene, n_frames: int, spacing: float = 2.0):
     return contours
 
 
+def truth_visibility(scene, frames) -> np.ndarray:
+    """Visibility index of every part in every camera from the true mesh, (F', P, C).
+
+    Parts are labelled by the model's own boundaries at the truth pose (template shape,
+    :func:`bench.visibility.model_vertex_parts`); NaN where the part covers fewer than
+    :data:`bench.visibility.MIN_AREA_PX` pixels.
+    """
+    from bench.visibility import (
+        MIN_AREA_PX,
+        body_render,
+        model_vertex_parts,
+        splat_visibility,
+        surface_samples,
+    )
+    from core.truth_state import truth_to_state
+
+    state, _ = truth_to_state(scene.truth, scene.fps)
+    cams = scene.calibration()
+    rng = np.random.default_rng(0)
+    P = len(state.skeleton.bone_names)
+    out = np.full((len(frames), P, len(cams)), np.nan)
+    for i, f in enumerate(frames):
+        centers, axes, radii, bone = body_render(state, f)
+        vpart = model_vertex_parts(scene.truth["vertices"][f], centers, axes, radii, bone)
+        xyz, part = surface_samples(scene.truth["vertices"][f], scene.truth["faces"], vpart, 4,
+                                    rng)
+        for c, cam in enumerate(cams):
+            ref, full = splat_visibility(cam, xyz, part, P)
+            out[i, :, c] = np.where(full >= MIN_AREA_PX, ref, np.nan)
+    return out
+
+
+def camera_agreement(use: np.ndarray, ref: np.ndarray) -> tuple[float, float]:
+    """How the cameras used per part (F', P, C bool) agree with the truth's visibility.
+
+    Returns the fraction of used part-views the truth says are hidden (VI < 0.2) and
+    the fraction of the truth's visible part-views (VI ≥ 0.2) left unused.
+    """
+    scored = np.isfinite(ref)
+    seen = scored & (np.nan_to_num(ref) >= 0.2)
+    used = use & scored
+    hidden_used = float((used & ~seen).sum() / max(1, used.sum()))
+    seen_unused = float((seen & ~use).sum() / max(1, seen.sum()))
+    return hidden_used, seen_unused
+
+
 def _joints_like_truth(skel, theta, root, s, names):
     """Fitted joints (F, J, 3) in the order of the truth's ``names``."""
     from core.skeleton import joint_positions
@@ -134,8 +182,13 @@ def run_scene(name: str, n_frames: int, lost_mm: float = 100.0, settings: dict |
     txyz, names = truth_joints(scene.truth)
     txyz = txyz[:nf]
     height = float(scene.truth["height_m"])
+    vis_frames = list(range(0, nf, 5))
+    t0 = time.process_time()
+    ref_vi = truth_visibility(scene, vis_frames)
+    t_vis = time.process_time() - t0
     print(f"\n{name}: {len(cams)} cameras, {nf} frames; contours {t_seg:.0f} s CPU; shape "
-          f"fitted to frame 0 (RMS {rms:.2f} px, {t_shape:.0f} s CPU)", flush=True)
+          f"fitted to frame 0 (RMS {rms:.2f} px, {t_shape:.0f} s CPU); truth visibility of "
+          f"{len(vis_frames)} frames {t_vis:.0f} s CPU", flush=True)
     rows = []
     for select, label in ((True, "per-part selection"), (False, "all fused")):
         cfg = ContourTrackSettings(select=select, **(settings or {}))
@@ -148,21 +201,27 @@ def run_scene(name: str, n_frames: int, lost_mm: float = 100.0, settings: dict |
         ev = evaluate(fxyz, txyz, names, height)
         diverged = np.array([getattr(t, "diverged", not t.updated) for t in out])
         lost = ev.curves["mpjpe_mm"] > lost_mm
+        use = np.array([out[f].use for f in vis_frames])
+        hidden_used, seen_unused = camera_agreement(use, ref_vi)
         rows.append({"scene": name, "method": label, "mpjpe_mm": ev.mpjpe_mm,
                      "seg_rmse_deg": ev.segment_orientation_rmse_deg,
                      "diverged": int(diverged.sum()), "lost": int(lost.sum()),
                      "s_per_frame": dt, "curve": ev.curves["mpjpe_mm"], "track": out,
-                     "diverged_mask": diverged})
+                     "diverged_mask": diverged, "hidden_used": hidden_used,
+                     "seen_unused": seen_unused,
+                     "searched": sum(len(t.searched) for t in out) / nf})
     return rows
 
 
 def print_rows(rows, lost_mm: float) -> None:
     print(f"{'scene':18s} {'cameras':20s} {'MPJPE mm':>9s} {'seg RMSE deg':>12s} "
-          f"{'diverged':>8s} {f'>{lost_mm:g} mm':>8s} {'s/frame':>7s}   MPJPE per 5 frames")
+          f"{'diverged':>8s} {f'>{lost_mm:g} mm':>8s} {'s/frame':>7s} {'hid.used':>8s} "
+          f"{'seen.unused':>11s}   MPJPE per 5 frames")
     for r in rows:
         curve = " ".join(f"{e:4.0f}" for e in r["curve"][::5])
         print(f"{r['scene']:18s} {r['method']:20s} {r['mpjpe_mm']:9.1f} {r['seg_rmse_deg']:12.1f} "
-              f"{r['diverged']:8d} {r['lost']:8d} {r['s_per_frame']:7.2f}   {curve}", flush=True)
+              f"{r['diverged']:8d} {r['lost']:8d} {r['s_per_frame']:7.2f} "
+              f"{r['hidden_used']:8.2f} {r['seen_unused']:11.2f}   {curve}", flush=True)
 
 
 def main(argv=None) -> int:

@@ -1,0 +1,61 @@
+"""bench.selection helpers: the Daz -> CMU renaming of a BVH and the camera agreement."""
+
+import numpy as np
+
+from bench.selection import DAZ_TO_CMU, camera_agreement, renamed_bvh
+
+BVH = """HIERARCHY
+ROOT hip
+{
+  OFFSET 0 0 0
+  CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation
+  JOINT lThigh
+  {
+    OFFSET 4 -2 0
+    CHANNELS 3 Zrotation Xrotation Yrotation
+    JOINT lShin
+    {
+      OFFSET 0 -18 0
+      CHANNELS 3 Zrotation Xrotation Yrotation
+      End Site
+      {
+        OFFSET 0 -17 0
+      }
+    }
+  }
+  JOINT leftEye
+  {
+    OFFSET 1 30 2
+    CHANNELS 3 Zrotation Xrotation Yrotation
+    End Site
+    {
+      OFFSET 0 0 1
+    }
+  }
+}
+MOTION
+Frames: 1
+Frame Time: 0.00833333
+0 36 0 0 0 0 1 2 3 4 5 6 7 8 9
+"""
+
+
+def test_renamed_bvh_maps_daz_joints_and_keeps_the_rest(tmp_path):
+    src = tmp_path / "daz.bvh"
+    src.write_text(BVH)
+    out = renamed_bvh(src, tmp_path / "sub" / "cmu.bvh").read_text()
+    assert "ROOT Hips" in out and "JOINT LeftUpLeg" in out and "JOINT LeftLeg" in out
+    assert "JOINT leftEye" in out  # no CMU counterpart: unchanged
+    assert out.split("MOTION")[1] == BVH.split("MOTION")[1]
+    assert len(out.splitlines()) == len(BVH.splitlines())
+    assert DAZ_TO_CMU["rShldr"] == "RightArm" and DAZ_TO_CMU["lCollar"] == "LeftShoulder"
+
+
+def test_camera_agreement_counts_hidden_used_and_seen_unused():
+    ref = np.array([[[0.9, 0.1, np.nan], [0.5, 0.05, 0.3]]])  # (F=1, P=2, C=3)
+    use = np.array([[[True, True, True], [False, False, True]]])
+    hidden_used, seen_unused = camera_agreement(use, ref)
+    # scored used part-views: (0,0) seen, (0,1) hidden, (1,2) seen -> 1 of 3 hidden
+    assert np.isclose(hidden_used, 1 / 3)
+    # seen part-views: (0,0), (1,0), (1,2) -> (1,0) unused
+    assert np.isclose(seen_unused, 1 / 3)

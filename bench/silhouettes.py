@@ -18,6 +18,10 @@
    the background, shadows): masks and contours of every camera at quarter resolution,
    written as a PNG overlay (three frames per camera); no truth exists, so the figure is
    the picture plus timing.
+
+``--selection-scenes A,B`` runs :mod:`bench.selection` instead: per-part selection vs all
+cameras fused on self-occluding studio scenes, ``--track-frames`` frames each (50 for
+the full clips).
 """
 
 from __future__ import annotations
@@ -234,7 +238,16 @@ def main(argv=None) -> int:
     ap.add_argument("--track-frames", type=int, default=25, help="frames of contour tracking")
     ap.add_argument("--fuse", action="store_true",
                     help="also fuse contours into a point fit (needs --fit)")
+    ap.add_argument("--selection-scenes", default=None,
+                    help="only run bench.selection on these comma-separated scenes "
+                         "(e.g. dance_line3,dance_ortho3,pirouette_line3,pirouette_ortho3): "
+                         "per-part camera selection vs all cameras fused")
     args = ap.parse_args(argv)
+    if args.selection_scenes:
+        from bench.selection import main as selection_main
+
+        return selection_main(["--scenes", args.selection_scenes,
+                               "--frames", str(args.track_frames)])
     studio(args.scene)
     visibility(args.scene, args.fit)
     contour_tracking(args.scene, args.track_frames)

@@ -253,9 +253,11 @@ def update_with_contours(ekf: EKF, skel: Skeleton, s: np.ndarray, balls: Metabal
     (``cfg.recover``) from the prediction with the angles of the suspect parts (those
     with points outside the foreground, or every part when none is) widened to
     ``cfg.recover_sigma_theta`` and their rates zeroed, pairing contours up to
-    ``cfg.recover_dist_px``; the re-solve is kept when it explains the silhouettes
+    ``cfg.recover_dist_px``.  The re-solve is kept when it explains the silhouettes
     better.  A frame still diverged after that is marked ``diverged`` and its covariance
-    is left widened, so that the next frames can pull the parts back.
+    is left widened, so that the next frames can pull the parts back.  Before the
+    update, with ``fields`` and ``cfg.search``, :func:`core.contour_search.search_limbs`
+    re-poses limbs the prediction left behind (recorded in ``searched``).
     """
     n = skel.n_dof
     m = n + 3

@@ -18,10 +18,11 @@ Cases: pure shift; gain 1.3 and offset +20 in the search image; affine (scales
 0.9–1.1, shears ±0.1).  Columns: fraction of matches returned as valid, mean and
 RMS position error of the valid ones (px), for LSM the RMS error over its own
 predicted σ, and matches per second (all patches of the case, best of ``--repeat``
-runs): wall clock, OpenCV with its default threads (:func:`core.lsm.match` splits
-the patches over one thread per core, ``--workers``, each running OpenBLAS on one
-thread), and per CPU second of the process (all its threads; the steadier figure
-on a shared machine).  The load average of the machine is printed before and after.
+runs, the methods taking turns): wall clock, OpenCV with its default threads
+(:func:`core.lsm.match` splits the patches over one thread per core, ``--workers``,
+each running OpenBLAS on one thread), and per CPU second of the process (all its
+threads; the steadier figure on a shared machine).  The load average of the machine
+is printed before and after.
 """
 
 from __future__ import annotations
@@ -95,17 +96,22 @@ CASES = {
 }
 
 
-def evaluate(n: int, seed: int, repeat: int = 3) -> list[dict]:
+def evaluate(n: int, seed: int, repeat: int = 5) -> list[dict]:
     rows = []
     for case, kw in CASES.items():
         P = make_pairs(n, seed=seed, max_shift=1.0, noise=2.0, **kw)
-        for name, fn in METHODS.items():
-            dt = dc = np.inf
-            for _ in range(repeat):          # best of `repeat` (shared, noisy machines)
+        dt = dict.fromkeys(METHODS, np.inf)
+        dc = dict.fromkeys(METHODS, np.inf)
+        out = {}
+        # Best of `repeat`, the methods taking turns: on a shared machine whose load
+        # drifts, every method sees the same spells of load.
+        for _ in range(repeat):
+            for name, fn in METHODS.items():
                 t0, c0 = time.perf_counter(), time.process_time()
-                uv, ok, sig = fn(P)
-                dt = min(dt, time.perf_counter() - t0)
-                dc = min(dc, time.process_time() - c0)
+                out[name] = fn(P)
+                dt[name] = min(dt[name], time.perf_counter() - t0)
+                dc[name] = min(dc[name], time.process_time() - c0)
+        for name, (uv, ok, sig) in out.items():
             err = uv - P.uv_true
             good = ok & np.all(np.isfinite(err), axis=1)
             d = np.linalg.norm(err[good], axis=1)
@@ -113,7 +119,7 @@ def evaluate(n: int, seed: int, repeat: int = 3) -> list[dict]:
             ratio = (rms / float(np.sqrt(np.mean(sig[good] ** 2)))) if sig is not None else np.nan
             rows.append(dict(case=case, method=name, valid=float(good.mean()),
                              mean_px=float(d.mean()) if d.size else np.nan, rms_px=rms,
-                             ratio=ratio, rate=n / dt, cpu_rate=n / max(dc, 1e-9)))
+                             ratio=ratio, rate=n / dt[name], cpu_rate=n / max(dc[name], 1e-9)))
     return rows
 
 
@@ -121,7 +127,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=2000, help="patches per case")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--repeat", type=int, default=3, help="timing: best of this many runs")
+    ap.add_argument("--repeat", type=int, default=5, help="timing: best of this many runs")
     ap.add_argument("--workers", type=int, default=None,
                     help="LSM threads (default: core.lsm.match's, one per core)")
     args = ap.parse_args(argv)

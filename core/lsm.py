@@ -13,8 +13,10 @@ scales, 2 shears) and ``r0, r1`` the radiometric offset and gain.
 The 8 parameters are estimated by Gauss–Newton in the inverse compositional form
 (Baker & Matthews 2004): the update is computed on the template side, so the design
 matrix ``[∇T·∂W/∂p, 1, T]`` (template gradients, offset, gain) and its normal matrix
-``N`` are computed and inverted once per patch; every iteration then only resamples
-the search patch, forms ``Jᵀe`` (one batched GEMV) and multiplies by ``N⁻¹``.  The
+``N`` (from packed moments, two GEMMs for all patches) are computed and inverted
+once per patch; every iteration then only resamples the search patch, forms ``Jᵀe``
+(``∇T e`` against the moments 1, x, y: GEMVs over all patches) and multiplies by
+``N⁻¹``.  The
 warp is composed with the inverse update (``W ← W ∘ ΔW⁻¹``) and the radiometry with
 its inverse.  The fixed point is the same as that of the forward-additive
 Gauss–Newton up to terms of the order of the noise in the template gradients.  The
@@ -23,10 +25,11 @@ central differences, which damp fine texture by up to a third and make the steps
 overshoot): from 1 px off, most patches converge in 3 iterations (shift and
 radiometry only, then all 8 parameters, then the check).
 
-Resampling: windows of the search images around the start positions are upsampled
-2× by cubic B-spline interpolation (a symmetric 12-tap half-pixel filter, so no
-phase error; two GEMMs per window stack), and the iterations sample them bilinearly
-(``cv2.remap``).  The warp is snapped to cv2.remap's 1/32 px grid before sampling
+Resampling: windows of the search images around the start positions (the patch
+footprint and 1 px of drift) are upsampled 2× by cubic B-spline interpolation (a
+symmetric 12-tap half-pixel filter, so no phase error; two GEMMs per window stack),
+and the iterations sample them bilinearly (``cv2.remap``, one call per 32000 rows of
+windows).  The warp is snapped to cv2.remap's 1/32 px grid before sampling
 (so every sample is exact) and the update starts from the snapped warp.  This keeps
 the precision of cubic-spline resampling at the cost of bilinear sampling;
 ``upsample=False`` samples the original image bilinearly (~25 % larger errors on
@@ -41,6 +44,10 @@ back the noise of the search patch that its resampling averaged out of the resid
 (see :func:`core.image_stack.resampling_noise_factor`; equal noise in both images
 assumed).  OpenBLAS runs on one thread inside :func:`match` (:mod:`core.blas_threads`):
 the many skinny GEMMs gain nothing from threads and lose a lot to their spinning.
+Instead, large calls split the patches into contiguous parts matched in parallel
+threads (``workers``; numpy, OpenBLAS and OpenCV release the GIL in the heavy steps):
+this shortens the wall clock on idle cores, at ~10 % more CPU time (each part repeats
+the per-iteration bookkeeping), and gains nothing on a machine whose cores are busy.
 
 Optional geometric constraint (multi-photo geometrically constrained matching):
 the matched point must lie on a given line ``n · uv = d`` in the search image (the
@@ -68,6 +75,8 @@ from .lsm_design import (
     inverse_blocks,
     normal_matrix,
     row_mean_sd,
+    shift_moments,
+    solve_shift_radiometry,
     template_slopes,
 )
 
@@ -346,13 +355,18 @@ def _match_part(tstack: ImageStack, sstack: ImageStack, uv_t, uv_s0, ti, si, A, 
     status[finite & t_in & (texture < min_texture)] = Status.WEAK_TEXTURE
     N[status != Status.NOT_CONVERGED] = np.eye(8)
     # Shifts and radiometry only in the first iteration (and until the shift settles
-    # below 1 px, at most 3): the affine part of a far-off start would diverge.
-    # ``Ncur`` holds the inverse in use per patch.
+    # below 1 px, at most 3): the affine part of a far-off start would diverge.  The
+    # first iteration of all patches (without a line constraint) uses every other
+    # pixel in u and v, unweighted (a quarter of the samples; its step only brings the
+    # patch near the match) and solves its 4 × 4 system in closed form.
     Ninv, pd = spd_inverse(N)
     sub = [0, 3, 6, 7]
-    Ncur = np.zeros_like(Ninv)
-    Ncur[:, np.ix_(sub, sub)[0], np.ix_(sub, sub)[1]] = inverse_blocks(N[:, sub][:, :, sub], pd)
     shift_only = np.ones(n, bool)
+    cs = np.flatnonzero((np.abs(xs) % 2 == 0) & (np.abs(ys) % 2 == 0))
+    basis_c, w_c = basis[:, cs], np.ones(len(cs), np.float32)
+    T_c, gx_c, gy_c = T[:, cs], gx[:, cs], gy[:, cs]
+    mom_c = shift_moments(T_c, gx_c, gy_c, w_c)
+    dof_c = len(cs) - 4.0
     # Redundancy: tr W - tr(N⁻¹ JᵀW²J) (= n - u for uniform weights).
     if weight_sigma is None:
         dof = np.full(n, npx - 8.0)
@@ -395,6 +409,8 @@ def _match_part(tstack: ImageStack, sstack: ImageStack, uv_t, uv_s0, ti, si, A, 
             # is snapped to that grid (offset and slopes multiples of 1/32, so that
             # every sample position is exact in float32 and for cv2), and the update
             # below starts from the snapped warp actually sampled.
+            so = shift_only[a]
+            coarse = lines is None and so.all()
             base = bases[:, wrow]                                   # (2, n_a)
             M = np.empty((2, na, 3))                                # [u; v] x (1, x, y)
             M[:, :, 0] = base + f * uv[a].T
@@ -402,8 +418,8 @@ def _match_part(tstack: ImageStack, sstack: ImageStack, uv_t, uv_s0, ti, si, A, 
             M = np.rint(M * 32.0) * (1 / 32.0)
             uv_s = ((M[:, :, 0] - base) / f).T
             A_s = M[:, :, 1:].transpose(1, 0, 2) / f
-            puv = M.reshape(2 * na, 3).astype(np.float32) @ basis   # (2 n_a, P)
-            S = src.sample(puv[:na], puv[na:], wrow)
+            puv = M.reshape(2 * na, 3).astype(np.float32) @ (basis_c if coarse else basis)
+            S = src.sample(puv[:na], puv[na:], wrow)                # (n_a, P or P/4)
             new = fresh[a]
             if new.any():
                 # Radiometric start: match the mean and spread of the grey levels.
@@ -413,31 +429,45 @@ def _match_part(tstack: ImageStack, sstack: ImageStack, uv_t, uv_s0, ti, si, A, 
                 gain[k] = g0
                 offset[k] = t_mean[k] - g0 * s_mean
                 fresh[k] = False
-            # Residuals e = r1 S + r0 - T; b = Jᵀ W e (n_a, 8) and vᵀWv.
-            Q = np.empty((3, na, npx), np.float32)
-            e = Q[2]
-            np.multiply(S, gain[a, None].astype(np.float32), out=e)
-            e += offset[a, None].astype(np.float32)
-            e -= Ta
-            np.multiply(gxa, e, out=Q[0])
-            np.multiply(gya, e, out=Q[1])
-            Q2 = Q.reshape(3 * na, npx)
-            b = np.empty((na, 8))
-            b[:, [0, 3, 6]] = (Q2 @ basis_w[0]).reshape(3, na).T
-            b[:, 1] = Q2[:na] @ basis_w[1]
-            b[:, 2] = Q2[:na] @ basis_w[2]
-            b[:, 4] = Q2[na:2 * na] @ basis_w[1]
-            b[:, 5] = Q2[na:2 * na] @ basis_w[2]
-            b[:, 7] = np.einsum("np,np->n", Twa, e)
-            ew = e if weight_sigma is None else e * wpx
-            vv = np.einsum("np,np->n", ew, e).astype(np.float64)
-            g_old, o_old, b67, vv0 = gain[a], offset[a], b[:, 6:8].copy(), vv
-            Ninv_a = Ncur[a]
-            if lines is not None:
-                Ninv_a, jv, mis = line_update(Ninv_a, Aa, ln_n[a], ln_d[a], uv[a], w_line)
-                b = b + (w_line * mis)[:, None] * jv
-                vv = vv + w_line * mis * mis
-            dq = np.einsum("nij,nj->ni", Ninv_a, b)
+            g_old, o_old = gain[a], offset[a]
+            if coarse:
+                dq, b, vv = _coarse_step(S, g_old, o_old, T_c[a], gx_c[a], gy_c[a], w_c,
+                                         mom_c[a])
+                dof_a = dof_c
+            else:
+                # Residuals e = r1 S + r0 - T; b = Jᵀ W e (n_a, 8) and vᵀWv.
+                dof_a = dof[a]
+                Q = np.empty((3, na, npx), np.float32)
+                e = Q[2]
+                np.multiply(S, gain[a, None].astype(np.float32), out=e)
+                e += offset[a, None].astype(np.float32)
+                e -= Ta
+                np.multiply(gxa, e, out=Q[0])
+                np.multiply(gya, e, out=Q[1])
+                Q2 = Q.reshape(3 * na, npx)
+                b = np.empty((na, 8))
+                b[:, [0, 3, 6]] = (Q2 @ basis_w[0]).reshape(3, na).T
+                b[:, 1] = Q2[:na] @ basis_w[1]
+                b[:, 2] = Q2[:na] @ basis_w[2]
+                b[:, 4] = Q2[na:2 * na] @ basis_w[1]
+                b[:, 5] = Q2[na:2 * na] @ basis_w[2]
+                b[:, 7] = np.einsum("np,np->n", Twa, e)
+                ew = e if weight_sigma is None else e * wpx
+                vv = np.einsum("np,np->n", ew, e).astype(np.float64)
+                b67, vv0 = b[:, 6:8].copy(), vv
+                Ninv_a = Ninv[a]
+                if so.any():
+                    # Still shift-only on the full grid: the 4 × 4 sub-block's inverse.
+                    k = np.flatnonzero(so)
+                    blk = np.zeros((len(k), 8, 8))
+                    blk[:, np.ix_(sub, sub)[0], np.ix_(sub, sub)[1]] = inverse_blocks(
+                        N[a[k]][:, sub][:, :, sub], pd[a[k]])
+                    Ninv_a[k] = blk
+                if lines is not None:
+                    Ninv_a, jv, mis = line_update(Ninv_a, Aa, ln_n[a], ln_d[a], uv[a], w_line)
+                    b = b + (w_line * mis)[:, None] * jv
+                    vv = vv + w_line * mis * mis
+                dq = np.einsum("nij,nj->ni", Ninv_a, b)
             ok_step = np.isfinite(dq).all(axis=1)
             dq[~ok_step] = 0.0
             # Compose W <- W ∘ ΔW⁻¹ with ΔW(x) = Δt + (I + ΔA) x; radiometry likewise.
@@ -454,15 +484,11 @@ def _match_part(tstack: ImageStack, sstack: ImageStack, uv_t, uv_s0, ti, si, A, 
             it_left[a] -= 1
             # Precision from this linearisation: σ0² = vᵀv / (n - u), Σ = σ0² N⁻¹.
             vtv = vv - np.einsum("ni,ni->n", dq, b)
-            sigma0[a] = np.sqrt(np.maximum(vtv, 0.0) / dof[a])
+            sigma0[a] = np.sqrt(np.maximum(vtv, 0.0) / dof_a)
 
-            so = shift_only[a]
             conv = np.all(np.abs(change) < tol_px, axis=1) & ~so
             leave = so & (np.all(np.abs(change) < 1.0, axis=1) | (iters[a] >= 3))
-            if leave.any():
-                k = a[leave]
-                shift_only[k] = False
-                Ncur[k] = Ninv[k]
+            shift_only[a[leave]] = False
             drift = np.hypot(*(uv_new - uv_s0[a]).T) > max_shift_px
             # Footprint of the warped patch: half-extent per axis, pixels.
             ext = half * np.abs(An).sum(axis=2)
@@ -532,6 +558,31 @@ def _match_part(tstack: ImageStack, sstack: ImageStack, uv_t, uv_s0, ti, si, A, 
     status[big] = Status.LARGE_SIGMA
     return LSMResult(uv=uv, affine=A, gain=gain, offset=offset, sigma0=sigma0, cov_uv=cov,
                      iterations=iters, status=status, texture=texture)
+
+
+def _coarse_step(S, gain, offset, T, gx, gy, w, mom):
+    """Shift-and-radiometry step of the first iteration on the coarse pixel subset.
+
+    S, T, gx, gy (n_a, P') float32, w (P') weights, mom (n_a, 10) the subset's
+    :func:`~core.lsm_design.shift_moments`.  Returns dq (n_a, 8) (zero for the affine
+    parameters), b (n_a, 8) and vᵀWv (n_a,) as the full iteration does.
+    """
+    na = len(S)
+    Q = np.empty((3, na, S.shape[1]), np.float32)
+    e = Q[2]
+    np.multiply(S, gain[:, None].astype(np.float32), out=e)
+    e += offset[:, None].astype(np.float32)
+    e -= T
+    np.multiply(gx, e, out=Q[0])
+    np.multiply(gy, e, out=Q[1])
+    b = np.zeros((na, 8))
+    b[:, [0, 3, 6]] = (Q.reshape(3 * na, -1) @ w).reshape(3, na).T
+    ew = e * w
+    b[:, 7] = np.einsum("np,np->n", ew, T)
+    vv = np.einsum("np,np->n", ew, e).astype(np.float64)
+    dq = np.zeros((na, 8))
+    dq[:, [0, 3, 6, 7]] = solve_shift_radiometry(mom, b[:, [0, 3, 6, 7]])
+    return dq, b, vv
 
 
 # -- geometric constraint -------------------------------------------------------------

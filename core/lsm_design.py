@@ -127,6 +127,64 @@ def normal_matrix(T: np.ndarray, gx: np.ndarray, gy: np.ndarray, xs: np.ndarray,
     return sums[:, _N_SRC].reshape(n, 8, 8)
 
 
+# Shift-and-radiometry system of the first iteration: unknowns a0, b0, r0, r1, design
+# (gx, gy, 1, T); its normal matrix as 10 weighted sums per patch, in this order.
+SHIFT_MOMENTS = ("gx gx", "gx gy", "gy gy", "gx", "gy", "gx T", "gy T", "1", "T", "T T")
+
+
+def shift_moments(T: np.ndarray, gx: np.ndarray, gy: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """The sums :data:`SHIFT_MOMENTS` ``Σ_p w_p (…)``, (n, 10) float64, of T, gx, gy
+    (n, P) float32 with pixel weights w (P,) (one GEMV)."""
+    n, npx = T.shape
+    Q = np.empty((10, n, npx), np.float32)
+    np.multiply(gx, gx, out=Q[0])
+    np.multiply(gx, gy, out=Q[1])
+    np.multiply(gy, gy, out=Q[2])
+    Q[3] = gx
+    Q[4] = gy
+    np.multiply(gx, T, out=Q[5])
+    np.multiply(gy, T, out=Q[6])
+    Q[7] = 1.0
+    Q[8] = T
+    np.multiply(T, T, out=Q[9])
+    return (Q.reshape(10 * n, npx) @ w.astype(np.float32)).reshape(10, n).T.astype(np.float64)
+
+
+def shift_moments_from_normal(N: np.ndarray) -> np.ndarray:
+    """:func:`shift_moments` read from full normal matrices N (n, 8, 8)."""
+    i = [0, 0, 3, 0, 3, 0, 3, 6, 6, 7]
+    j = [0, 3, 3, 6, 6, 7, 7, 6, 7, 7]
+    return N[:, i, j]
+
+
+def solve_shift_radiometry(m: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Solve the 4 × 4 normal equations of (a0, b0, r0, r1) with moments m (n, 10)
+    (:data:`SHIFT_MOMENTS`) and right-hand sides b (n, 4): (n, 4), NaN where singular.
+
+    By 2 × 2 blocks (shift, radiometry): the radiometric block is eliminated and the
+    shift solved from its Schur complement, all in closed form over the batch.
+    """
+    sxx, sxy, syy, sx1, sy1, sxt, syt, s11, s1t, stt = m.T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dc = s11 * stt - s1t * s1t                         # det of the radiometric block
+        c00, c01, c11 = stt / dc, -s1t / dc, s11 / dc      # its inverse
+        # K = B C⁻¹ with B = [[sx1, sxt], [sy1, syt]] (rows: a0, b0).
+        k00, k01 = sx1 * c00 + sxt * c01, sx1 * c01 + sxt * c11
+        k10, k11 = sy1 * c00 + syt * c01, sy1 * c01 + syt * c11
+        a00 = sxx - (k00 * sx1 + k01 * sxt)                # Schur complement A - K Bᵀ
+        a01 = sxy - (k00 * sy1 + k01 * syt)
+        a11 = syy - (k10 * sy1 + k11 * syt)
+        r0 = b[:, 0] - (k00 * b[:, 2] + k01 * b[:, 3])
+        r1 = b[:, 1] - (k10 * b[:, 2] + k11 * b[:, 3])
+        da = a00 * a11 - a01 * a01
+        du = (a11 * r0 - a01 * r1) / da
+        dv = (a00 * r1 - a01 * r0) / da
+        q0 = b[:, 2] - (sx1 * du + sy1 * dv)
+        q1 = b[:, 3] - (sxt * du + syt * dv)
+        out = np.stack([du, dv, c00 * q0 + c01 * q1, c01 * q0 + c11 * q1], axis=1)
+    return np.where(np.isfinite(out), out, np.nan)
+
+
 def inverse_blocks(N: np.ndarray, ok: np.ndarray) -> np.ndarray:
     """Inverses of the (n, k, k) sub-blocks of positive definite normal matrices (``ok``);
     identity where not ``ok``."""

@@ -10,7 +10,14 @@ from bench.patches import make_pairs
 from core.batched_linalg import cholesky_solve as _cholesky_solve
 from core.camera import Camera
 from core.lsm import Status, epipolar_lines, match, template_patches, upsample2
-from core.lsm_design import BORDER, normal_matrix, template_slopes
+from core.lsm_design import (
+    BORDER,
+    normal_matrix,
+    shift_moments,
+    shift_moments_from_normal,
+    solve_shift_radiometry,
+    template_slopes,
+)
 
 
 def _match(P, **kw):
@@ -234,3 +241,24 @@ def test_threads_split_the_patches_without_changing_the_matches():
     assert np.max(np.abs(one.uv - three.uv)) < 1e-6
     assert np.allclose(one.cov_uv, three.cov_uv, rtol=1e-5, atol=1e-12)
     assert np.array_equal(one.iterations, three.iterations)
+
+
+def test_shift_radiometry_solve_matches_the_normal_matrix_block(rng):
+    """The first iteration's closed-form 4 × 4 solve against numpy on the same block."""
+    n, half = 40, 6
+    r = np.arange(-half, half + 1, dtype=np.float32)
+    yg, xg = np.meshgrid(r, r, indexing="ij")
+    T = (100 + 25 * rng.normal(size=(n, r.size ** 2))).astype(np.float32)
+    gx, gy = (8 * rng.normal(size=(2, n, r.size ** 2))).astype(np.float32)
+    w = np.ones(r.size ** 2, np.float32)
+    N = normal_matrix(T, gx, gy, xg.ravel(), yg.ravel(), w)
+    m = shift_moments(T, gx, gy, w)
+    m_n = shift_moments_from_normal(N)
+    assert np.max(np.abs(m - m_n) / np.abs(m_n).max(axis=0)) < 1e-5    # float32 sums
+    b = rng.normal(size=(n, 4)) * 50
+    sub = [0, 3, 6, 7]
+    exact = np.linalg.solve(N[:, sub][:, :, sub], b[:, :, None])[:, :, 0]
+    got = solve_shift_radiometry(shift_moments_from_normal(N), b)
+    assert np.allclose(got, exact, rtol=1e-6, atol=1e-9 * np.abs(exact).max())
+    m[0] = 0.0                                     # no texture, no grey-level spread
+    assert np.all(np.isnan(solve_shift_radiometry(m, b)[0]))

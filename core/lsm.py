@@ -362,11 +362,17 @@ def _match_part(tstack: ImageStack, sstack: ImageStack, uv_t, uv_s0, ti, si, A, 
     Ninv, pd = spd_inverse(N)
     sub = [0, 3, 6, 7]
     shift_only = np.ones(n, bool)
-    cs = np.flatnonzero((np.abs(xs) % 2 == 0) & (np.abs(ys) % 2 == 0))
-    basis_c, w_c = basis[:, cs], np.ones(len(cs), np.float32)
-    T_c, gx_c, gy_c = T[:, cs], gx[:, cs], gy[:, cs]
+    side = 2 * half + 1
+    even = slice(half % 2, side, 2)                             # even offsets x, y
+
+    def coarse(X):
+        return np.ascontiguousarray(X.reshape(-1, side, side)[:, even, even]).reshape(len(X), -1)
+
+    basis_c = coarse(basis)
+    w_c = np.ones(basis_c.shape[1], np.float32)
+    T_c, gx_c, gy_c = coarse(T), coarse(gx), coarse(gy)
     mom_c = shift_moments(T_c, gx_c, gy_c, w_c)
-    dof_c = len(cs) - 4.0
+    dof_c = len(w_c) - 4.0
     # Redundancy: tr W - tr(N⁻¹ JᵀW²J) (= n - u for uniform weights).
     if weight_sigma is None:
         dof = np.full(n, npx - 8.0)
@@ -431,8 +437,9 @@ def _match_part(tstack: ImageStack, sstack: ImageStack, uv_t, uv_s0, ti, si, A, 
                 fresh[k] = False
             g_old, o_old = gain[a], offset[a]
             if coarse:
-                dq, b, vv = _coarse_step(S, g_old, o_old, T_c[a], gx_c[a], gy_c[a], w_c,
-                                         mom_c[a])
+                rows = slice(None) if na == n else a
+                dq, b, vv = _coarse_step(S, g_old, o_old, T_c[rows], gx_c[rows], gy_c[rows],
+                                         w_c, mom_c[rows])
                 dof_a = dof_c
             else:
                 # Residuals e = r1 S + r0 - T; b = Jᵀ W e (n_a, 8) and vᵀWv.

@@ -134,20 +134,23 @@ SHIFT_MOMENTS = ("gx gx", "gx gy", "gy gy", "gx", "gy", "gx T", "gy T", "1", "T"
 
 def shift_moments(T: np.ndarray, gx: np.ndarray, gy: np.ndarray, w: np.ndarray) -> np.ndarray:
     """The sums :data:`SHIFT_MOMENTS` ``Σ_p w_p (…)``, (n, 10) float64, of T, gx, gy
-    (n, P) float32 with pixel weights w (P,) (one GEMV)."""
+    (n, P) float32 with pixel weights w (P,) (GEMVs)."""
     n, npx = T.shape
-    Q = np.empty((10, n, npx), np.float32)
+    w = w.astype(np.float32)
+    Q = np.empty((6, n, npx), np.float32)
     np.multiply(gx, gx, out=Q[0])
     np.multiply(gx, gy, out=Q[1])
     np.multiply(gy, gy, out=Q[2])
-    Q[3] = gx
-    Q[4] = gy
-    np.multiply(gx, T, out=Q[5])
-    np.multiply(gy, T, out=Q[6])
-    Q[7] = 1.0
-    Q[8] = T
-    np.multiply(T, T, out=Q[9])
-    return (Q.reshape(10 * n, npx) @ w.astype(np.float32)).reshape(10, n).T.astype(np.float64)
+    np.multiply(gx, T, out=Q[3])
+    np.multiply(gy, T, out=Q[4])
+    np.multiply(T, T, out=Q[5])
+    m = np.empty((n, 10))
+    m[:, [0, 1, 2, 5, 6, 9]] = (Q.reshape(6 * n, npx) @ w).reshape(6, n).T
+    m[:, 3] = gx @ w
+    m[:, 4] = gy @ w
+    m[:, 7] = float(w.sum())
+    m[:, 8] = T @ w
+    return m
 
 
 def shift_moments_from_normal(N: np.ndarray) -> np.ndarray:

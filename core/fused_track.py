@@ -42,8 +42,8 @@ def track_fused(skel: Skeleton, s: np.ndarray, balls: Metaballs, theta0: np.ndar
                 contours: list[list[list[Contour]]], q_points: np.ndarray,
                 q_sigma: np.ndarray, cfg: ContourTrackSettings | None = None,
                 sigma_floor_theta: float = 0.1, sigma_floor_root: float = 0.03,
-                gate: float = 3.0, progress: Progress | None = None
-                ) -> tuple[list[FrameTrack], np.ndarray]:
+                gate: float = 3.0, progress: Progress | None = None,
+                silhouettes: bool = False) -> tuple[list[FrameTrack], np.ndarray]:
     """Track a pose through F frames with point-fit poses and contours.
 
     Parameters
@@ -60,6 +60,12 @@ def track_fused(skel: Skeleton, s: np.ndarray, balls: Metaballs, theta0: np.ndar
     q_sigma : ndarray, shape (F, n + 3)
         Its standard deviations (NaN: not determined by the points).
     cfg : ContourTrackSettings
+    silhouettes : bool
+        Also use the silhouette regions (:func:`core.contour_track.frame_fields`): the
+        containment term, the limb search and the per-frame divergence flag of
+        :func:`core.contour_track.update_with_contours`, as
+        :func:`core.contour_track.track_contours` does.  Off by default (contours only,
+        the behaviour before these existed).
 
     Returns
     -------
@@ -94,8 +100,8 @@ def track_fused(skel: Skeleton, s: np.ndarray, balls: Metaballs, theta0: np.ndar
             ekf.update(q_points[f, k], lambda q, k=k: q[k], H, sig[k] ** 2)
             n_used[f] = len(k)
         out.append(update_with_contours(ekf, skel, s, balls, cameras, frame_contours, cfg,
-                                        rays=rays, fields=frame_fields(cameras,
-                                                                       frame_contours)))
+                                        rays=rays, fields=frame_fields(cameras, frame_contours)
+                                        if silhouettes else None))
         if progress is not None:
             progress.update(f + 1, len(contours), f"texture + contour tracking: frame {f + 1}")
     return out, n_used

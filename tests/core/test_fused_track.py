@@ -29,7 +29,8 @@ def test_without_points_it_is_the_contour_tracker(rig):
     obs = [_contours(skel, theta[f], root[f], s, balls, cams) for f in range(3)]
     cfg = ContourTrackSettings(iterations=2)
     nan = np.full((3, skel.n_dof + 3), np.nan)
-    fused, used = track_fused(skel, s, balls, theta[0], root[0], cams, obs, nan, nan, cfg)
+    fused, used = track_fused(skel, s, balls, theta[0], root[0], cams, obs, nan, nan, cfg,
+                              silhouettes=True)
     plain = track_contours(skel, s, balls, theta[0], root[0], cams, obs, cfg)
     assert not used.any()
     for a, b in zip(fused, plain, strict=True):

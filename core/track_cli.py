@@ -60,7 +60,8 @@ def run(args) -> int:
     seeds = seeds_from_clicks(scene.clicks(), scene.cameras, args.seeds)
     t0 = time.perf_counter()
     surf = measure_surface([scene.image(c, 0) for c in scene.cameras], cams, seeds,
-                           step=args.step, progress=progress)
+                           step=args.step, progress=progress,
+                           max_depth_dev_m=0.01)      # as track()'s depth_dev_m
     print(f"surface: {len(surf)} points at frame 0 ({time.perf_counter() - t0:.1f} s)",
           file=sys.stderr)
     t1 = time.perf_counter()

@@ -57,8 +57,10 @@ clicked frame's initial posture (:mod:`core.fit_init`):
 **Contours** (``contours``, one :class:`core.fit_contours.ContourFrame` per frame, issue 7
 item 6): the frame's silhouette contours join every pose solve as one more observation
 type (σ in pixels, Huber-weighted, re-paired with the model's rim at every re-weighting
-round, per-part camera selection with the predicted rates); a part with fewer than
-``min_part_matches`` contour pairs *and* too few points is hidden.  A frame with fewer
+round, per-part camera selection with the predicted rates); the pairs of a part that
+has at least ``min_part_points`` points get σ × ``textured_scale`` (the metaball outline
+is not the body's: the contours mainly place what the points miss); a part with fewer
+than ``min_part_matches`` contour pairs *and* too few points is hidden.  A frame with fewer
 than ``min_points`` points (always, with contours alone) is fitted from its contours,
 judged by them (at least ``min_matches`` pairs, inlier RMS ≤ ``max_rms_px``) and has no
 limb search; the cameras each part used are recorded in the quality.
@@ -310,8 +312,12 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
             cnt = np.zeros(len(skel.bone_names), int)
         hidden = cnt[dof_bone] < cfg.min_part_points
         if cf is not None:
+            # parts that the points observe: their contour pairs weigh less (σ × scale)
+            cf.part_scale = np.where(cnt >= cfg.min_part_points, cf.cfg.textured_scale, 1.0)
             cf.freeze(skel, balls.copy(radii=radii), q[:n], q[n:], s)
-            hidden &= cf.part_counts(len(skel.bone_names))[dof_bone] < cf.cfg.min_part_matches
+            if len(xyz) < cfg.min_points or cf.cfg.unhide:
+                hidden &= (cf.part_counts(len(skel.bone_names))[dof_bone]
+                           < cf.cfg.min_part_matches)
         return hidden
 
     def prior(hidden, th_pred, sig_pred, th_hold):

@@ -46,7 +46,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "silhouettes) or both")
     parser.add_argument("--contour-sigma", type=float, default=None, metavar="PX",
                         help="a-priori sigma of one contour observation, pixels "
-                             "(default 2)")
+                             "(default 3)")
     parser.add_argument("--fit-shape", action="store_true",
                         help="after the shape frames' poses, fit the whole-body metaball "
                              "shape to their points (core.shape_fit) and refit those poses")

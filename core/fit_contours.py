@@ -50,14 +50,16 @@ from .skeleton import Skeleton, bone_frames, forward, point_jacobians
 class ContourSettings:
     """Contour observations in the fit (units in brackets)."""
 
-    sigma_px: float = 2.0          # a-priori σ of one contour observation [px]
-    huber_px: float = 3.0          # knee of the Huber weights [px]
+    sigma_px: float = 3.0          # a-priori σ of one contour observation [px]
+    huber_px: float = 4.0          # knee of the Huber weights [px]
     max_dist_px: float = 12.0      # largest contour ↔ rim pairing distance [px]
     min_visibility: float = 0.2    # a part uses a camera with a visibility index ≥ this
     select: bool = True            # per-part camera selection (False: all cameras fused)
     min_matches: int = 40          # a contours-only frame with fewer pairs is diverged
     max_rms_px: float = 6.0        # ... or with a larger RMS of its inlier pairs [px]
-    min_part_matches: int = 6      # a part with fewer pairs is hidden to the contours
+    min_part_matches: int = 30     # a part with fewer pairs is hidden to the contours
+    unhide: bool = False           # with points: contours do not un-hide a part they miss
+    textured_scale: float = 3.0    # σ of the pairs of parts that texture points observe, × this
     spacing_px: float = 2.0        # sampling of the image contours [px]
     rim_samples: int = 32          # model rim samples per metaball
     outer_px: float = 3.0          # only rim points with no model pixel this far out (0: all)
@@ -289,6 +291,9 @@ class ContourFrame:
     pairs : ContourPairs or None — the correspondences of the last :meth:`freeze`
     weights : (K,) row weights ``sqrt(huber) / σ`` of those pairs
     selection : Selection or None — the cameras each part used at the last freeze
+    part_scale : (P,) factor on σ per body part, or None (1) — set by the sequence fit to
+        ``textured_scale`` for the parts its texture points observe, so that the contours
+        (whose metaball outline is not the body's) mainly place the parts the points miss
     """
 
     def __init__(self, cameras: list[Camera], contours: list[list[Contour]],
@@ -304,6 +309,7 @@ class ContourFrame:
         self.pairs: ContourPairs | None = None
         self.weights = np.zeros(0)
         self.selection: Selection | None = None
+        self.part_scale: np.ndarray | None = None
         self._key: bytes | None = None
 
     @property
@@ -313,8 +319,9 @@ class ContourFrame:
     def freeze(self, skel: Skeleton, balls: Metaballs, theta: np.ndarray, root: np.ndarray,
                s: np.ndarray) -> None:
         """Pair the contours with the rim at this state and fix the Huber weights."""
+        scale = np.zeros(0) if self.part_scale is None else self.part_scale
         key = b"".join(np.ascontiguousarray(a, float).tobytes()
-                       for a in (theta, root, s, balls.radii, balls.center0))
+                       for a in (theta, root, s, balls.radii, balls.center0, scale))
         if key == self._key and self.pairs is not None:
             return
         if self.n_contour_points == 0:
@@ -325,7 +332,10 @@ class ContourFrame:
                 theta_rate=self.theta_rate, rays=self.rays)
         r = contour_block(skel, balls, theta, root, s, self.cameras, self.pairs,
                           shape=False)[0]
-        self.weights = _huber_sqrt(r, self.cfg.huber_px) / self.cfg.sigma_px
+        sig = np.full(len(r), self.cfg.sigma_px)
+        if self.part_scale is not None and len(r):
+            sig = sig * np.asarray(self.part_scale, float)[self.pairs.bone]
+        self.weights = _huber_sqrt(r / (sig / self.cfg.sigma_px), self.cfg.huber_px) / sig
         self._key = key
 
     def block(self, skel: Skeleton, balls: Metaballs, theta: np.ndarray, root: np.ndarray,

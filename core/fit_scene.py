@@ -159,6 +159,8 @@ def run_scene(scene, observations: str = "auto", model: str = "complete",
                          f"outside the {nf} fitted frames")
     if cues == "contours":
         init = _shape_from_silhouettes(init, cameras, cframes[init.frame], msgs)
+        if settings is None:  # the shape is the silhouettes': no further shape frames
+            settings = SequenceSettings(shape_frames=1)
     res = fit_sequence(obs, init, settings, fps=scene.fps, source_scene=str(scene.root),
                        metaball_model=model, progress=progress, cameras=cameras,
                        contours=cframes)

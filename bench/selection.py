@@ -49,7 +49,7 @@ for _s, _S in (("l", "Left"), ("r", "Right")):
     DAZ_TO_CMU.update({f"{_s}Collar": f"{_S}Shoulder", f"{_s}Shldr": f"{_S}Arm",
                        f"{_s}ForeArm": f"{_S}ForeArm", f"{_s}Hand": f"{_S}Hand",
                        f"{_s}Mid1": f"{_S}FingerBase", f"{_s}Mid2": f"{_S}HandIndex1",
-                       f"{_s}Buttock": f"{_s.upper()}HipJoint", f"{_s}Thigh": f"{_S}UpLeg",
+                       f"{_s}Thigh": f"{_S}UpLeg",
                        f"{_s}Shin": f"{_S}Leg", f"{_s}Foot": f"{_S}Foot"})
 
 #: Pirouette scenes: name -> (rig, first BVH frame).

@@ -19,9 +19,9 @@ Cases: pure shift; gain 1.3 and offset +20 in the search image; affine (scales
 RMS position error of the valid ones (px), for LSM the RMS error over its own
 predicted σ, and matches per second (all patches of the case, best of ``--repeat``
 runs, the methods taking turns): wall clock, OpenCV with its default threads
-(:func:`core.lsm.match` splits the patches over one thread per core, ``--workers``,
-each running OpenBLAS on one thread), and per CPU second of the process (all its
-threads; the steadier figure on a shared machine).  The load average of the machine
+(:func:`core.lsm.match` in the calling thread with OpenBLAS on one thread; ``--workers
+W`` splits the patches over W threads, 0 = one per core), and per CPU second of the
+process (all its threads; the steadier figure on a shared machine).  The load average of the machine
 is printed before and after.
 """
 
@@ -42,7 +42,7 @@ ECC_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-3)
 KLT_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)
 
 
-WORKERS = {"n": None}          # match(workers=...), set by --workers
+WORKERS = {"n": 1}             # match(workers=...), set by --workers
 
 
 def run_lsm(P: PatchPairs, upsample: bool):
@@ -128,8 +128,8 @@ def main(argv=None) -> int:
     ap.add_argument("--n", type=int, default=2000, help="patches per case")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--repeat", type=int, default=5, help="timing: best of this many runs")
-    ap.add_argument("--workers", type=int, default=None,
-                    help="LSM threads (default: core.lsm.match's, one per core)")
+    ap.add_argument("--workers", type=int, default=1,
+                    help="LSM threads (core.lsm.match(workers=); 0: one per core)")
     args = ap.parse_args(argv)
     WORKERS["n"] = args.workers
     load0 = os.getloadavg()
@@ -137,8 +137,7 @@ def main(argv=None) -> int:
     load1 = os.getloadavg()
     print(f"LSM vs OpenCV: {args.n} patches per case, 13x13 templates, noise sigma 2, "
           f"OpenCV {cv2.__version__}; {os.cpu_count()} CPUs, load average (1 min) "
-          f"{load0[0]:.2f} before, {load1[0]:.2f} after; LSM workers "
-          f"{'default' if args.workers is None else args.workers}")
+          f"{load0[0]:.2f} before, {load1[0]:.2f} after; LSM workers {args.workers}")
     print(f"{'case':14s} {'method':13s} {'valid':>6s} {'mean|e| px':>10s} {'rms px':>8s} "
           f"{'rms/pred':>8s} {'matches/s':>10s} {'/cpu-s':>8s}")
     for r in rows:

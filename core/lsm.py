@@ -44,10 +44,10 @@ back the noise of the search patch that its resampling averaged out of the resid
 (see :func:`core.image_stack.resampling_noise_factor`; equal noise in both images
 assumed).  OpenBLAS runs on one thread inside :func:`match` (:mod:`core.blas_threads`):
 the many skinny GEMMs gain nothing from threads and lose a lot to their spinning.
-Instead, large calls split the patches into contiguous parts matched in parallel
-threads (``workers``; numpy, OpenBLAS and OpenCV release the GIL in the heavy steps):
-this shortens the wall clock on idle cores, at ~10 % more CPU time (each part repeats
-the per-iteration bookkeeping), and gains nothing on a machine whose cores are busy.
+Optionally (``workers``), large calls split the patches into contiguous parts matched
+in parallel threads (numpy, OpenBLAS and OpenCV release the GIL in the heavy steps):
+meant for idle cores; each part repeats the per-iteration bookkeeping (~10 % more CPU
+time), and on a busy machine (2 cores, load ~10) it gained no wall-clock time.
 
 Optional geometric constraint (multi-photo geometrically constrained matching):
 the matched point must lie on a given line ``n · uv = d`` in the search image (the
@@ -88,7 +88,7 @@ __all__ = ["ImageStack", "LSMResult", "Status", "epipolar_lines", "match", "temp
 #: that walks farther gets a new window).
 _DRIFT_PX = 1.0
 
-#: :func:`match` splits its patches over threads only in parts of at least this many.
+#: ``match(workers=0)`` splits its patches over threads only in parts of at least this many.
 MIN_PATCHES_PER_WORKER = 512
 
 
@@ -209,7 +209,7 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
           tol_px: float = 0.01, max_iter: int = 20, max_shift_px: float = 4.0,
           max_sigma_px: float = 0.15, min_texture: float = 3.0, lines=None,
           sigma_line_px: float = 0.05, sigma_grey: float = 2.0,
-          weight_sigma: float | None = None, workers: int | None = None) -> LSMResult:
+          weight_sigma: float | None = None, workers: int = 1) -> LSMResult:
     """Least squares matching of N template patches into search images.
 
     Parameters
@@ -250,8 +250,10 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
     workers : int, optional
         Threads over which the patches are split (contiguous parts, matched
         independently; numpy, OpenBLAS and OpenCV release the GIL in the heavy
-        steps).  Default: one per usable CPU core, at most one per
-        ``MIN_PATCHES_PER_WORKER`` patches; 1 runs in the calling thread.
+        steps); 0: one per usable CPU core, at most one per
+        ``MIN_PATCHES_PER_WORKER`` patches.  Default 1: the calling thread only.  The search windows
+        are sized per part, so a split changes the matches within the convergence
+        tolerance.
 
     Returns
     -------
@@ -290,12 +292,12 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
                         for f in fields(LSMResult)})
 
 
-def _n_workers(workers: int | None, n: int) -> int:
-    if workers is not None:
+def _n_workers(workers: int, n: int) -> int:
+    if workers:
         return max(1, min(int(workers), n))
     try:
         cores = len(os.sched_getaffinity(0))
-    except AttributeError:                   # not on every platform
+    except AttributeError:                       # not on every platform
         cores = os.cpu_count() or 1
     return max(1, min(cores, n // MIN_PATCHES_PER_WORKER))
 

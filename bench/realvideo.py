@@ -247,6 +247,10 @@ def main(argv=None) -> int:
     print(f"surface at frame 0: {len(surf)} points ({time.perf_counter() - t1:.1f} s); "
           "seen per camera " + ", ".join(f"{n} {int(s)}" for n, s in zip(names, seen.sum(0),
                                                                            strict=True)))
+    if len(surf) == 0:
+        print("no surface point at frame 0 (seed matches rejected; try a larger --max-sigma):"
+              " nothing to track")
+        return 1
     t2 = time.perf_counter()
     log: list = []
     tr = track(lambda i: [vids[n][i] for n in names], cams, surf, a.frames, 60.0,

@@ -31,3 +31,19 @@ def test_seeds_from_clicks_and_bad_clicks():
     assert s.shape == (1, 2, 2)
     with pytest.raises(InputError, match="two or more cameras"):
         seeds_from_clicks({"joints": {"head": {"a": [5, 6]}}}, ["a", "b"])
+
+
+def test_depth_outliers_and_sigma_limit_of_the_surface():
+    cams = cameras()
+    images = [render(c) for c in cams]
+    seeds = np.stack([c.project(np.array([[0.0, 0.0, 0.0]])) for c in cams], 1)
+    full = measure_surface(images, cams, seeds, step=6)
+    # a plane has no depth outliers: the 1 cm test keeps (nearly) every point
+    smooth = measure_surface(images, cams, seeds, step=6, max_depth_dev_m=0.01)
+    assert len(smooth) >= 0.98 * len(full)
+    assert np.isin(smooth.xyz[:, 0], full.xyz[:, 0]).all()
+    # a σ limit below the matches' precision rejects them (the seed too: nothing grows)
+    sig = np.nanmax(np.where(np.arange(3) != full.ref, full.sigma_uv, np.nan), axis=1)
+    strict = measure_surface(images, cams, seeds, step=6,
+                             max_sigma_px=0.5 * float(np.min(sig)))
+    assert len(strict) == 0

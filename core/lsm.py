@@ -71,12 +71,12 @@ from .camera import Camera
 from .image_stack import ImageStack, PatchSource, resampling_noise_factor, upsample2
 from .lsm_design import (
     BORDER,
+    coarse_shift_step,
     compose_inverse,
     inverse_blocks,
     normal_matrix,
     row_mean_sd,
     shift_moments,
-    solve_shift_radiometry,
     template_slopes,
 )
 
@@ -440,7 +440,7 @@ def _match_part(tstack: ImageStack, sstack: ImageStack, uv_t, uv_s0, ti, si, A, 
             g_old, o_old = gain[a], offset[a]
             if coarse:
                 rows = slice(None) if na == n else a
-                dq, b, vv = _coarse_step(S, g_old, o_old, T_c[rows], gx_c[rows], gy_c[rows],
+                dq, b, vv = coarse_shift_step(S, g_old, o_old, T_c[rows], gx_c[rows], gy_c[rows],
                                          w_c, mom_c[rows])
                 dof_a = dof_c
             else:
@@ -567,31 +567,6 @@ def _match_part(tstack: ImageStack, sstack: ImageStack, uv_t, uv_s0, ti, si, A, 
     status[big] = Status.LARGE_SIGMA
     return LSMResult(uv=uv, affine=A, gain=gain, offset=offset, sigma0=sigma0, cov_uv=cov,
                      iterations=iters, status=status, texture=texture)
-
-
-def _coarse_step(S, gain, offset, T, gx, gy, w, mom):
-    """Shift-and-radiometry step of the first iteration on the coarse pixel subset.
-
-    S, T, gx, gy (n_a, P') float32, w (P') weights, mom (n_a, 10) the subset's
-    :func:`~core.lsm_design.shift_moments`.  Returns dq (n_a, 8) (zero for the affine
-    parameters), b (n_a, 8) and vᵀWv (n_a,) as the full iteration does.
-    """
-    na = len(S)
-    Q = np.empty((3, na, S.shape[1]), np.float32)
-    e = Q[2]
-    np.multiply(S, gain[:, None].astype(np.float32), out=e)
-    e += offset[:, None].astype(np.float32)
-    e -= T
-    np.multiply(gx, e, out=Q[0])
-    np.multiply(gy, e, out=Q[1])
-    b = np.zeros((na, 8))
-    b[:, [0, 3, 6]] = (Q.reshape(3 * na, -1) @ w).reshape(3, na).T
-    ew = e * w
-    b[:, 7] = np.einsum("np,np->n", ew, T)
-    vv = np.einsum("np,np->n", ew, e).astype(np.float64)
-    dq = np.zeros((na, 8))
-    dq[:, [0, 3, 6, 7]] = solve_shift_radiometry(mom, b[:, [0, 3, 6, 7]])
-    return dq, b, vv
 
 
 # -- geometric constraint -------------------------------------------------------------

@@ -3,8 +3,9 @@
 Helpers of :func:`core.lsm.match` (inverse compositional LSM with 8 parameters
 ``a0, a1, a2, b0, b1, b2, r0, r1``): the cubic-spline slopes of template patches, the
 normal matrix ``N = JᵀWJ`` of the design ``J = [gx·(1, x, y), gy·(1, x, y), 1, T]``
-built from weighted moments with two GEMMs, small batched inverses, row statistics
-and the composition of an affine warp with an inverse update.  All batched over
+built from weighted moments with two GEMMs, the first iteration's shift-and-radiometry
+step on a coarse pixel subset (closed-form 4 × 4 solve), small batched inverses, row
+statistics and the composition of an affine warp with an inverse update.  All batched over
 patches (leading axis ``n``); no Python loop over patches.
 """
 
@@ -186,6 +187,33 @@ def solve_shift_radiometry(m: np.ndarray, b: np.ndarray) -> np.ndarray:
         q1 = b[:, 3] - (sxt * du + syt * dv)
         out = np.stack([du, dv, c00 * q0 + c01 * q1, c01 * q0 + c11 * q1], axis=1)
     return np.where(np.isfinite(out), out, np.nan)
+
+
+def coarse_shift_step(S: np.ndarray, gain: np.ndarray, offset: np.ndarray, T: np.ndarray,
+                      gx: np.ndarray, gy: np.ndarray, w: np.ndarray, mom: np.ndarray):
+    """Shift-and-radiometry step of the first iteration on the coarse pixel subset.
+
+    S, T, gx, gy (n_a, P') float32, w (P') weights, mom (n_a, 10) the subset's
+    :func:`shift_moments`; gain, offset (n_a,) the radiometry.  Returns dq (n_a, 8)
+    (zero for the affine parameters), b (n_a, 8) and vᵀWv (n_a,) as the full
+    iteration does.
+    """
+    na = len(S)
+    Q = np.empty((3, na, S.shape[1]), np.float32)
+    e = Q[2]
+    np.multiply(S, gain[:, None].astype(np.float32), out=e)
+    e += offset[:, None].astype(np.float32)
+    e -= T
+    np.multiply(gx, e, out=Q[0])
+    np.multiply(gy, e, out=Q[1])
+    b = np.zeros((na, 8))
+    b[:, [0, 3, 6]] = (Q.reshape(3 * na, -1) @ w).reshape(3, na).T
+    ew = e * w
+    b[:, 7] = np.einsum("np,np->n", ew, T)
+    vv = np.einsum("np,np->n", ew, e).astype(np.float64)
+    dq = np.zeros((na, 8))
+    dq[:, [0, 3, 6, 7]] = solve_shift_radiometry(mom, b[:, [0, 3, 6, 7]])
+    return dq, b, vv
 
 
 def inverse_blocks(N: np.ndarray, ok: np.ndarray) -> np.ndarray:

@@ -133,7 +133,7 @@ def print_look(look: str, scene: Path, surv: dict, rows: list[dict], track_s) ->
     lines = [("MPJPE mm", lambda r: r["eval"].mpjpe_mm),
              ("segment orient. RMSE deg", lambda r: r["eval"].segment_orientation_rmse_deg),
              ("max joint err % height", lambda r: r["eval"].max_joint_error_pct_height),
-             ("diverged frames", lambda r: r["diverged"]),
+             ("diverged frames (not scored)", lambda r: r["diverged"]),
              ("frames fitted", lambda r: r["n_frames"]),
              ("points per frame (median)", lambda r: r["points"]),
              ("contour pairs/frame (median)", lambda r: r["pairs"]),
@@ -180,6 +180,9 @@ def main(argv: list[str] | None = None) -> int:
         surv = track_survival(tracks, args.frames)
         rows = [fit_cue(scene, c, tracks, args.frames, args.model) for c in cues]
         print_look(look, scene, surv, rows, track_s)
+    from core.fit_contours import ContourSettings
+
+    print(f"contour observations: {ContourSettings()}")
     print(f"load average {os.getloadavg()[0]:.1f} (2 shared cores: wall times are noisy)")
     return 0
 

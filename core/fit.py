@@ -58,9 +58,10 @@ clicked frame's initial posture (:mod:`core.fit_init`):
 item 6): the frame's silhouette contours join every pose solve as one more observation
 type (σ in pixels, Huber-weighted, re-paired with the model's rim at every re-weighting
 round, per-part camera selection with the predicted rates); the pairs of a part that
-has at least ``min_part_points`` points get σ × ``textured_scale`` (the metaball outline
-is not the body's: the contours mainly place what the points miss); a part with fewer
-than ``min_part_matches`` contour pairs *and* too few points is hidden.  A frame with fewer
+has at least ``min_part_points`` points get σ × ``textured_scale`` (default 1; the
+metaball outline is not the body's, a larger factor lets the contours mainly place what
+the points miss); a part with fewer than ``min_part_matches`` contour pairs *and* too
+few points is hidden (with points and ``unhide`` False: too few points alone).  A frame with fewer
 than ``min_points`` points (always, with contours alone) is fitted from its contours,
 judged by them (at least ``min_matches`` pairs, inlier RMS ≤ ``max_rms_px``) and has no
 limb search; the cameras each part used are recorded in the quality.

@@ -58,8 +58,8 @@ class ContourSettings:
     min_matches: int = 40          # a contours-only frame with fewer pairs is diverged
     max_rms_px: float = 6.0        # ... or with a larger RMS of its inlier pairs [px]
     min_part_matches: int = 30     # a part with fewer pairs is hidden to the contours
-    unhide: bool = False           # with points: contours do not un-hide a part they miss
-    textured_scale: float = 3.0    # σ of the pairs of parts that texture points observe, × this
+    unhide: bool = True            # with points: contours may un-hide a part they miss
+    textured_scale: float = 1.0    # σ of the pairs of parts that texture points observe, × this
     spacing_px: float = 2.0        # sampling of the image contours [px]
     rim_samples: int = 32          # model rim samples per metaball
     outer_px: float = 3.0          # only rim points with no model pixel this far out (0: all)

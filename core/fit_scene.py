@@ -12,7 +12,9 @@ median background) gives each frame's occluding contours
 (:func:`core.fit_contours.scene_contours`), the metaball shape is fitted to the clicked
 frame's silhouettes after the click initialisation
 (:func:`core.contour_track.fit_shape_to_contours`), and every frame is fitted to its
-contours; ``"both"`` adds the contours to the points in every pose solve.
+contours; ``"both"`` adds the contours to the points in every pose solve (and shapes the
+body from the silhouettes, as with contours alone, when the clicked frame has too few
+points).
 """
 
 from __future__ import annotations
@@ -157,7 +159,9 @@ def run_scene(scene, observations: str = "auto", model: str = "complete",
     if init.frame >= nf:
         raise InputError(f"{scene.root / 'clicks.json'}: clicked frame {init.frame} is "
                          f"outside the {nf} fitted frames")
-    if cues == "contours":
+    min_points = (settings or SequenceSettings()).min_points
+    if cframes is not None and (cues == "contours" or len(obs[init.frame].xyz) < min_points):
+        # no points to shape the body at the clicked frame: the silhouettes do
         init = _shape_from_silhouettes(init, cameras, cframes[init.frame], msgs)
         if settings is None:  # the shape is the silhouettes': no further shape frames
             settings = SequenceSettings(shape_frames=1)

@@ -169,7 +169,9 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
     temporal_sigma : float or None
         Gaussian weighting σ of the temporal LSM patches, pixels (None: uniform).
     max_sigma_px : float
-        Largest σ of an accepted temporal match, pixels.
+        Largest σ of an accepted temporal match, pixels.  With the other defaults on
+        walk_line3 (50 frames), 0.15: measured in every frame 25.6 -> 26.6 %, 95th
+        percentile 9.67 -> 9.79 mm.
     spatial_sigma_px : float
         Largest σ of an accepted spatial match (and of the regenerated surface points),
         pixels.
@@ -208,7 +210,9 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
         Where fewer than two cameras have a temporal match, the spatial matches into
         the others start at the predicted point: search them first by NCC (template:
         the spatial template camera's match) in a box of ``3 σ + 1`` of the prediction,
-        at most this half width, pixels.  0 (default): LSM from the prediction.
+        at most this half width, pixels.  0 (default): LSM from the prediction.  On
+        walk_line3 (50 frames, other defaults) 8: frame-0 points measured in every
+        frame 25.6 -> 26.4 %, 95th percentile 9.67 -> 9.71 mm, median 2.34 -> 2.43 mm.
     depth_dev_m : float, optional
         A point whose intersection lies farther than this in depth from the median of
         its 8 nearest measured neighbours in the same frame
@@ -231,6 +235,10 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
         13 mm); with ``reacquire_views=3, reacquire_m=0.006``: 36.4 %, 38.5 mm,
         bridged median 5.6 mm.  Without the rate test on the neighbours, wrong
         re-acquisitions on the crossing legs raised the 95th percentile to 100 mm.
+        With the current defaults (``bench.tracking --no-compare --max-dormant 10``):
+        measured in every frame 25.6 -> 26.9 %, through every frame with bridged gaps
+        29.3 %, 95th percentile of the measured positions 9.67 -> 10.98 mm (bridged
+        point-frames: median 5.5 mm, 95th 17.5 mm).
     reacquire_m : float
         Largest distance between a re-acquired point and its prediction, metres.
     reacquire_views : int

@@ -216,9 +216,11 @@ def main(argv=None) -> int:
     ap.add_argument("--scale", type=float, default=0.5)
     ap.add_argument("--step", type=int, default=2)
     ap.add_argument("--regen", type=int, default=5)
-    ap.add_argument("--max-sigma", type=float, default=0.15,
+    # The studio's limits (0.15 / 0.12 px) reject every seed on this bare-skin,
+    # compressed video (best seed σ 0.166 px); 0.2 lets the surface start.
+    ap.add_argument("--max-sigma", type=float, default=0.2,
                     help="largest LSM σ of a spatial match (surface, tracking), pixels")
-    ap.add_argument("--max-sigma-temporal", type=float, default=0.12,
+    ap.add_argument("--max-sigma-temporal", type=float, default=0.2,
                     help="largest LSM σ of a temporal match, pixels")
     ap.add_argument("--png", type=Path, default=Path("out/realvideo/trajectories.png"))
     a = ap.parse_args(argv)

@@ -3,8 +3,9 @@
 ::
 
     blender -c somacap fit SCENE --out take.blend [--target character.blend] [--fit fit.json]
+                              [--cues texture|contours|both]
     blender -c somacap retarget fit.json --target character.blend --out take.blend
-    blender -c somacap batch TAKES_DIR --out OUT_DIR [--target character.blend]
+    blender -c somacap batch TAKES_DIR --out OUT_DIR [--target character.blend] [--cues …]
 
 The same commands run with the ``bpy`` module of the project's environment through the
 launcher: ``python -m addon.launch fit SCENE --out take.blend`` (from the repository root).
@@ -12,10 +13,15 @@ launcher: ``python -m addon.launch fit SCENE --out take.blend`` (from the reposi
 ``fit`` builds a new file with the scene's cameras (footage as background), the body
 (armature, metaballs, action named after the take) and, with ``--target``, the motion
 retargeted onto the character.  It uses ``--fit FILE``, else ``SCENE/fit.json``, else
-runs core's fitter.  ``retarget`` does the same from a fitted state without cameras.
+runs core's fitter.  ``--cues`` chooses the fit's observations (texture: tracked
+surface points, the default; contours: silhouettes, for bare skin; both: the most
+accurate, about 2.7x the CPU time) and always fits anew: ``SCENE/fit.json`` is then
+not used (nor overwritten); it cannot be combined with ``--fit``.  ``retarget`` does
+the same from a fitted state without cameras.
 ``batch`` converts every take of a folder (scene folders and ``*.json`` states) into
 ``OUT_DIR/<take>.blend``, continues past a failing take, prints the failures and exits
-with status 1 when any take failed.  Bad input: one line ``somacap: error: …``, status 2.
+with status 1 when any take failed; ``--cues`` refits every scene folder (``.json``
+states are used as they are).  Bad input: one line ``somacap: error: …``, status 2.
 """
 
 from __future__ import annotations
@@ -26,6 +32,12 @@ import traceback
 from pathlib import Path
 
 from . import _core
+
+
+def _cue_help() -> dict:
+    from .pipeline import FIT_CUES
+
+    return FIT_CUES
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -48,6 +60,11 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("takes", type=Path)
     b.add_argument("--out", type=Path, required=True)
     b.add_argument("--target", type=Path)
+    for sp in (f, b):
+        sp.add_argument("--cues", choices=tuple(_cue_help()), default=None,
+                        help="fit anew from these observations (default: use SCENE/fit.json "
+                             "when present, else fit with texture): "
+                             + "; ".join(f"{k}: {v}" for k, v in _cue_help().items()))
     for sp in (f, r, b):
         sp.add_argument("--foot-lock", action="store_true",
                         help="pin the target's feet while in contact (with --target)")
@@ -98,7 +115,11 @@ def _take(state, take, target, out, exports, cameras_from=None, foot_lock=False)
 def cmd_fit(args) -> int:
     from . import pipeline
 
-    state = pipeline.state_for_scene(args.scene, args.fit, _core.progress.Progress())
+    if args.fit is not None and args.cues is not None:
+        raise _core.errors.InputError(f"{args.fit}: --fit uses a fitted state and --cues asks "
+                                      "for a new fit: give one of them")
+    state = pipeline.state_for_scene(args.scene, args.fit, _core.progress.Progress(),
+                                     cues=args.cues or "texture", refit=args.cues is not None)
     take = args.take or args.scene.resolve().name
     print(_take(state, take, args.target, args.out, args.export, cameras_from=args.scene,
                 foot_lock=args.foot_lock))
@@ -133,7 +154,9 @@ def cmd_batch(args) -> int:
         out = args.out / f"{take.stem}.blend"
         try:
             if take.is_dir():
-                state = pipeline.state_for_scene(take, None, _core.progress.Progress())
+                state = pipeline.state_for_scene(take, None, _core.progress.Progress(),
+                                                 cues=args.cues or "texture",
+                                                 refit=args.cues is not None)
                 print(_take(state, take.name, args.target, out, args.export, cameras_from=take,
                             foot_lock=args.foot_lock))
             else:

@@ -106,22 +106,24 @@ class SOMACAP_OT_fit(bpy.types.Operator):
     def poll(cls, context):
         return bool(_settings(context).scene_dir)
 
-    def _job_fn(self, scene_dir, state_path):
+    def _job_fn(self, context):
+        """The background job: the settings are read here, on the main thread."""
+        s = _settings(context)
+        scene_dir, state_path = bpy.path.abspath(s.scene_dir), bpy.path.abspath(s.state_path)
+        cues = s.fit_cues
+        self._cached = not state_path and (Path(scene_dir) / "fit.json").is_file()
+
         def job(progress):
-            return pipeline.state_for_scene(scene_dir, state_path or None, progress)
+            return pipeline.state_for_scene(scene_dir, state_path or None, progress, cues=cues)
         return job
 
-    def _paths(self, context):
-        s = _settings(context)
-        return bpy.path.abspath(s.scene_dir), bpy.path.abspath(s.state_path)
-
     def execute(self, context):  # scripts and background mode: synchronous
-        job = pipeline.BackgroundJob(self._job_fn(*self._paths(context))).start()
+        job = pipeline.BackgroundJob(self._job_fn(context)).start()
         job.join()
         return self._finish(context, job)
 
     def invoke(self, context, event):
-        self._job = pipeline.BackgroundJob(self._job_fn(*self._paths(context))).start()
+        self._job = pipeline.BackgroundJob(self._job_fn(context)).start()
         wm = context.window_manager
         self._timer = wm.event_timer_add(0.1, window=context.window)
         wm.progress_begin(0, 100)
@@ -159,6 +161,9 @@ class SOMACAP_OT_fit(bpy.types.Operator):
                 return _fail(self, job.error)
             return _fail(self, f"fit failed: {job.error!r}")
         s.status = "Done"
+        if getattr(self, "_cached", False):
+            self.report({"WARNING"}, "Used the scene's existing fit.json: the Cues setting "
+                                     "applies to a new fit (move fit.json away to refit)")
         return _build(self, context, job.result)
 
 

@@ -32,7 +32,9 @@ class SOMACAP_PT_main(bpy.types.Panel):
         col.operator("somacap.place_clicks", icon="EMPTY_AXIS")
         col.separator()
         col.prop(s, "take")
-        col.operator("somacap.fit", icon="PLAY")
+        row = col.row(align=True)
+        row.prop(s, "fit_cues", text="")
+        row.operator("somacap.fit", icon="PLAY")
         if s.status:
             col.label(text=s.status)
         col.prop(s, "state_path")

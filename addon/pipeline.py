@@ -20,25 +20,52 @@ def read_state(path):
     return _core.state.read_state(path)
 
 
-def run_fit(scene_dir, out_json, progress=None) -> Path:
+#: The fit's cues (``core.fit_scene.CUES``), with one line each for help texts and the panel.
+FIT_CUES = {
+    "texture": "3-D surface points from the tracker (needs textured clothing)",
+    "contours": "silhouette contours of each camera's foreground (no tracker; bare skin)",
+    "both": "points and contours together (most accurate; about 2.7x the fit's CPU time)",
+}
+
+
+def check_cues(cues: str) -> str:
+    """``cues`` when it is one of :data:`FIT_CUES`, else InputError naming the choices."""
+    if cues not in FIT_CUES:
+        raise _core.errors.InputError(
+            f"unknown fit cues {cues!r}: choose one of {', '.join(FIT_CUES)}")
+    return cues
+
+
+def run_fit(scene_dir, out_json, progress=None, cues: str = "texture") -> Path:
     """Run core's whole pipeline on a scene folder and write ``fit.json``
-    (:func:`core.fit_scene.fit_scene`; cancellable through ``progress``)."""
+    (:func:`core.fit_scene.fit_scene`; cancellable through ``progress``).
+
+    ``cues`` chooses the observations of the fit (:data:`FIT_CUES`): ``"texture"``,
+    ``"contours"`` or ``"both"``.
+    """
     scene_dir, out_json = Path(scene_dir), Path(out_json)
+    check_cues(cues)
     state = _core.load("fit_scene").fit_scene(_core.scene.load_scene(scene_dir),
-                                             progress=progress)
+                                             progress=progress, cues=cues)
     _core.state.write_state(out_json, state)
     return out_json
 
 
-def state_for_scene(scene_dir, fit_path=None, progress=None):
-    """The fitted state of a scene: ``fit_path``, else ``SCENE/fit.json``, else fit now."""
+def state_for_scene(scene_dir, fit_path=None, progress=None, cues: str = "texture",
+                    refit: bool = False):
+    """The fitted state of a scene: ``fit_path``, else ``SCENE/fit.json``, else fit now.
+
+    A fit uses ``cues`` (:data:`FIT_CUES`); ``refit=True`` fits even when
+    ``SCENE/fit.json`` exists (which is then neither used nor overwritten).
+    """
     scene_dir = Path(scene_dir)
+    check_cues(cues)
     if fit_path:
         return read_state(fit_path)
-    if (scene_dir / "fit.json").is_file():
+    if not refit and (scene_dir / "fit.json").is_file():
         return read_state(scene_dir / "fit.json")
     with tempfile.TemporaryDirectory() as tmp:
-        return read_state(run_fit(scene_dir, Path(tmp) / "fit.json", progress))
+        return read_state(run_fit(scene_dir, Path(tmp) / "fit.json", progress, cues=cues))
 
 
 def create_scene_cameras(scene_dir, calibration=None):

@@ -44,6 +44,15 @@ class SOMACAP_PG_settings(bpy.types.PropertyGroup):
     mapping: CollectionProperty(type=SOMACAP_PG_bone_pair)
     mapping_index: IntProperty()
     mapping_scheme: StringProperty(name="Scheme")
+    fit_cues: EnumProperty(
+        name="Cues", default="texture",
+        description="Observations the fit uses (a scene's existing fit.json is used as it is)",
+        items=[("texture", "Texture", "3-D surface points from the tracker (needs textured "
+                                      "clothing)"),
+               ("contours", "Contours", "Silhouette contours of each camera's foreground "
+                                        "(no tracker; works on bare skin)"),
+               ("both", "Both", "Points and contours together: the most accurate, about "
+                                "2.7x the fit's CPU time")])
     export_format: EnumProperty(name="Format", items=[("BVH", "BVH", ""), ("FBX", "FBX", "")])
     progress: FloatProperty(name="Progress", subtype="PERCENTAGE", min=0, max=100)
     status: StringProperty(name="Status")

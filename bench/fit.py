@@ -66,6 +66,36 @@ DEFAULT_SET = ("walk_ortho3", "dance_line3", "dance_ortho3", "jumps_line3")
 FRAMES, FPS, SIZE = 50, 25.0, "512x384"
 
 
+def render_cached(name: str, out: Path, studio_args: list[str]) -> tuple[Path, float | None]:
+    """Return the scene folder ``out``, rendering it first when missing.
+
+    Runs ``python -m sample_scenes.studio --out OUT *studio_args`` in a subprocess (one
+    Blender per render); a folder holding ``scene.toml`` and ``truth.npz`` counts as
+    cached.
+
+    Returns
+    -------
+    (Path, float or None)
+        The scene folder and the render wall time in seconds (None when cached).
+
+    Raises
+    ------
+    RuntimeError
+        The studio failed; the message ends with its last line of stderr.
+    """
+    if (out / "scene.toml").is_file() and (out / "truth.npz").is_file():
+        return out, None
+    cmd = [sys.executable, "-m", "sample_scenes.studio", "--out", str(out), *studio_args]
+    print(f"rendering {name}: python {' '.join(cmd[1:])}", flush=True)
+    t0 = time.perf_counter()
+    p = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
+    wall = time.perf_counter() - t0
+    if p.returncode != 0 or not (out / "truth.npz").is_file():
+        raise RuntimeError(f"studio failed for {name}: {p.stderr.strip().splitlines()[-1:]}")
+    print(f"rendered {name} in {wall:.0f} s", flush=True)
+    return out, wall
+
+
 def render_studio_scene(name: str, root: Path = RENDERS) -> tuple[Path, float | None]:
     """Return the cached studio scene ``root/name``, rendering it first when missing.
 
@@ -82,21 +112,10 @@ def render_studio_scene(name: str, root: Path = RENDERS) -> tuple[Path, float | 
         The scene folder and the render wall time in seconds (None when cached).
     """
     bvh, rig, start = STUDIO_SCENES[name]
-    out = root / name
-    if (out / "scene.toml").is_file() and (out / "truth.npz").is_file():
-        return out, None
-    cmd = [sys.executable, "-m", "sample_scenes.studio", "--out", str(out),
-           "--bvh", str(MOCAP / bvh), "--rig", rig, "--start", str(start),
-           "--frames", str(FRAMES), "--fps", str(FPS), "--size", SIZE,
-           "--wand-positions", "0"]
-    print(f"rendering {name}: python {' '.join(cmd[1:])}", flush=True)
-    t0 = time.perf_counter()
-    p = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
-    wall = time.perf_counter() - t0
-    if p.returncode != 0 or not (out / "truth.npz").is_file():
-        raise RuntimeError(f"studio failed for {name}: {p.stderr.strip().splitlines()[-1:]}")
-    print(f"rendered {name} in {wall:.0f} s", flush=True)
-    return out, wall
+    return render_cached(name, root / name,
+                         ["--bvh", str(MOCAP / bvh), "--rig", rig, "--start", str(start),
+                          "--frames", str(FRAMES), "--fps", str(FPS), "--size", SIZE,
+                          "--wand-positions", "0"])
 
 
 def surface_distance_mm(state, vertices: np.ndarray, frames: list[int], per_frame: int = 2000,

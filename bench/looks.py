@@ -48,24 +48,17 @@ def skin_scene(root: Path = RENDERS, name: str = "walk_skin_line3") -> tuple[Pat
     """
     import tomllib
 
+    from bench.fit import render_cached
+
     meta = tomllib.loads((DEFAULT / "scene.toml").read_text())
     src = meta["source"]
-    out = root / name
-    if (out / "scene.toml").is_file() and (out / "truth.npz").is_file():
-        return out, None
     w, h = meta["size"]
-    cmd = [sys.executable, "-m", "sample_scenes.studio", "--out", str(out),
-           "--bvh", str(MOCAP / src["bvh"]), "--rig", src["rig"],
-           "--start", str(src["bvh_start_frame"]), "--frames", str(meta["frames"]),
-           "--fps", str(meta["fps"]), "--size", f"{w}x{h}", "--wand-positions", "0",
-           "--look", "skin", "--seed", str(src.get("seed", 0))]
-    print(f"rendering {name}: python {' '.join(cmd[1:])}", flush=True)
-    t0 = time.perf_counter()
-    p = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
-    wall = time.perf_counter() - t0
-    if p.returncode != 0 or not (out / "truth.npz").is_file():
-        raise RuntimeError(f"studio failed for {name}: {p.stderr.strip().splitlines()[-1:]}")
-    return out, wall
+    return render_cached(name, root / name,
+                         ["--bvh", str(MOCAP / src["bvh"]), "--rig", src["rig"],
+                          "--start", str(src["bvh_start_frame"]), "--frames", str(meta["frames"]),
+                          "--fps", str(meta["fps"]), "--size", f"{w}x{h}",
+                          "--wand-positions", "0", "--look", "skin",
+                          "--seed", str(src.get("seed", 0))])
 
 
 def tracks_of(scene: Path, name: str) -> tuple[Path, float | None]:

@@ -32,8 +32,6 @@ from __future__ import annotations
 import argparse
 import os
 import re
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -69,7 +67,7 @@ def renamed_bvh(src: Path, dst: Path) -> Path:
 
 def scene_dir(name: str) -> Path:
     """The cached scene folder of ``name``, rendered first when missing."""
-    from bench.fit import FPS, FRAMES, MOCAP, RENDERS, SIZE, render_studio_scene
+    from bench.fit import FPS, FRAMES, MOCAP, RENDERS, SIZE, render_cached, render_studio_scene
 
     if name not in PIROUETTE_SCENES:
         return render_studio_scene(name)[0]
@@ -78,14 +76,10 @@ def scene_dir(name: str) -> Path:
         return out
     rig, start = PIROUETTE_SCENES[name]
     bvh = renamed_bvh(MOCAP / "pirouette.bvh", RENDERS / "pirouette_cmu.bvh")
-    cmd = [sys.executable, "-m", "sample_scenes.studio", "--out", str(out), "--bvh", str(bvh),
-           "--rig", rig, "--start", str(start), "--frames", str(FRAMES), "--fps", str(FPS),
-           "--size", SIZE, "--wand-positions", "0"]
-    print(f"rendering {name}: python {' '.join(cmd[1:])}", flush=True)
-    p = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
-    if p.returncode != 0 or not (out / "truth.npz").is_file():
-        raise RuntimeError(f"studio failed for {name}: {p.stderr.strip().splitlines()[-1:]}")
-    return out
+    return render_cached(name, out,
+                         ["--bvh", str(bvh), "--rig", rig, "--start", str(start),
+                          "--frames", str(FRAMES), "--fps", str(FPS), "--size", SIZE,
+                          "--wand-positions", "0"])[0]
 
 
 def scene_contours(scene, n_frames: int, spacing: float = 2.0):

@@ -75,7 +75,6 @@ observations, the fit) and returns a :class:`core.state.FitState`.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -83,6 +82,7 @@ from .attractor import attractor, gather, member_table
 from .fit_init import Initialisation
 from .fit_predict import PosePredictor
 from .fit_search import explain_cost, explain_distance, search_limbs
+from .fit_types import FramePoints, SequenceResult, SequenceSettings, ShapeRecord
 from .fitting import FitSettings, Observations, fit
 from .metaballs import Metaballs, world_frames
 from .progress import Progress
@@ -90,124 +90,6 @@ from .segment import carry_labels, no_labels, segment_points
 from .shape_fit import ShapeSettings, fit_shape
 from .skeleton import Skeleton, anchor_sigma, forward, stiff_sigma
 from .state import FitState, Quality
-
-
-@dataclass
-class FramePoints:
-    """One frame's 3-D observations.
-
-    Attributes
-    ----------
-    xyz : (N, 3) world points, metres
-    sigma : (N,) a-priori σ of each point, metres
-    ids : (N,) int trajectory ids, or None
-    """
-
-    xyz: np.ndarray
-    sigma: np.ndarray
-    ids: np.ndarray | None = None
-
-    def __post_init__(self):
-        self.xyz = np.asarray(self.xyz, float).reshape(-1, 3)
-        self.sigma = np.broadcast_to(np.asarray(self.sigma, float), (len(self.xyz),)).copy()
-        good = np.all(np.isfinite(self.xyz), axis=1) & np.isfinite(self.sigma)
-        good &= self.sigma > 0
-        if not good.all():
-            self.xyz, self.sigma = self.xyz[good], self.sigma[good]
-            if self.ids is not None:
-                self.ids = np.asarray(self.ids)[good]
-
-
-@dataclass
-class SequenceSettings:
-    """Settings of :func:`fit_sequence` (lengths in metres, angles in radians)."""
-
-    shape_frames: int = 2
-    predictor: str = "ekf"  # or "constant_velocity"
-    damping: float = 0.8  # rate decay per frame of the prediction
-    sigma_pred: float = 0.15  # floor of the prior σ on each predicted angle
-    sigma_pred_max: float = 0.6
-    accel_sigma: float = 0.05  # EKF process noise, rad (or m) per frame²
-    shape_scales: bool = False  # bone scales refitted to the points (else: the clicks')
-    shape_centers: bool = True  # metaball centres free in the shape solve
-    shape_sigma_radius: float = 0.02  # shape priors towards the template, metres
-    shape_sigma_center: float = 0.01
-    min_part_points: int = 8  # a part with fewer points is hidden: ...
-    sigma_hidden: float = 0.05  # ... its DOFs follow the prior with this σ (rad), ...
-    sigma_hidden_anchor: float = 0.15  # ... and drift back to the clicked posture; ...
-    hold_hidden: bool = True  # ... held at the previous frame's angles (else following
-    #                           the damped prediction); fed back to the filter only
-    sigma_hidden_meas: float = 0.3  # ... as a measurement of this σ (rad): its σ grows
-    sigma_click: float = 0.003  # σ of a forward-intersected click, metres
-    segment_max_dist: float = 0.04
-    segment_margin: float = 0.015  # ambiguous points between non-adjacent parts dropped
-    min_points: int = 40
-    max_rmse_m: float = 0.025
-    min_inliers: float = 0.5
-    inlier_m: float = 0.02
-    resegment: bool = True
-    search: bool = True  # annealed retry with the limb search (core.fit_search)
-    search_tau: float = 0.05  # truncation of the search's point distances, metres
-    search_min_gain: float = 100.0  # explain-cost decrease that moves a limb
-    retry_unexplained: float = 0.2  # share of points > inlier_m from the body: retry
-    max_unexplained: float = 0.3  # ... above this share the frame is marked diverged
-    #: (segmentation reach m, robust knee in σ) per stage of an annealed fit
-    anneal: tuple = ((0.12, 12.0), (0.07, 6.0), (0.04, 3.0), (0.04, 3.0))
-    max_nfev: int = 20
-    max_nfev_shape: int = 40
-    #: "template": the per-part shape solve of the shape frames only (default);
-    #: "fit": then the whole-body shape fit (:func:`core.shape_fit.fit_shape`)
-    shape: str = "template"
-    shape_fit_frames: int = 3  # shape frames at least, with shape = "fit"
-    #: with shape = "fit": track with the fitted shape (True), or track with the per-part
-    #: shape and write the fitted one to the state only (False)
-    shape_fit_track: bool = True
-    shape_fit: ShapeSettings | None = None  # its settings (None: its defaults)
-    fit: FitSettings = field(default_factory=lambda: FitSettings(members="neighbours",
-                                                                 irls_rounds=2,
-                                                                 robust="cauchy"))
-
-
-@dataclass
-class ShapeRecord:
-    """What the whole-body shape fit (``SequenceSettings.shape = "fit"``) did.
-
-    Attributes
-    ----------
-    frames : (K,) int frames whose points and held poses were fitted
-    frame_ok : (K,) bool — False for a frame the shape fit left out (too few points)
-    rms_m : (K,) RMS distance of each frame's inlier points to the fitted surface,
-        metres (NaN where left out)
-    converged : bool — :attr:`core.shape_fit.ShapeFit.converged`
-    message : str — :attr:`core.shape_fit.ShapeFit.message`
-    seconds : float — wall time of the shape fit
-    """
-
-    frames: np.ndarray
-    frame_ok: np.ndarray
-    rms_m: np.ndarray
-    converged: bool
-    message: str
-    seconds: float
-
-
-@dataclass
-class SequenceResult:
-    """Output of :func:`fit_sequence`: the fitted state and per-frame diagnostics
-    (``shape``: the whole-body shape fit's record, None unless it ran)."""
-
-    state: FitState
-    n_points: np.ndarray  # (F,) points assigned to a part
-    inlier_share: np.ndarray  # (F,)
-    unexplained: np.ndarray  # (F,) share of the points > inlier_m from the body
-    retried: np.ndarray  # (F,) bool: a refit after the limb search was kept
-    messages: list
-    seconds: float
-    shape: ShapeRecord | None = None
-    #: (F,) contour pairs and their inlier RMS (pixels) at the fitted pose; 0 / NaN
-    #: without contours
-    contour_matches: np.ndarray | None = None
-    contour_rms_px: np.ndarray | None = None
 
 
 def _point_sigma(sigma_m: np.ndarray, model_m: float) -> np.ndarray:

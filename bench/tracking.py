@@ -31,6 +31,7 @@ import numpy as np
 from bench.meshtruth import nearest_on_mesh
 from core.scene import load_scene
 from core.surface import measure_surface, seeds_from_clicks, subset
+from core.track_diagnose import tally
 from core.track_smooth import depth_outliers
 from core.tracking import filter_trajectories, track
 
@@ -51,7 +52,7 @@ def material_truth(xyz, start, vertices, faces):
 
 def truth_views(cameras, vertices, faces, xyz, start, tol_m=0.01, min_cos=0.2,
                 per_face=6, seed=0):
-    """Cameras that truly see each tracked material point: (F, P) count.
+    """Cameras that truly see each tracked material point: (F, P, C) bool.
 
     The material point under each trajectory's start (as :func:`material_truth`) is
     visible in a camera when it faces it (cosine between its triangle's normal and the
@@ -67,7 +68,7 @@ def truth_views(cameras, vertices, faces, xyz, start, tol_m=0.01, min_cos=0.2,
         _, face[idx[ok]], bary[idx[ok]] = nearest_on_mesh(xyz[s, idx[ok]], vertices[s], faces)
     w = np.random.default_rng(seed).dirichlet(np.ones(3), size=(len(faces), per_face))
     have = np.flatnonzero(face >= 0)
-    count = np.zeros((F, P), int)
+    seen = np.zeros((F, P, len(cameras)), bool)
     for f in range(F):
         pts = np.vstack([vertices[f], np.einsum("tkj,tjd->tkd", w, vertices[f][faces])
                          .reshape(-1, 3)])
@@ -75,7 +76,7 @@ def truth_views(cameras, vertices, faces, xyz, start, tol_m=0.01, min_cos=0.2,
         p = np.einsum("pk,pkd->pd", bary[have], tri)
         nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
-        for cam in cameras:
+        for j, cam in enumerate(cameras):
             wd, ht = cam.size
             z = np.full(ht * wd, np.inf)
             uv = np.rint(cam.project(pts)).astype(int)
@@ -89,8 +90,59 @@ def truth_views(cameras, vertices, faces, xyz, start, tol_m=0.01, min_cos=0.2,
             cosang = np.einsum("pd,pd->p", nrm, v) / d
             zq = np.where(inq, z[np.clip(q[:, 1], 0, ht - 1) * wd + np.clip(q[:, 0], 0, wd - 1)],
                           -np.inf)
-            count[f, have] += inq & (d <= zq + tol_m) & (cosang > min_cos)
-    return count
+            seen[f, have, j] = inq & (d <= zq + tol_m) & (cosang > min_cos)
+    return seen
+
+
+def through_with_gaps(measured, alive, max_gap):
+    """Points kept to the last frame with short flagged gaps: (P,) bool.
+
+    ``measured`` and ``alive`` (F, P) bool: a point counts when it is measured in the
+    first and the last frame, has a (measured or bridged) position in every frame, and
+    no run of unmeasured frames is longer than ``max_gap``.
+    """
+    run = np.zeros(measured.shape[1], int)
+    longest = np.zeros(measured.shape[1], int)
+    for m in measured:                               # loop over frames, points batched
+        run = np.where(m, 0, run + 1)
+        longest = np.maximum(longest, run)
+    return measured[0] & measured[-1] & alive.all(axis=0) & (longest <= max_gap)
+
+
+def loss_breakdown(log, m0, stay_vis, views):
+    """Print which tracker step first lost each frame-0 point (``log[i]["reason"]``).
+
+    ``m0`` (F, P0) measured; ``stay_vis`` (P0,) seen by two or more cameras in every
+    frame per the truth; ``views`` (F, P0, C) truth visibility per camera.
+    """
+    F, p0 = m0.shape
+    lost = ~m0.all(axis=0)
+    first = np.argmax(~m0, axis=0)                   # first unmeasured frame
+    code = np.full(p0, -1, np.int8)
+    occ_wrong = np.zeros(p0, bool)
+    for f in range(1, F):
+        k = np.flatnonzero(lost & (first == f))
+        if len(k) == 0 or "reason" not in log[f - 1]:
+            continue
+        code[k] = log[f - 1]["reason"][k]
+        occ = log[f - 1]["occ"][k]
+        occ_wrong[k] = np.any(occ & views[f, k], axis=1)
+    print(f"why frame-0 points were lost (the step that first lost each; frames "
+          f"{int(first[lost].min()) if lost.any() else '-'}-"
+          f"{int(first[lost].max()) if lost.any() else '-'}):")
+    for name, sel in (("all lost", lost), ("lost, seen by >= 2 cameras in every frame",
+                                           lost & stay_vis)):
+        t = tally(code[sel])
+        other = int(sel.sum()) - sum(t.values())
+        items = ", ".join(f"{k} {v}" for k, v in t.items() if v) + (
+            f", (unrecorded) {other}" if other else "")
+        print(f"  {name} ({int(sel.sum())}): {items}")
+    sel = lost & stay_vis
+    if sel.any():
+        print(f"  of those always-visible lost points, {int((occ_wrong & sel).sum())} had a "
+              f"camera skipped by the occlusion test that the truth sees at that frame; "
+              f"frames where they were first lost: "
+              f"{np.bincount(first[sel], minlength=F).tolist()}")
 
 
 def inject(xyz, frac, rng):
@@ -130,6 +182,8 @@ def main(argv=None) -> int:
     ap.add_argument("--surface-depth-dev", type=float, default=0.01,
                     help="drop frame-0 points farther than this in depth from their "
                          "neighbours' median before tracking, metres (0: keep all)")
+    ap.add_argument("--gap", type=int, default=5,
+                    help="longest flagged gap of the bridged survival figure, frames")
     ap.add_argument("--no-compare", action="store_true",
                     help="skip the EKF-vs-linear prediction comparison")
     args = ap.parse_args(argv)
@@ -166,19 +220,52 @@ def main(argv=None) -> int:
     alive = tr.alive
     p0 = len(surf)
     m0 = tr.measured[:, :p0]
-    back = alive[:, :p0].all(axis=0) & ~m0.all(axis=0)
-    print(f"tracking {nf} frames ({args.predict} prediction, {kw}): frame-0 points measured in "
-          f"every frame {100 * tr.measured[:, :p0].all(axis=0).mean():.1f} %, through every "
-          f"frame with gaps bridged {100 * alive[:, :p0].all(axis=0).mean():.1f} %; live at "
-          f"last frame {int(alive[-1].sum())} = "
+    strict = m0.all(axis=0)
+    bridged = through_with_gaps(tr.measured[:, :p0], alive[:, :p0], args.gap)
+    views = truth_views(cams, V[:nf], faces, tr.xyz, tr.start)[:, :p0]
+    vis2 = views.sum(axis=2) >= 2
+    stay_vis = vis2.all(axis=0)
+    print(f"tracking {nf} frames ({args.predict} prediction, {kw}), {p0} frame-0 points:")
+    print(f"  strict, measured in every frame: {100 * strict.mean():.1f} %")
+    print(f"  bridged, identity kept to the last frame (measured there) with flagged gaps "
+          f"of <= {args.gap} frames: {100 * bridged.mean():.1f} %")
+    print(f"  truth visibility (true mesh z-buffer, facing cos > 0.2): seen by >= 2 cameras "
+          f"in every frame {100 * stay_vis.mean():.1f} % (the ceiling of the strict figure); "
+          f"among these, strict {100 * strict[stay_vis].mean():.1f} %, bridged "
+          f"{100 * bridged[stay_vis].mean():.1f} %")
+    ceil_b = through_with_gaps(vis2, np.ones_like(vis2), args.gap)
+    print(f"  truth: seen by >= 2 cameras in the first and last frame with runs of fewer "
+          f"than 2 views of <= {args.gap} frames {100 * ceil_b.mean():.1f} % (the ceiling of "
+          f"the bridged figure); among these, bridged {100 * bridged[ceil_b].mean():.1f} %")
+    print(f"  live at last frame {int(alive[-1].sum())} = "
           f"{100 * alive[-1].sum() / alive[0].sum():.1f} % of the first ({int(alive[0].sum())})")
+    back = alive[:, :p0].all(axis=0) & ~strict
     print(f"re-acquisition: {sum(s.get('reacquired_dormant', 0) for s in log)} re-acquisitions "
-          f"of dormant points in all; {int(back.sum())} frame-0 points are complete only with "
-          f"bridged frames ({int((alive[:, :p0] & ~m0).sum())} bridged point-frames); "
-          f"re-anchored temporal matches {sum(s.get('anchored', 0) for s in log)} of "
-          f"{sum(s.get('temporal_ok', 0) for s in log)}")
+          f"of dormant points in all; {int(back.sum())} frame-0 points have a position in "
+          f"every frame only with bridged frames ({int((alive[:, :p0] & ~m0).sum())} bridged "
+          f"point-frames); re-anchored temporal matches {sum(s.get('anchored', 0) for s in log)} "
+          f"of {sum(s.get('temporal_ok', 0) for s in log)}")
     print(f"speed: {(nf - 1) / dt:.3f} frames/s with {int(alive.sum(axis=1).mean())} points "
           f"per frame on average")
+    loss_breakdown(log, m0, stay_vis, views)
+    P = tr.xyz.shape[1]
+    rej = [np.pad(s_["depth_rejected"], ((0, P - len(s_["depth_rejected"])), (0, 0)),
+                  constant_values=np.nan) for s_ in log if "depth_rejected" in s_]
+    if len(rej) == nf - 1:
+        rej = np.concatenate([np.full((1, P, 3), np.nan), np.stack(rej)])
+        tru = material_truth(np.where(np.isfinite(rej), rej, tr.xyz), tr.start, V[:nf], faces)
+        e = np.linalg.norm(rej - tru, axis=2)
+        e = e[np.isfinite(e)]
+        if e.size:
+            print(f"  points dropped by the depth test: {e.size} point-frames, their error "
+                  f"median {1000 * np.median(e):.2f} mm, 95% {1000 * np.percentile(e, 95):.2f} "
+                  f"mm, {100 * np.mean(e < 0.005):.0f} % within 5 mm")
+    flt = filter_trajectories(tr.xyz[:, :p0], sc.fps)
+    hit = flt.removed | flt.truncated
+    print(f"  trajectory filters (not applied to the survival figures): they would hit "
+          f"{int((hit & strict).sum())} of the {int(strict.sum())} strict survivors, "
+          f"{int((hit & bridged & ~strict).sum())} of the {int((bridged & ~strict).sum())} "
+          f"bridged-only ones")
     truth = material_truth(tr.xyz, tr.start, V[:nf], faces)
     err = np.linalg.norm(tr.xyz - truth, axis=2)
     for name, sel in (("all tracked", np.isfinite(err)), ("measured only", tr.measured),
@@ -188,19 +275,6 @@ def main(argv=None) -> int:
             continue
         print(f"tracked 3-D vs material truth, {name}: median {1000 * np.median(e):.2f} mm, "
               f"95% {1000 * np.percentile(e, 95):.2f} mm over {e.size} point-frames")
-    views = truth_views(cams, V[:nf], faces, tr.xyz, tr.start)[:, :p0]
-    vis2 = views >= 2
-    m0all = m0.all(axis=0)
-    lost = ~m0all
-    first = np.argmax(~m0, axis=0)
-    lost_vis = lost & vis2[first, np.arange(p0)]
-    stay_vis = vis2.all(axis=0)
-    print(f"truth visibility (true mesh z-buffer, facing cos > 0.2): frame-0 points seen by "
-          f">= 2 cameras in every frame {100 * stay_vis.mean():.1f} % (the ceiling of the "
-          f"strict survival), of these measured in every frame "
-          f"{100 * m0all[stay_vis].mean():.1f} %; frame-0 points lost {int(lost.sum())}, "
-          f"{int(lost_vis.sum())} of them seen by >= 2 cameras at the frame they were lost, "
-          f"{int((lost & stay_vis).sum())} seen by >= 2 cameras in every frame")
     ncmp = min(args.compare_frames, nf)
     for pred in () if args.no_compare else ("ekf", "linear"):
         log: list = []

@@ -19,7 +19,7 @@ from .camera import Camera
 
 
 def occluded(cameras: list[Camera], xyz: np.ndarray, *, cell_px: float = 4.0,
-             margin_m: float = 0.03, rank: int = 2) -> np.ndarray:
+             margin_m: float = 0.03, rank: int = 2, dilate_all: bool = True) -> np.ndarray:
     """Which points lie behind the cloud's surface in each camera.
 
     Parameters
@@ -34,6 +34,11 @@ def occluded(cameras: list[Camera], xyz: np.ndarray, *, cell_px: float = 4.0,
         A point is occluded when it lies farther than this behind that surface, metres.
     rank : int
         The buffer holds the ``rank``-th nearest point of each cell (1: the nearest).
+    dilate_all : bool
+        The surface in front is the nearest of the 3 × 3 cells (True), or the point's
+        own cell where that holds a value and the 3 × 3 only where it is empty (False:
+        near a limb's silhouette the neighbouring cells hold the limb's front, which
+        lies far in front of the visible side of the limb).
 
     Returns
     -------
@@ -67,10 +72,13 @@ def occluded(cameras: list[Camera], xyz: np.ndarray, *, cell_px: float = 4.0,
         c2 = cs[pick]
         zb[(c2 // gw + 1) * (gw + 2) + c2 % gw + 1] = d[k][order][pick]
         zb = zb.reshape(gh + 2, gw + 2)
-        zm = zb[1:-1, 1:-1].copy()
+        own = zb[1:-1, 1:-1].copy()
+        zm = own.copy()
         for du in (-1, 0, 1):
             for dv in (-1, 0, 1):
                 zm = np.minimum(zm, zb[1 + dv:gh + 1 + dv, 1 + du:gw + 1 + du])
+        if not dilate_all:
+            zm = np.where(np.isfinite(own), own, zm)
         front = zm[gv[k].astype(int), gu[k].astype(int)]
         out[fin[k], j] = d[k] > front + margin_m
     return out

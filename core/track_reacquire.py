@@ -30,6 +30,8 @@ from .lsm import ImageStack, match
 from .ncc import search
 from .track_anchor import KeyTemplates
 from .track_filter import COV_FLOOR, PointFilter, neighbour_rates
+from .track_occlusion import occluded
+from .track_smooth import depth_deviation
 
 
 def rigid_fit(src: np.ndarray, dst: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -196,7 +198,7 @@ def reacquire(keys: KeyTemplates, stacks: dict, search_stack: ImageStack, valid:
               half: int = 6, radius: int = 4, min_score: float = 0.7,
               weight_sigma: float | None = 4.0, max_sigma_px: float = 0.2,
               max_rms_px: float = 1.0, max_dist_m: float = 0.01,
-              min_views: int = 2) -> Reacquired:
+              min_views: int = 2, skip: np.ndarray | None = None) -> Reacquired:
     """Search dormant points at their predicted positions with their key templates.
 
     Parameters
@@ -218,6 +220,8 @@ def reacquire(keys: KeyTemplates, stacks: dict, search_stack: ImageStack, valid:
         Largest distance between the re-acquired point and its prediction, metres.
     min_views : int
         Cameras in which the point must be matched (two or more).
+    skip : ndarray, shape (Q, C), bool, optional
+        Cameras not searched for a point (e.g. where it is predicted occluded).
     """
     q, c = len(points), len(cameras)
     uv = np.full((q, c, 2), np.nan)
@@ -228,7 +232,10 @@ def reacquire(keys: KeyTemplates, stacks: dict, search_stack: ImageStack, valid:
     m = half + radius + 2
     inside = ((proj[..., 0] >= m) & (proj[..., 0] <= w - 1 - m) & (proj[..., 1] >= m)
               & (proj[..., 1] <= h - 1 - m))
-    qi, ci = np.nonzero((kf >= 0) & inside & valid[None] & np.all(np.isfinite(proj), axis=2))
+    search_pc = (kf >= 0) & inside & valid[None] & np.all(np.isfinite(proj), axis=2)
+    if skip is not None:
+        search_pc &= ~skip
+    qi, ci = np.nonzero(search_pc)
     if len(qi):
         fr = np.unique(kf[qi, ci])
         tstack = (stacks[int(fr[0])] if len(fr) == 1
@@ -249,6 +256,53 @@ def reacquire(keys: KeyTemplates, stacks: dict, search_stack: ImageStack, valid:
     ok = (inter.ok & (n_views >= max(min_views, 2)) & (inter.rms < max_rms_px)
           & (np.nan_to_num(dist, nan=np.inf) < max_dist_m))
     return Reacquired(ok=ok, uv=uv, affine=aff, xyz=inter.xyz, cov=inter.cov)
+
+
+def predict_unmeasured(query: np.ndarray, xyz_hist: list, pred_hist: list,
+                       rate_last: np.ndarray, xyz_new: np.ndarray, chosen: np.ndarray, *,
+                       max_rigid_rms: float = 0.005) -> np.ndarray:
+    """Carry unmeasured points one frame on by the rigid motion of their neighbours.
+
+    Each queried point's position in the last frame (measured, else predicted:
+    ``pred_hist[-1]``) is moved by the rigid motion of the neighbours measured in both
+    frames whose rate there was close to the point's own (measured, or that of its
+    predictions; :func:`neighbour_motion`).
+
+    Parameters
+    ----------
+    query : ndarray, shape (P,), bool
+        Points to predict.
+    xyz_hist, pred_hist : list of ndarray, shape (P, 3)
+        Measured and predicted positions of every frame so far, metres.
+    rate_last : ndarray, shape (P, 3)
+        Filtered rates of the points measured in the last frame, m/frame (NaN else).
+    xyz_new : ndarray, shape (P, 3)
+        Positions measured in the new frame, metres; ``chosen`` (P,) bool marks them.
+    max_rigid_rms : float
+        Predictions whose neighbours moved less rigidly than this (RMS, metres) are
+        not trusted.
+
+    Returns
+    -------
+    ndarray, shape (P, 3)
+        Predicted positions in the new frame, metres (NaN where not queried or no
+        prediction).
+    """
+    n = len(query)
+    pred = np.full((n, 3), np.nan)
+    d = np.flatnonzero(query)
+    if len(d) == 0:
+        return pred
+    last = np.where(np.isfinite(xyz_hist[-1]), xyz_hist[-1], pred_hist[-1])
+    rate = rate_last.copy()
+    if len(pred_hist) > 1:                       # predicted points: their predicted rate
+        before = np.where(np.isfinite(xyz_hist[-2]), xyz_hist[-2], pred_hist[-2])
+        rate = np.where(np.isfinite(rate), rate, pred_hist[-1] - before)
+    xyz_p, rms, ok = neighbour_motion(last[chosen], xyz_new[chosen], last[d],
+                                      rate_then=rate_last[chosen], query_rate=rate[d])
+    ok &= rms < max_rigid_rms
+    pred[d[ok]] = xyz_p[ok]
+    return pred
 
 
 @dataclass
@@ -282,7 +336,8 @@ def dormant_step(dormant: np.ndarray, xyz_hist: list, pred_hist: list, rate_last
                  cameras: list[Camera], *, half: int = 6, weight_sigma: float | None = 4.0,
                  max_sigma_px: float = 0.2, max_rms_px: float = 1.0,
                  max_dist_m: float = 0.01, min_views: int = 2,
-                 max_rigid_rms: float = 0.005) -> tuple[np.ndarray, DormantStep]:
+                 max_rigid_rms: float = 0.005, occlusion_m: float | None = None,
+                 depth_dev_m: float | None = None) -> tuple[np.ndarray, DormantStep]:
     """Predict the dormant points one frame on and try to re-acquire them.
 
     The prediction carries each point's position in the last frame (measured, or
@@ -308,6 +363,15 @@ def dormant_step(dormant: np.ndarray, xyz_hist: list, pred_hist: list, rate_last
     max_rigid_rms : float
         Predictions whose neighbours moved less rigidly than this (RMS, metres) are
         not trusted.
+    occlusion_m : float, optional
+        Cameras in which the prediction lies more than this behind the cloud of the
+        points measured in the new frame (:func:`core.track_occlusion.occluded`) are
+        not searched: an occluder's texture there is what a wrong re-acquisition
+        locks on to.
+    depth_dev_m : float, optional
+        A re-acquired point farther than this in depth from the median of its 8
+        nearest points measured in the new frame
+        (:func:`core.track_smooth.depth_deviation`) is not taken.
 
     Returns
     -------
@@ -316,27 +380,26 @@ def dormant_step(dormant: np.ndarray, xyz_hist: list, pred_hist: list, rate_last
         no prediction: such points cannot come back).
     DormantStep
     """
-    n = len(dormant)
-    pred = np.full((n, 3), np.nan)
-    d = np.flatnonzero(dormant)
-    last = np.where(np.isfinite(xyz_hist[-1]), xyz_hist[-1], pred_hist[-1])
-    rate = rate_last.copy()
-    if len(pred_hist) > 1:                       # predicted points: their predicted rate
-        before = np.where(np.isfinite(xyz_hist[-2]), xyz_hist[-2], pred_hist[-2])
-        rate = np.where(np.isfinite(rate), rate, pred_hist[-1] - before)
-    xyz_p, rms, ok = neighbour_motion(last[chosen], xyz_new[chosen], last[d],
-                                      rate_then=rate_last[chosen], query_rate=rate[d])
-    ok &= rms < max_rigid_rms
-    pred[d[ok]] = xyz_p[ok]
+    pred = predict_unmeasured(dormant, xyz_hist, pred_hist, rate_last, xyz_new, chosen,
+                              max_rigid_rms=max_rigid_rms)
     rows = np.flatnonzero(dormant & np.all(np.isfinite(pred), axis=1))
     c = len(cameras)
     empty = DormantStep(np.zeros(0, int), np.zeros((0, c, 2)), np.zeros((0, c, 2, 2)),
                         np.zeros((0, 3)), np.zeros((0, 3, 3)))
     if len(rows) == 0:
         return pred, empty
+    skip = None
+    if occlusion_m is not None:
+        cloud = np.concatenate([xyz_new[chosen], pred[rows]])
+        skip = occluded(cameras, cloud, margin_m=occlusion_m)[int(chosen.sum()):]
     ra = reacquire(keys, stacks, search_stack, valid, cameras, rows, pred[rows], half=half,
                    weight_sigma=weight_sigma, max_sigma_px=max_sigma_px,
-                   max_rms_px=max_rms_px, max_dist_m=max_dist_m, min_views=min_views)
+                   max_rms_px=max_rms_px, max_dist_m=max_dist_m, min_views=min_views,
+                   skip=skip)
+    if depth_dev_m is not None and chosen.sum() > 8:
+        dev = depth_deviation(ra.xyz, np.mean([cam.center for cam in cameras], axis=0),
+                              xyz_new[chosen])
+        ra.ok &= np.abs(np.nan_to_num(dev, nan=np.inf)) <= depth_dev_m
     r = rows[ra.ok]
     if len(r) == 0:
         return pred, empty

@@ -60,10 +60,11 @@ from .lsm import ImageStack, match
 from .ncc import search
 from .surface import Surface, measure_surface
 from .track_anchor import KeyTemplates, reanchor
+from .track_diagnose import loss_reasons
 from .track_filter import COV_FLOOR, PointFilter, neighbour_rates, predict_in_image
 from .track_occlusion import occluded
-from .track_reacquire import dormant_step
-from .track_smooth import depth_outliers
+from .track_reacquire import dormant_step, predict_unmeasured
+from .track_smooth import depth_outliers, drop_one_camera
 from .track_trajectories import (
     FilterResult,
     bridge_gaps,
@@ -130,7 +131,10 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
           fallback: bool = True, regen_every: int = 3,
           anchor: bool = True, anchor_px: float = 1.0, confirm_rekey: bool = True,
           occlusion_m: float | None = 0.05, reacquire_radius: int = 0,
-          depth_dev_m: float | None = 0.01,
+          depth_dev_m: float | None = 0.01, depth_retry: bool = False,
+          occlusion_confirm: bool = False, reacquire_checks: bool = True,
+          occlusion_dilate: bool = True, coast_neighbours: bool = True,
+          coast_m: float | None = 0.01,
           max_dormant: int = 0,
           reacquire_m: float = 0.01, reacquire_views: int = 2,
           step: int = 2, progress=None,
@@ -243,12 +247,38 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
         Largest distance between a re-acquired point and its prediction, metres.
     reacquire_views : int
         Cameras in which a dormant point must be found again.
+    depth_retry : bool
+        A depth outlier (``depth_dev_m``) measured in three or more cameras is
+        intersected again without each camera in turn, and kept where one subset passes
+        the depth test and the gate (:func:`core.track_smooth.drop_one_camera`): a
+        per-camera instead of a per-point rejection.
+    occlusion_confirm : bool
+        Cameras flagged by the occlusion test are matched all the same, but their
+        temporal matches are accepted only where a spatial match confirms them (as
+        ``confirm_rekey``) and they are not re-acquired there.
+    occlusion_dilate : bool
+        Passed to :func:`core.track_occlusion.occluded` as ``dilate_all``.
+    reacquire_checks : bool
+        Dormant points are not searched in cameras where their prediction is occluded
+        by the measured cloud (``occlusion_m``) and are not re-acquired as depth
+        outliers (``depth_dev_m``; :func:`core.track_reacquire.dormant_step`).
+    coast_neighbours : bool
+        A coasting point (``max_coast``) is carried by the rigid motion of its measured
+        neighbours (:func:`core.track_reacquire.predict_unmeasured`) instead of its own
+        constant-velocity prediction: that starts the next frame's search, and bridges
+        the gap when it is measured again (:func:`bridge_gaps`; else :func:`fill_gaps`).
+    coast_m : float, optional
+        A coasting point is measured again only within this distance of its
+        prediction, metres (None: the Mahalanobis ``gate`` alone).
     log : list, optional
         Receives one dict per frame step with the counts of (point, camera) pairs
         through each stage (``seen``, ``ncc_ok``, ``temporal_ok``, ``spatial_ok``,
         ``agree``) and of points (``live_before``, ``measured``, ``coasting``,
         ``gated``, ``regenerated``; ``lost_by_temporal``: points that stopped being
-        measured in this step, by their number of temporal matches 0, 1, 2, 3+).
+        measured in this step, by their number of temporal matches 0, 1, 2, 3+);
+        ``reason`` (P,) int8: for each point measured at frame i and not at i+1 the
+        step that lost it (:data:`core.track_diagnose.REASONS`), else -1; ``occ``
+        (P, C) bool: the cameras the occlusion test skipped).
 
     Returns
     -------
@@ -297,11 +327,14 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
             proj[:, j], sig_p[:, j] = predict_in_image(cam, xyz_p, cov_p)
         age = i + 1 - last_f
         pairs = ~dead[:, None] & (last_f >= 0) & (age <= max_coast + 1) & nxt.valid[None]
+        live = ~dead & (coast == 0)                  # measured at frame i
+        pairs_pre = pairs.copy()
         occ = np.zeros((n, c), bool)
         if occlusion_m is not None:
             occ = occluded(cameras, np.where(dead[:, None], np.nan, xyz_p),
-                           margin_m=occlusion_m)
-            pairs &= ~occ
+                           margin_m=occlusion_m, dilate_all=occlusion_dilate)
+            if not occlusion_confirm:
+                pairs &= ~occ
             stage["occluded"] = int(occ.sum())
         # --- temporal: NCC then LSM from each camera's last measurement into i+1 ---
         if predict == "ekf":
@@ -315,6 +348,7 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
             has_vel = np.all(np.isfinite(lin), axis=2)
             pred = np.where(has_vel[..., None], lin, last_uv)
         pairs &= np.all(np.isfinite(pred), axis=2)
+        n_searchable = (pairs_pre & np.all(np.isfinite(pred), axis=2)).sum(axis=1)
         pi, ci = np.nonzero(pairs)
         uv_t = np.full((n, c, 2), np.nan)
         key_aff = np.full((n, c, 2, 2), np.nan)      # key -> i+1 where re-anchored
@@ -364,6 +398,8 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
                          radius_mean=float(rad.mean()))
         # --- spatial LSM at i+1 from the reference camera (or the first temporal one) ---
         has_t = np.all(np.isfinite(uv_t), axis=2)
+        if occlusion_confirm:            # matched, but accepted only where confirmed
+            rekey |= occ & has_t
         # the spatial template: the reference camera's temporal match, else the first
         # camera's, preferring matches whose key held
         sure = has_t & ~rekey
@@ -378,7 +414,8 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
         proj_s = np.stack([cam.project(xyz_s) for cam in cameras], axis=1)
         start_s = np.where(has_t[..., None], uv_t, proj_s)
         qi, qc = np.nonzero(based[:, None] & (np.arange(c)[None] != tcam[:, None])
-                            & np.all(np.isfinite(start_s), axis=2) & nxt.valid[None] & ~occ)
+                            & np.all(np.isfinite(start_s), axis=2) & nxt.valid[None]
+                            & ~(occ & ~has_t))
         uv_acc = np.full((n, c, 2), np.nan)
         uv_acc[based, tcam[based]] = uv_t[based, tcam[based]]
         uv_tonly = uv_acc.copy()
@@ -422,36 +459,80 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
         cov_new = np.full((n, 3, 3), np.nan)
         chosen = np.zeros(n, bool)
         n_gated = 0
+        was_coasting = ~dead & (coast > 0)           # coasting into this frame
         uv_tsure = np.where((based[:, None] & (~rekey | np.all(np.isfinite(uv_acc), axis=2)))
                             [..., None], uv_t, np.nan)
         cands = (uv_acc, uv_tonly) + ((uv_tsure,) if fallback else ())
+        any_two = np.zeros(n, bool)
+        any_rms = np.zeros(n, bool)
         for cand in cands:
             inter = triangulate(cameras, cand, sigma_px=0.3)
             m2 = kf.mahalanobis2(inter.xyz, inter.cov + COV_FLOOR)
-            ok = (~chosen & ~dead & inter.ok & (inter.rms < max_rms_px)
-                  & (np.sum(np.isfinite(cand[..., 0]), 1) >= 2))
-            n_gated += int((ok & ~(m2 < gate ** 2)).sum())
-            ok &= m2 < gate ** 2
+            two = np.sum(np.isfinite(cand[..., 0]), 1) >= 2
+            any_two |= two
+            any_rms |= two & inter.ok & (inter.rms < max_rms_px)
+            ok = (~chosen & ~dead & inter.ok & (inter.rms < max_rms_px) & two)
+            near = m2 < gate ** 2
+            if coast_m is not None:                  # a coasting point: near its prediction
+                dist = np.linalg.norm(inter.xyz - xyz_p, axis=1)
+                near &= ~was_coasting | (np.nan_to_num(dist, nan=np.inf) < coast_m)
+            n_gated += int((ok & ~near).sum())
+            ok &= near
             uv_new[ok], xyz_new[ok], cov_new[ok] = cand[ok], inter.xyz[ok], inter.cov[ok]
             chosen |= ok
+        out = np.zeros(n, bool)
         if depth_dev_m is not None:
             out = chosen & depth_outliers(np.where(chosen[:, None], xyz_new, np.nan),
                                           viewpoint, depth_dev_m)
+            if log is not None:
+                stage["depth_rejected"] = np.where(out[:, None], xyz_new, np.nan)
+            uv_out = uv_new[out]
             uv_new[out], xyz_new[out], cov_new[out] = np.nan, np.nan, np.nan
             chosen &= ~out
+            if depth_retry and out.any():
+                r = np.flatnonzero(out)
+                uv_r, xyz_r, cov_r, ok_r = drop_one_camera(
+                    cameras, uv_out, viewpoint, xyz_new[chosen], depth_dev_m,
+                    max_rms_px=max_rms_px)
+                z = np.full((n, 3), np.nan)
+                zc = np.full((n, 3, 3), np.nan)
+                z[r], zc[r] = xyz_r, cov_r
+                ok_r &= kf.mahalanobis2(z, zc + COV_FLOOR)[r] < gate ** 2
+                r = r[ok_r]
+                uv_new[r], xyz_new[r], cov_new[r] = uv_r[ok_r], xyz_r[ok_r], cov_r[ok_r]
+                chosen[r], out[r] = True, False
+                stage["depth_retried"] = len(r)
             stage["depth_outliers"] = int(out.sum())
+        if log is not None:
+            unconf = rekey & has_t & ~np.all(np.isfinite(uv_acc), axis=2)
+            stage["reason"] = loss_reasons(
+                live & ~chosen, n_searchable, pairs.sum(axis=1), has_t.sum(axis=1),
+                unconf.sum(axis=1), any_rms, any_two, out)
+            stage["occ"] = occ.copy()
         rows = np.flatnonzero(chosen)
         kf.update(xyz_new[rows], cov_new[rows] + COV_FLOOR, rows)
         coast = np.where(chosen, 0, coast + 1)
         dead |= coast > max_coast
         gone |= dead & (coast > max_coast + max_dormant)
         pred_d = np.full((n, 3), np.nan)
+        coasting = ~dead & ~chosen
+        if coast_neighbours and coasting.any() and chosen.any():
+            # coasting points: carried by their neighbours' rigid motion (also the
+            # start of next frame's search, and the bridge of the gap afterwards)
+            pc = predict_unmeasured(coasting, xyz_hist, pred_hist, rate_hist[-1], xyz_new,
+                                    chosen)
+            r = np.flatnonzero(np.all(np.isfinite(pc), axis=1))
+            kf.x[r, :3] = pc[r]
+            pred_d[r] = pc[r]
+            stage["coast_predicted"] = len(r)
         if max_dormant and chosen.any() and (dead & ~gone).any():
             pred_d, rd = dormant_step(
                 dead & ~gone, xyz_hist, pred_hist, rate_hist[-1], xyz_new, chosen, kf, keys,
                 {f: ring[f].stack for f in keys.frames()}, nxt.stack, nxt.valid, cameras,
                 half=half, weight_sigma=temporal_sigma, max_sigma_px=max_sigma_px,
-                max_rms_px=max_rms_px, max_dist_m=reacquire_m, min_views=reacquire_views)
+                max_rms_px=max_rms_px, max_dist_m=reacquire_m, min_views=reacquire_views,
+                occlusion_m=occlusion_m if reacquire_checks else None,
+                depth_dev_m=depth_dev_m if reacquire_checks else None)
             if len(rd.rows):
                 r = rd.rows
                 uv_new[r], xyz_new[r], cov_new[r] = rd.uv, rd.xyz, rd.cov

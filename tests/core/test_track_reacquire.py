@@ -6,7 +6,7 @@ import numpy as np
 
 from core.camera import rodrigues_to_matrix
 from core.surface import measure_surface
-from core.track_reacquire import neighbour_motion, rigid_fit
+from core.track_reacquire import neighbour_motion, predict_unmeasured, rigid_fit
 from core.track_trajectories import bridge_gaps
 from core.tracking import track
 from tests.core._planescene import cameras, render
@@ -105,3 +105,26 @@ def test_neighbour_motion_follows_the_neighbours_that_moved_with_the_point(rng):
     assert np.allclose(xyz, query + [0.02, 0.0, 0.0], atol=1e-6)
     mixed, _, _ = neighbour_motion(then, now, query)     # without rates: either part
     assert np.mean(np.linalg.norm(mixed - (query + [0.02, 0.0, 0.0]), axis=1) > 0.005) > 0.2
+
+
+def test_unmeasured_points_are_carried_by_their_neighbours_over_two_frames(rng):
+    # a rigid patch (points 1 cm apart) turning and sliding; 40 points unmeasured in
+    # frames 1 and 2 are carried from frame 0 through frame 1's prediction to frame 2
+    s = np.arange(-0.1, 0.1001, 0.01)
+    x, z = np.meshgrid(s, s)
+    p0 = np.stack([x.ravel(), 0.02 * np.sin(8 * x.ravel()), z.ravel()], axis=1)
+    R, t = rodrigues_to_matrix([0.02, -0.03, 0.04]), np.array([0.01, -0.004, 0.006])
+    truth = [p0, p0 @ R.T + t, (p0 @ R.T + t) @ R.T + t]
+    hide = np.zeros(len(p0), bool)
+    hide[rng.choice(len(p0), 40, replace=False)] = True
+    rate0 = truth[1] - truth[0]
+    xyz_hist = [truth[0].copy()]
+    pred_hist = [np.full_like(p0, np.nan)]
+    for f in (1, 2):
+        meas = np.where(hide[:, None], np.nan, truth[f] + rng.normal(0, 2e-4, p0.shape))
+        rate = rate0 if f == 1 else np.where(hide[:, None], np.nan, rate0)
+        pred = predict_unmeasured(hide, xyz_hist, pred_hist, rate, meas, ~hide)
+        assert np.all(np.isnan(pred[~hide]))
+        assert np.max(np.linalg.norm(pred[hide] - truth[f][hide], axis=1)) < 0.002
+        xyz_hist.append(meas)
+        pred_hist.append(pred)

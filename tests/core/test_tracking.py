@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from core.surface import measure_surface
+from core.track_diagnose import REASONS
 from core.tracking import PointFilter, fill_gaps, filter_trajectories, predict_in_image, track
 from tests.core._planescene import cameras, render
 
@@ -99,10 +100,15 @@ def test_occluded_frame_is_coasted_and_reacquired():
     seeds = np.stack([c.project(np.array([[0.0, 0.0, 0.0]])) for c in cams], 1)
     surf = measure_surface(frames[0], cams, seeds, step=6)
     for pred in ("ekf", "linear"):
+        log: list = []
         tr = track(lambda i: frames[i], cams, surf, 4, 25.0, regen_every=0, predict=pred,
-                   max_coast=2)
+                   max_coast=2, log=log)
         p0 = len(surf)
         assert not tr.measured[2, :p0].any()
+        # the diagnosis blames the missing images, for every point measured at frame 1
+        lost = tr.measured[1, :p0]
+        assert np.all(np.array(REASONS)[log[1]["reason"][:p0][lost]] == "too_few_cameras")
+        assert np.all(log[1]["reason"][:p0][~lost] == -1)
         assert tr.measured[[0, 1, 3], :p0].all(axis=0).mean() > 0.8
         ok = tr.measured[3, :p0]
         err = tr.xyz[2, :p0][ok] - (surf.xyz[ok] + 2 * motion)

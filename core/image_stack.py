@@ -259,12 +259,17 @@ class PatchSource:
         Largest distance from the centre (per axis) at which a patch is sampled, px.
     upsample : bool
         Sample the 2× cubic-spline upsampled images (default) or the originals.
+    upsampler : callable, optional
+        ``upsampler(stack, index, u0, v0, wr) -> (N, 4 wr + 1, 4 wr + 1)`` float32: the
+        upsampled windows whose original pixel ``(u0, v0)`` + ``(wr, wr)`` is the centre
+        (the values of :func:`_upsample_windows`, e.g. compiled by
+        :func:`core.lsm_kernel.upsampled_windows`); default the numpy GEMMs.
     """
 
     MAX_ROWS = 32000           # cv2.remap: images and maps below 32767 rows
 
     def __init__(self, stack: ImageStack, index: np.ndarray, centre: np.ndarray,
-                 reach: np.ndarray | float, upsample: bool = True):
+                 reach: np.ndarray | float, upsample: bool = True, upsampler=None):
         n = len(index)
         f = 2 if upsample else 1
         self.f = float(f)
@@ -287,10 +292,13 @@ class PatchSource:
         self._whole = False
         c = np.rint(np.where(np.isfinite(centre), centre, 0.0)).astype(np.int64)
         mg = _TAP_MARGIN if upsample else 0
-        win = _windows(stack, index, c[:, 0] - wr - mg, c[:, 1] - wr - mg,
-                       2 * (wr + mg) + 1, transposed=upsample)
-        if upsample:
-            win = _upsample_windows(win, wr)
+        if upsample and upsampler is not None:
+            win = upsampler(stack, index, c[:, 0] - wr, c[:, 1] - wr, wr)
+        else:
+            win = _windows(stack, index, c[:, 0] - wr - mg, c[:, 1] - wr - mg,
+                           2 * (wr + mg) + 1, transposed=upsample)
+            if upsample:
+                win = _upsample_windows(win, wr)
         self.up = win.reshape(n * size, size)
         self.rows_per_chunk = max(1, self.MAX_ROWS // size)
         k = np.arange(n)

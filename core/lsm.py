@@ -65,19 +65,20 @@ from enum import IntEnum
 
 import numpy as np
 
+from . import lsm_kernel
 from .batched_linalg import line_update, spd_inverse
 from .blas_threads import single_blas_thread
 from .camera import Camera
 from .image_stack import ImageStack, PatchSource, resampling_noise_factor, upsample2
 from .lsm_design import (
-    BORDER,
+    _grid,
     coarse_shift_step,
     compose_inverse,
     inverse_blocks,
     normal_matrix,
     row_mean_sd,
     shift_moments,
-    template_slopes,
+    template_patches,
 )
 
 __all__ = ["ImageStack", "LSMResult", "Status", "epipolar_lines", "match", "template_patches",
@@ -148,59 +149,6 @@ class LSMResult:
     def sigma_uv(self) -> np.ndarray:
         """Standard deviations of u and v, shape (N, 2), pixels."""
         return np.sqrt(np.abs(np.diagonal(self.cov_uv, axis1=1, axis2=2)))
-
-
-# -- image sampling -----------------------------------------------------------------
-
-def _grid(half: int, border: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    r = np.arange(-half - border, half + border + 1, dtype=np.float64)
-    y, x = np.meshgrid(r, r, indexing="ij")
-    return x, y
-
-
-def template_patches(images, uv: np.ndarray, half: int = 6, index=None,
-                     upsample: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Patches around ``uv`` (N, 2), with their gradients.
-
-    Integer centres are read directly; sub-pixel centres are resampled like the
-    search patches of :func:`match`.  Gradients are the cubic-spline slopes.
-
-    Returns
-    -------
-    patch, gu, gv : ndarray, shape (N, 2h+1, 2h+1), float32
-        Grey levels (row = v) and their derivatives along u and v, per pixel.
-    """
-    stack = ImageStack(images)
-    uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
-    n = len(uv)
-    idx = np.zeros(n, np.int64) if index is None else np.asarray(index, np.int64)
-    x, y = _grid(half, BORDER)
-    c = np.rint(uv)
-    frac = uv - c
-    if np.all(np.abs(frac) < 1e-9):
-        _, h, w = stack.shape
-        k = 2 * (half + BORDER) + 1
-        if k <= min(h, w):
-            ci = c.astype(np.int64) - half - BORDER
-            P = stack.windows(idx, np.clip(ci[:, 0], 0, w - k), np.clip(ci[:, 1], 0, h - k), k)
-        else:
-            P = stack.pixels(idx[:, None, None], c[:, 0, None, None] + x,
-                             c[:, 1, None, None] + y)
-    else:
-        src = PatchSource(stack, idx, uv, half + BORDER + 1, upsample)
-        pu = (src.bu[:, None, None] + src.f * (uv[:, 0, None, None] + x)).astype(np.float32)
-        pv = (src.bv[:, None, None] + src.f * (uv[:, 1, None, None] + y)).astype(np.float32)
-        s = pu.shape
-        P = src.sample(pu.reshape(n, -1), pv.reshape(n, -1)).reshape(s)
-        du = (pu - np.rint(pu * 32.0) * (1 / 32.0)) * (1.0 / src.f)
-        dv = (pv - np.rint(pv * 32.0) * (1 / 32.0)) * (1.0 / src.f)
-        gu, gv = template_slopes(P)
-        P = P.copy()
-        b = BORDER
-        P[:, b:-b, b:-b] += gu * du.reshape(s)[:, b:-b, b:-b] + gv * dv.reshape(s)[:, b:-b, b:-b]
-    gu, gv = template_slopes(P)
-    b = BORDER
-    return P[:, b:-b, b:-b], gu, gv
 
 
 @single_blas_thread()
@@ -347,21 +295,34 @@ def _match_part(tstack: ImageStack, sstack: ImageStack, uv_t, uv_s0, ti, si, A, 
     # b = Jᵀ W e per iteration: (w gx e, w gy e, w e) against 1, x, y (three GEMVs:
     # faster in OpenBLAS than one (M, P) @ (P, 3) GEMM).
     basis_w = basis * wpx                                       # (3, P)
-    N = normal_matrix(T, gx, gy, xs, ys, wpx)
-    N2 = N if weight_sigma is None else normal_matrix(T, gx, gy, xs, ys, wpx * wpx)
+    kernel = lines is None and lsm_kernel.enabled()     # compiled steps (core.lsm_kernel)
+    if kernel:
+        T, gx, gy = (np.ascontiguousarray(x) for x in (T, gx, gy))
+        N = lsm_kernel.normal_matrices(T, gx, gy, wpx, xs, ys)
+    else:
+        N = normal_matrix(T, gx, gy, xs, ys, wpx)
+    if weight_sigma is None:
+        N2 = N
+    elif kernel:
+        N2 = lsm_kernel.normal_matrices(T, gx, gy, wpx * wpx, xs, ys)
+    else:
+        N2 = normal_matrix(T, gx, gy, xs, ys, wpx * wpx)
     sw = float(wpx.sum())
     # Texture: smaller eigenvalue of the (weighted) structure tensor, mean of ∇T ∇Tᵀ.
     sxx, syy, sxy = N[:, 0, 0] / sw, N[:, 3, 3] / sw, N[:, 0, 3] / sw
     lam_min = 0.5 * (sxx + syy) - np.sqrt(0.25 * (sxx - syy) ** 2 + sxy ** 2)
     texture = np.sqrt(np.maximum(lam_min, 0.0))
     status[finite & t_in & (texture < min_texture)] = Status.WEAK_TEXTURE
-    N[status != Status.NOT_CONVERGED] = np.eye(8)
+    if kernel:
+        Ninv, pd = lsm_kernel.spd_inverses(N, status == Status.NOT_CONVERGED)
+    else:
+        N[status != Status.NOT_CONVERGED] = np.eye(8)
+        Ninv, pd = spd_inverse(N)
     # Shifts and radiometry only in the first iteration (and until the shift settles
     # below 1 px, at most 3): the affine part of a far-off start would diverge.  The
     # first iteration of all patches (without a line constraint) uses every other
     # pixel in u and v, unweighted (a quarter of the samples; its step only brings the
     # patch near the match) and solves its 4 × 4 system in closed form.
-    Ninv, pd = spd_inverse(N)
     sub = [0, 3, 6, 7]
     shift_only = np.ones(n, bool)
     side = 2 * half + 1
@@ -390,7 +351,8 @@ def _match_part(tstack: ImageStack, sstack: ImageStack, uv_t, uv_s0, ti, si, A, 
     img_lo = np.array([1.0, 1.0])
     img_hi = np.array([w_img - 2.0, h_img - 2.0])
     fresh = np.ones(n, bool)             # radiometry not yet initialised
-    it_left = np.full(n, max_iter)
+    it_left = np.full(n, max_iter, np.int64)
+    uv_s0 = np.ascontiguousarray(uv_s0)
 
     todo = np.flatnonzero(status == Status.NOT_CONVERGED)
     while todo.size:
@@ -398,9 +360,22 @@ def _match_part(tstack: ImageStack, sstack: ImageStack, uv_t, uv_s0, ti, si, A, 
         # ``_DRIFT_PX`` of drift; patches that walk out of their window (within
         # max_shift_px) get a new one in the next round.
         reach = half * np.max(np.abs(A[todo]).sum(axis=2), axis=1) + _DRIFT_PX
-        src = PatchSource(sstack, si[todo], uv[todo], reach, upsample)
+        src = PatchSource(sstack, si[todo], uv[todo], reach, upsample,
+                          lsm_kernel.upsampled_windows if kernel else None)
         f = src.f
         bases, w_lo, w_hi = np.stack([src.bu, src.bv]), src.lo, src.hi
+        if kernel:
+            rew = np.zeros(len(todo), bool)
+            lsm_kernel.iterate_round(
+                src.up, src.rows_per_chunk if not src._whole else 0, getattr(src, "size", 0),
+                src.bu, src.bv, src.lo, src.hi, float(f), todo, T, gx, gy, wpx, xs, ys,
+                T_c, gx_c, gy_c, basis_c[1], basis_c[2], mom_c, Ninv, N, pd, uv, A, gain,
+                offset, fresh, shift_only, iters, it_left, sigma0, status, uv_s0, t_mean, t_sd,
+                t_sq, dof, float(dof_c),
+                float(tol_px), float(max_shift_px), float(half), float(img_hi[0]),
+                float(img_hi[1]), weight_sigma is not None, rew)
+            todo = todo[rew]
+            continue
         # Working set: the patches still iterating in this window round, with their
         # template arrays (compacted as patches finish).
         a, wrow = todo, np.arange(len(todo))

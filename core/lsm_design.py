@@ -16,6 +16,7 @@ import functools
 import numpy as np
 
 from .batched_linalg import spd_inverse
+from .image_stack import ImageStack, PatchSource
 
 
 def spline_derivative_taps(n: int = 4) -> np.ndarray:
@@ -249,3 +250,56 @@ def compose_inverse(A: np.ndarray, dq: np.ndarray) -> tuple[np.ndarray, np.ndarr
     step = np.stack([An[:, 0, 0] * dq[:, 0] + An[:, 0, 1] * dq[:, 3],
                      An[:, 1, 0] * dq[:, 0] + An[:, 1, 1] * dq[:, 3]], axis=1)
     return An, step
+
+
+# -- template patches ---------------------------------------------------------------
+
+def _grid(half: int, border: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    r = np.arange(-half - border, half + border + 1, dtype=np.float64)
+    y, x = np.meshgrid(r, r, indexing="ij")
+    return x, y
+
+
+def template_patches(images, uv: np.ndarray, half: int = 6, index=None,
+                     upsample: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Patches around ``uv`` (N, 2), with their gradients.
+
+    Integer centres are read directly; sub-pixel centres are resampled like the
+    search patches of :func:`match`.  Gradients are the cubic-spline slopes.
+
+    Returns
+    -------
+    patch, gu, gv : ndarray, shape (N, 2h+1, 2h+1), float32
+        Grey levels (row = v) and their derivatives along u and v, per pixel.
+    """
+    stack = ImageStack(images)
+    uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+    n = len(uv)
+    idx = np.zeros(n, np.int64) if index is None else np.asarray(index, np.int64)
+    x, y = _grid(half, BORDER)
+    c = np.rint(uv)
+    frac = uv - c
+    if np.all(np.abs(frac) < 1e-9):
+        _, h, w = stack.shape
+        k = 2 * (half + BORDER) + 1
+        if k <= min(h, w):
+            ci = c.astype(np.int64) - half - BORDER
+            P = stack.windows(idx, np.clip(ci[:, 0], 0, w - k), np.clip(ci[:, 1], 0, h - k), k)
+        else:
+            P = stack.pixels(idx[:, None, None], c[:, 0, None, None] + x,
+                             c[:, 1, None, None] + y)
+    else:
+        src = PatchSource(stack, idx, uv, half + BORDER + 1, upsample)
+        pu = (src.bu[:, None, None] + src.f * (uv[:, 0, None, None] + x)).astype(np.float32)
+        pv = (src.bv[:, None, None] + src.f * (uv[:, 1, None, None] + y)).astype(np.float32)
+        s = pu.shape
+        P = src.sample(pu.reshape(n, -1), pv.reshape(n, -1)).reshape(s)
+        du = (pu - np.rint(pu * 32.0) * (1 / 32.0)) * (1.0 / src.f)
+        dv = (pv - np.rint(pv * 32.0) * (1 / 32.0)) * (1.0 / src.f)
+        gu, gv = template_slopes(P)
+        P = P.copy()
+        b = BORDER
+        P[:, b:-b, b:-b] += gu * du.reshape(s)[:, b:-b, b:-b] + gv * dv.reshape(s)[:, b:-b, b:-b]
+    gu, gv = template_slopes(P)
+    b = BORDER
+    return P[:, b:-b, b:-b], gu, gv

@@ -1,4 +1,8 @@
-"""Least squares matching on seeded synthetic patches with exactly known warps."""
+"""Least squares matching on seeded synthetic patches with exactly known warps.
+
+Every test runs twice: with the compiled steps of :mod:`core.lsm_kernel` (skipped
+where numba is not installed) and on the numpy path (``SOMACAP_NO_NUMBA=1``).
+"""
 
 from __future__ import annotations
 
@@ -7,6 +11,7 @@ import pytest
 from scipy import ndimage
 
 from bench.patches import make_pairs
+from core import lsm_kernel
 from core.batched_linalg import cholesky_solve as _cholesky_solve
 from core.camera import Camera
 from core.lsm import Status, epipolar_lines, match, template_patches, upsample2
@@ -18,6 +23,16 @@ from core.lsm_design import (
     solve_shift_radiometry,
     template_slopes,
 )
+
+
+@pytest.fixture(autouse=True, params=["numba", "numpy"])
+def lsm_path(request, monkeypatch):
+    """Run the test on the compiled path (numba) and on the numpy path."""
+    if request.param == "numba" and lsm_kernel.numba is None:
+        pytest.skip("numba is not installed")
+    monkeypatch.setenv(lsm_kernel.ENV_OFF, "0" if request.param == "numba" else "1")
+    assert lsm_kernel.enabled() == (request.param == "numba")
+    return request.param
 
 
 def _match(P, **kw):

@@ -71,6 +71,7 @@ from .blas_threads import single_blas_thread
 from .camera import Camera
 from .image_stack import ImageStack, PatchSource, resampling_noise_factor, upsample2
 from .lsm_design import (
+    FLAT_SD,
     _grid,
     coarse_shift_step,
     compose_inverse,
@@ -102,7 +103,8 @@ class Status(IntEnum):
     WEAK_TEXTURE = 3      #: template without texture (small gradient energy)
     OUT_OF_SEARCH = 4     #: the shift drifted more than ``max_shift_px`` from its start
     OUT_OF_IMAGE = 5      #: template or warped patch leaves its image
-    DEGENERATE = 6        #: singular normal matrix, or affine scale / gain out of range
+    DEGENERATE = 6        #: singular normal matrix, affine scale / gain out of range, or a
+    #: flat search patch (grey-level spread below :data:`core.lsm_design.FLAT_SD`)
     INVALID = 7           #: NaN start position
 
 
@@ -404,11 +406,14 @@ def _match_part(tstack: ImageStack, sstack: ImageStack, uv_t, uv_s0, ti, si, A, 
             puv = M.reshape(2 * na, 3).astype(np.float32) @ (basis_c if coarse else basis)
             S = src.sample(puv[:na], puv[na:], wrow)                # (n_a, P or P/4)
             new = fresh[a]
+            flat = np.zeros(na, bool)
             if new.any():
-                # Radiometric start: match the mean and spread of the grey levels.
+                # Radiometric start: match the mean and spread of the grey levels; a
+                # flat search patch (no spread: the gain is undetermined) is rejected.
                 k = a[new]
                 s_mean, s_sd = row_mean_sd(S[new] if not new.all() else S)
-                g0 = np.where(s_sd > 1e-6, t_sd[k] / np.maximum(s_sd, 1e-6), 1.0)
+                flat[new] = s_sd <= FLAT_SD
+                g0 = np.where(s_sd > FLAT_SD, t_sd[k] / np.maximum(s_sd, FLAT_SD), 1.0)
                 gain[k] = g0
                 offset[k] = t_mean[k] - g0 * s_mean
                 fresh[k] = False
@@ -481,7 +486,7 @@ def _match_part(tstack: ImageStack, sstack: ImageStack, uv_t, uv_s0, ti, si, A, 
             in_win = np.all((e_lo >= w_lo[wrow]) & (e_hi <= w_hi[wrow]), axis=1)
             sc = np.abs(An[:, 0, 0] * An[:, 1, 1] - An[:, 0, 1] * An[:, 1, 0])
             g = gain[a]
-            degen = ~ok_step | (sc < 0.25) | (sc > 4.0) | (g < 0.1) | (g > 10.0)
+            degen = ~ok_step | (sc < 0.25) | (sc > 4.0) | (g < 0.1) | (g > 10.0) | flat
             st = np.full(na, Status.NOT_CONVERGED, dtype=np.int8)
             st[conv] = Status.OK
             st[drift] = Status.OUT_OF_SEARCH
@@ -501,7 +506,7 @@ def _match_part(tstack: ImageStack, sstack: ImageStack, uv_t, uv_s0, ti, si, A, 
                     s_sd = np.sqrt(np.maximum(v_et, 0.0)) / np.abs(go)
                 else:
                     s_mean, s_sd = row_mean_sd(S[conv])
-                g1 = np.where(s_sd > 1e-6, t_sd[k] / np.maximum(s_sd, 1e-6), gain[k])
+                g1 = np.where(s_sd > FLAT_SD, t_sd[k] / np.maximum(s_sd, FLAT_SD), gain[k])
                 offset[k] = t_mean[k] - g1 * s_mean
                 gain[k] = g1
             going = st == Status.NOT_CONVERGED

@@ -35,6 +35,13 @@ def spline_derivative_taps(n: int = 4) -> np.ndarray:
     return w / np.sum(2 * d * w)
 
 
+#: Grey-level spread (standard deviation) below which a search patch counts as flat for
+#: the radiometry: its gain is then not estimated from the spread (it stays 1 at the
+#: start, unchanged at convergence).  Far above the rounding of the float32 row sums of
+#: :func:`row_mean_sd` (up to ~0.03 grey levels on a flat patch of 169 pixels near 115),
+#: so that the numpy and the compiled path (float64 sums) take the same decision.
+FLAT_SD = 0.1
+
 DERIV = spline_derivative_taps(4)
 BORDER = len(DERIV)
 

@@ -34,6 +34,7 @@ import warnings
 import numpy as np
 
 from .image_stack import _HALF_TAPS
+from .lsm_design import FLAT_SD
 from .lsm_kernel_jit import jit, numba
 from .lsm_kernel_linalg import _inv4, _normal_matrices, _solve4, _spd_inverses
 from .lsm_kernel_sample import _bilinear, _sample_inside, _upsampled_windows
@@ -170,6 +171,7 @@ def _iterate_round(img, rpc, size, bu, bv, w_lo, w_hi, f, todo,
                     pu = m_u0 + m_u1 * xs_s[j] + m_u2 * ys_s[j]
                     pv = m_v0 + m_v1 * xs_s[j] + m_v2 * ys_s[j]
                     S[j] = _bilinear(img, r0, rows, pu, pv)
+            flat = False
             if fresh[a]:
                 s1 = 0.0
                 s2 = 0.0
@@ -178,7 +180,8 @@ def _iterate_round(img, rpc, size, bu, bv, w_lo, w_hi, f, todo,
                     s2 += np.float64(S[j]) * S[j]
                 sm = s1 / npt
                 ssd = np.sqrt(max(s2 / npt - sm * sm, 0.0))
-                g0 = t_sd[a] / max(ssd, 1e-6) if ssd > 1e-6 else 1.0
+                flat = ssd <= FLAT_SD
+                g0 = t_sd[a] / max(ssd, FLAT_SD) if ssd > FLAT_SD else 1.0
                 gain[a] = g0
                 offset[a] = t_mean[a] - g0 * sm
                 fresh[a] = False
@@ -273,7 +276,7 @@ def _iterate_round(img, rpc, size, bu, bv, w_lo, w_hi, f, todo,
                       and un + eu <= w_hi[k, 0] and vn + ev <= w_hi[k, 1])
             sc = abs(An[0, 0] * An[1, 1] - An[0, 1] * An[1, 0])
             g = gain[a]
-            degen = (not ok_step) or sc < 0.25 or sc > 4.0 or g < 0.1 or g > 10.0
+            degen = (not ok_step) or sc < 0.25 or sc > 4.0 or g < 0.1 or g > 10.0 or flat
             st = 1                                   # Status.NOT_CONVERGED
             if conv:
                 st = 0
@@ -300,7 +303,7 @@ def _iterate_round(img, rpc, size, bu, bv, w_lo, w_hi, f, todo,
                         s2 += np.float64(S[j]) * S[j]
                     s_mean = s1 / npx
                     s_sd = np.sqrt(max(s2 / npx - s_mean * s_mean, 0.0))
-                g1 = t_sd[a] / max(s_sd, 1e-6) if s_sd > 1e-6 else gain[a]
+                g1 = t_sd[a] / max(s_sd, FLAT_SD) if s_sd > FLAT_SD else gain[a]
                 offset[a] = t_mean[a] - g1 * s_mean
                 gain[a] = g1
             going = st == 1

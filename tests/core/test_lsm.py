@@ -113,18 +113,21 @@ def test_template_slopes_are_the_cubic_spline_derivative():
 
 
 def test_rejections_are_flagged_per_patch():
-    P = make_pairs(4, seed=8, max_shift=0.5)
+    P = make_pairs(5, seed=8, max_shift=0.5)
     T = P.template.copy()
     T[1] = 100          # textureless template
-    start = np.full((4, 2), P.centre)
+    S = P.search.copy()
+    S[4] = 115          # flat search image (e.g. a saturated background): gain undetermined
+    start = np.full((5, 2), P.centre)
     start[2] = [2.0, 2.0]          # template leaves the image
-    uv_s = np.full((4, 2), P.centre)
+    uv_s = np.full((5, 2), P.centre)
     uv_s[3] = np.nan               # no start
-    r = match(T, P.search, start, uv_s, template_index=np.arange(4), search_index=np.arange(4))
+    r = match(T, S, start, uv_s, template_index=np.arange(5), search_index=np.arange(5))
     assert r.status[0] == Status.OK
     assert r.status[1] == Status.WEAK_TEXTURE
     assert r.status[2] == Status.OUT_OF_IMAGE
     assert r.status[3] == Status.INVALID
+    assert r.status[4] == Status.DEGENERATE and r.iterations[4] == 1
 
 
 def test_drift_out_of_search_area_is_flagged():

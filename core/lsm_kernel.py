@@ -26,7 +26,6 @@ loads from the cache) under a lock with numba's warnings silenced.
 
 from __future__ import annotations
 
-import os
 import threading
 import time
 import warnings
@@ -35,22 +34,19 @@ import numpy as np
 
 from .image_stack import _HALF_TAPS
 from .lsm_design import FLAT_SD
-from .lsm_kernel_jit import jit, numba
+from .lsm_kernel_jit import ENV_OFF as ENV_OFF  # re-exported: the switch
+from .lsm_kernel_jit import env_off, jit, numba
 from .lsm_kernel_linalg import _inv4, _normal_matrices, _solve4, _spd_inverses
 from .lsm_kernel_sample import _bilinear, _sample_inside, _upsampled_windows
-
-ENV_OFF = "SOMACAP_NO_NUMBA"
 
 _LOCK = threading.Lock()
 _COMPILED: dict = {}                         # argument types -> seconds of the first call
 
 
 def enabled() -> bool:
-    """Whether :func:`core.lsm.match` runs the compiled iterations (numba importable,
-    ``SOMACAP_NO_NUMBA`` not set to a true value)."""
-    if numba is None:
-        return False
-    return os.environ.get(ENV_OFF, "").strip().lower() in ("", "0", "false", "no")
+    """Whether :func:`core.lsm.match` runs the compiled steps (numba imported, and
+    ``SOMACAP_NO_NUMBA`` not set to a true value now)."""
+    return numba is not None and not env_off()
 
 
 _SUB = (0, 3, 6, 7)
@@ -332,7 +328,7 @@ def _first_call(fn, key, *args):
     """Call a compiled function; its first call with these argument types compiles it
     (or loads it from the disk cache) under a lock, numba's warnings silenced (e.g.
     an unwritable cache), and records the seconds in :func:`compile_seconds`."""
-    sig = (key, *(getattr(a, "dtype", type(a)) for a in args))
+    sig = (key, *(numba.typeof(a) for a in args))        # dtype, layout, read-only
     if sig not in _COMPILED:
         with _LOCK:
             if sig not in _COMPILED:

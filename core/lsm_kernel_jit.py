@@ -1,16 +1,30 @@
 """The optional numba dependency of :mod:`core.lsm_kernel`: import and decorator.
 
 ``numba`` is None where it cannot be imported (Blender's Python: the add-on does not
-bundle it); :func:`jit` then leaves functions as plain Python (the callers check
-:func:`core.lsm_kernel.enabled` and use the numpy path instead).
+bundle it; or a numba that fails to import with this numpy), and when the environment
+variable ``SOMACAP_NO_NUMBA`` is true at import time (then numba is not even imported:
+~0.2 s less start-up); :func:`jit` then leaves functions as plain Python (the callers
+check :func:`core.lsm_kernel.enabled` and use the numpy path instead).
 """
 
 from __future__ import annotations
 
-try:                                         # numba is optional (not in the add-on)
-    import numba
-except ImportError:                          # pragma: no cover - depends on the env
-    numba = None
+import os
+
+ENV_OFF = "SOMACAP_NO_NUMBA"
+
+
+def env_off() -> bool:
+    """Whether ``SOMACAP_NO_NUMBA`` is set to a true value (anything but "", 0, false, no)."""
+    return os.environ.get(ENV_OFF, "").strip().lower() not in ("", "0", "false", "no")
+
+
+numba = None
+if not env_off():
+    try:                                     # numba is optional (not in the add-on)
+        import numba
+    except Exception:                        # pragma: no cover - missing or broken
+        numba = None
 
 
 def jit(fastmath=False):

@@ -226,3 +226,22 @@ def test_jit_falls_back_without_a_cache_location(monkeypatch):
         return 2.0 * x
 
     assert twice(1.5) == 3.0 and hasattr(twice, "py_func")
+
+
+def test_switch_at_start_up_does_not_import_numba():
+    """SOMACAP_NO_NUMBA=1 before the import: numba is never imported, match works."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = ("import sys, numpy as np; from bench.patches import make_pairs; "
+            "from core.lsm import match; from core import lsm_kernel; "
+            "P = make_pairs(20, seed=3); c = np.full((20, 2), P.centre); "
+            "r = match(P.template, P.search, c, c, template_index=np.arange(20), "
+            "search_index=np.arange(20)); "
+            "print('numba' in sys.modules, lsm_kernel.enabled(), r.ok.mean())")
+    env = dict(os.environ, SOMACAP_NO_NUMBA="1")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                         check=True, cwd=Path(__file__).resolve().parents[2]).stdout.split()
+    assert out[:2] == ["False", "False"] and float(out[2]) > 0.9

@@ -275,8 +275,9 @@ def _match_part(tstack: ImageStack, sstack: ImageStack, uv_t, uv_s0, ti, si, A, 
     status[finite & ~t_in] = Status.OUT_OF_IMAGE
 
     # Template, its gradients and texture (smaller eigenvalue of the structure tensor).
+    kernel = lines is None and lsm_kernel.enabled()     # compiled steps (core.lsm_kernel)
     T, tx, ty = template_patches(tstack, np.where(t_in[:, None], uv_t, half + 1.0), half, ti,
-                                 upsample)
+                                 upsample, kernel)
     npx = T[0].size
     T = T.reshape(n, npx)
     gx = tx.reshape(n, npx)
@@ -297,7 +298,6 @@ def _match_part(tstack: ImageStack, sstack: ImageStack, uv_t, uv_s0, ti, si, A, 
     # b = Jᵀ W e per iteration: (w gx e, w gy e, w e) against 1, x, y (three GEMVs:
     # faster in OpenBLAS than one (M, P) @ (P, 3) GEMM).
     basis_w = basis * wpx                                       # (3, P)
-    kernel = lines is None and lsm_kernel.enabled()     # compiled steps (core.lsm_kernel)
     if kernel:
         T, gx, gy = (np.ascontiguousarray(x) for x in (T, gx, gy))
         N = lsm_kernel.normal_matrices(T, gx, gy, wpx, xs, ys)

@@ -16,7 +16,7 @@ import functools
 import numpy as np
 
 from .batched_linalg import spd_inverse
-from .image_stack import ImageStack, PatchSource
+from .image_stack import ImageStack, PatchSource, _windows
 
 
 def spline_derivative_taps(n: int = 4) -> np.ndarray:
@@ -268,11 +268,14 @@ def _grid(half: int, border: int = 0) -> tuple[np.ndarray, np.ndarray]:
 
 
 def template_patches(images, uv: np.ndarray, half: int = 6, index=None,
-                     upsample: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                     upsample: bool = True,
+                     kernel: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Patches around ``uv`` (N, 2), with their gradients.
 
-    Integer centres are read directly; sub-pixel centres are resampled like the
-    search patches of :func:`match`.  Gradients are the cubic-spline slopes.
+    Integer centres are read directly (pixels beyond the image border repeat it);
+    sub-pixel centres are resampled like the search patches of :func:`match`.
+    Gradients are the cubic-spline slopes.  ``kernel``: resample with the compiled
+    upsampling of :mod:`core.lsm_kernel` (numba must be there).
 
     Returns
     -------
@@ -286,17 +289,15 @@ def template_patches(images, uv: np.ndarray, half: int = 6, index=None,
     x, y = _grid(half, BORDER)
     c = np.rint(uv)
     frac = uv - c
-    if np.all(np.abs(frac) < 1e-9):
-        _, h, w = stack.shape
-        k = 2 * (half + BORDER) + 1
-        if k <= min(h, w):
-            ci = c.astype(np.int64) - half - BORDER
-            P = stack.windows(idx, np.clip(ci[:, 0], 0, w - k), np.clip(ci[:, 1], 0, h - k), k)
-        else:
-            P = stack.pixels(idx[:, None, None], c[:, 0, None, None] + x,
-                             c[:, 1, None, None] + y)
+    if kernel:
+        from .lsm_kernel import upsampled_windows
     else:
-        src = PatchSource(stack, idx, uv, half + BORDER + 1, upsample)
+        upsampled_windows = None
+    if np.all(np.abs(frac) < 1e-9):
+        ci = c.astype(np.int64) - half - BORDER
+        P = _windows(stack, idx, ci[:, 0], ci[:, 1], 2 * (half + BORDER) + 1)
+    else:
+        src = PatchSource(stack, idx, uv, half + BORDER + 1, upsample, upsampled_windows)
         pu = (src.bu[:, None, None] + src.f * (uv[:, 0, None, None] + x)).astype(np.float32)
         pv = (src.bv[:, None, None] + src.f * (uv[:, 1, None, None] + y)).astype(np.float32)
         s = pu.shape

@@ -328,7 +328,8 @@ def _first_call(fn, key, *args):
     """Call a compiled function; its first call with these argument types compiles it
     (or loads it from the disk cache) under a lock, numba's warnings silenced (e.g.
     an unwritable cache), and records the seconds in :func:`compile_seconds`."""
-    sig = (key, *(numba.typeof(a) for a in args))        # dtype, layout, read-only
+    sig = (key, *((a.dtype, a.ndim, a.flags.c_contiguous, a.flags.writeable)
+                  if isinstance(a, np.ndarray) else type(a) for a in args))
     if sig not in _COMPILED:
         with _LOCK:
             if sig not in _COMPILED:

@@ -96,3 +96,4 @@ def _upsampled_windows(images, index, u0, v0, wr, taps, out):
                 out[k, i, 2 * j] = X[i, m + j]
                 out[k, i, 2 * j + 1] = Y[j]
             out[k, i, size - 1] = X[i, m + 2 * wr]
+

@@ -170,6 +170,18 @@ def test_upsampling_is_exact_at_pixels_and_cubic_spline_between(rng):
     assert np.max(np.abs(up[21:61:2, 21:81:2].ravel() - ref)) < 0.05
 
 
+def test_template_near_the_border_is_centred_on_its_point(rng, lsm_path):
+    """A template 8 px from the border (inside the matcher's 7 px margin, but its
+    slope border of 4 px leaves the image): the patch is still centred on uv."""
+    img = rng.uniform(0, 255, (40, 50)).astype(np.float32)
+    T, gu, _ = template_patches(img, np.array([[8.0, 20.0], [25.0, 31.0]]),
+                                kernel=lsm_path == "numba")
+    assert np.array_equal(T[0], img[14:27, 2:15]) and np.array_equal(T[1], img[25:38, 19:32])
+    # Slopes from the border pixels repeated beyond the image (row 31 + 4 > 39).
+    ref = template_patches(np.pad(img, 10, mode="edge"), np.array([[35.0, 41.0]]))[1]
+    assert np.allclose(gu[1], ref[0], atol=1e-4)
+
+
 def test_subpixel_template_is_resampled(rng):
     img = ndimage.gaussian_filter(rng.uniform(0, 255, (40, 50)), 1.5)
     uv = np.array([[20.3, 18.8], [25.0, 21.45]])

@@ -180,15 +180,21 @@ def hidden_split(state, truth: dict) -> dict:
             "n_hidden": len(hid), "hidden_share": share}
 
 
-def run_one(scene: Path, frames: int | None, observations: str, model: str) -> dict:
-    """Fit and evaluate one scene folder; return the figures (or ``{"error": ...}``)."""
+def run_one(scene: Path, frames: int | None, observations: str, model: str,
+            cues: str = "texture", tracks: Path | None = None) -> dict:
+    """Fit and evaluate one scene folder; return the figures (or ``{"error": ...}``).
+
+    ``cues`` and ``tracks`` (a tracker output other than ``SCENE/tracks.npz``) go to
+    ``python -m core fit --cues --tracks``."""
     from core.scene import load_scene
     from core.state import read_state
 
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "fit.json"
         cmd = [sys.executable, "-m", "core", "fit", str(scene), "-o", str(out),
-               "--observations", observations, "--model", model]
+               "--observations", observations, "--model", model, "--cues", cues]
+        if tracks is not None:
+            cmd += ["--tracks", str(tracks)]
         if frames:
             cmd += ["--frames", str(frames)]
         t0 = time.perf_counter()
@@ -327,6 +333,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--observations", default="truth", choices=("truth", "tracks", "auto"))
     ap.add_argument("--model", default="complete", choices=("simplified", "complete"))
     ap.add_argument("--renders", type=Path, default=RENDERS, help="studio scene cache folder")
+    ap.add_argument("--cues", default="texture", choices=("texture", "contours", "both"),
+                    help="observation types of the fit (python -m core fit --cues)")
+    ap.add_argument("--tracks", type=Path, default=None,
+                    help="tracker output for --observations tracks (default SCENE/tracks.npz; "
+                         "for walk_line3 the bench.looks cache)")
+    ap.add_argument("--real", default="both", choices=("texture", "contours", "both", "none"),
+                    help="with truth-derived observations: also fit walk_line3 through the "
+                         "real pipeline (its tracker's tracks) with these cues, printed under "
+                         "the truth-derived row (default both; none: skip)")
     ap.add_argument("--fit-shape", action="store_true",
                     help="compare the template with the whole-body fitted shape on one scene "
                          "(default walk_line3), truth-derived observations, in-process")
@@ -345,29 +360,56 @@ def main(argv: list[str] | None = None) -> int:
            f"{'seg deg':>9}{'surf mm':>9}{'s/frame':>9}  fit timing / points / source")
     print(hdr, flush=True)
     for scene, render_wall in scenes:
-        r = run_one(scene, args.frames, args.observations, args.model)
-        if "error" in r:
-            print(f"{r['scene']:<14} failed: {r['error']}", flush=True)
-            continue
-        m = r["metrics"]
-        print(f"{r['scene']:<14}{r['rig']:<12}{r['frames']:>4}/{r['n_frames']:<2}"
-              f"{m['mpjpe_mm']:>10.1f}"
-              f"{m['max_joint_error_pct_height']:>8.2f}"
-              f"{100 * m['frames_within_1pct_height']:>8.0f}%"
-              f"{m['segment_orientation_rmse_deg']:>9.1f}{r['surface_mm']:>9.1f}"
-              f"{r['s_per_frame']:>9.2f}  {r['size'][0]}x{r['size'][1]}; {r['fit_line']}; "
-              f"{r['pts']}; {_render_note(scene, render_wall)}")
-        print("    per joint mm: " + ", ".join(
-            f"{j} {v:.1f}" for j, v in m["per_joint_mm"].items()))
-        print("    per segment RMSE deg: " + ", ".join(
-            f"{k} {v:.1f}" for k, v in m["per_segment_rmse_deg"].items()))
-        h = r["hidden"]
-        print(f"    limb joints (elbows, wrists, knees, ankles) where their part was observed: "
-              f"{h['seen_mm']:.1f} mm ({h['n_seen']} joint-frames); hidden (sigma of the "
-              f"placing angle > {HIDDEN_SIGMA} rad): {h['hidden_mm']:.1f} mm "
-              f"({h['n_hidden']}); hidden share: " + ", ".join(
-                  f"{j} {100 * v:.0f}%" for j, v in h["hidden_share"].items() if v > 0),
-              flush=True)
+        tracks = args.tracks
+        if args.observations == "tracks" and tracks is None and _is_default(scene):
+            tracks = default_tracks()
+        r = run_one(scene, args.frames, args.observations, args.model, args.cues, tracks)
+        print_row(r, scene, render_wall)
+        if (args.observations == "truth" and args.real != "none" and _is_default(scene)):
+            print(f"  the same scene through the REAL pipeline (tracks of python -m core "
+                  f"track, {default_tracks().relative_to(ROOT)}; cues {args.real}):",
+                  flush=True)
+            print_row(run_one(scene, args.frames, "tracks", args.model, args.real,
+                              default_tracks()), scene, None, name="  real " + args.real)
+    return 0
+
+
+def _is_default(scene: Path) -> bool:
+    return Path(scene).resolve() == DEFAULT.resolve()
+
+
+def default_tracks() -> Path:
+    """The real tracker's output for the default scene, cached by :mod:`bench.looks`
+    (``python -m core track`` run first when missing, a few minutes)."""
+    from bench.looks import tracks_of
+
+    return tracks_of(DEFAULT, DEFAULT.name)[0]
+
+
+def print_row(r: dict, scene: Path, render_wall: float | None, name: str | None = None) -> None:
+    """One table row of :func:`run_one`'s figures and its per-joint / per-segment lines."""
+    if "error" in r:
+        print(f"{name or r['scene']:<14} failed: {r['error']}", flush=True)
+        return
+    m = r["metrics"]
+    print(f"{name or r['scene']:<14}{r['rig']:<12}{r['frames']:>4}/{r['n_frames']:<2}"
+          f"{m['mpjpe_mm']:>10.1f}"
+          f"{m['max_joint_error_pct_height']:>8.2f}"
+          f"{100 * m['frames_within_1pct_height']:>8.0f}%"
+          f"{m['segment_orientation_rmse_deg']:>9.1f}{r['surface_mm']:>9.1f}"
+          f"{r['s_per_frame']:>9.2f}  {r['size'][0]}x{r['size'][1]}; {r['fit_line']}; "
+          f"{r['pts']}; {_render_note(scene, render_wall)}")
+    print("    per joint mm: " + ", ".join(
+        f"{j} {v:.1f}" for j, v in m["per_joint_mm"].items()))
+    print("    per segment RMSE deg: " + ", ".join(
+        f"{k} {v:.1f}" for k, v in m["per_segment_rmse_deg"].items()))
+    h = r["hidden"]
+    print(f"    limb joints (elbows, wrists, knees, ankles) where their part was observed: "
+          f"{h['seen_mm']:.1f} mm ({h['n_seen']} joint-frames); hidden (sigma of the "
+          f"placing angle > {HIDDEN_SIGMA} rad): {h['hidden_mm']:.1f} mm "
+          f"({h['n_hidden']}); hidden share: " + ", ".join(
+              f"{j} {100 * v:.0f}%" for j, v in h["hidden_share"].items() if v > 0),
+          flush=True)
     return 0
 
 

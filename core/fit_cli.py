@@ -44,6 +44,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "default), contours (silhouette contours from each camera's "
                              "foreground: no tracker, shape fitted to the clicked frame's "
                              "silhouettes) or both")
+    parser.add_argument("--tracks", type=Path, default=None, metavar="NPZ",
+                        help="tracker output to fit (default SCENE/tracks.npz, tracked "
+                             "first when missing)")
     parser.add_argument("--contour-sigma", type=float, default=None, metavar="PX",
                         help="a-priori sigma of one contour observation, pixels "
                              "(default 3)")
@@ -65,6 +68,8 @@ def run(args: argparse.Namespace) -> int:
     if args.contour_sigma is not None and not args.contour_sigma > 0:
         raise InputError("--contour-sigma must be a positive number of pixels")
     scene = load_scene(args.scene, check_images=False)
+    if args.tracks is not None and not args.tracks.is_file():
+        raise InputError(f"{args.tracks}: --tracks file not found")
     csettings = None
     if args.contour_sigma is not None:
         from .fit_contours import ContourSettings
@@ -75,7 +80,8 @@ def run(args: argparse.Namespace) -> int:
                     settings=SequenceSettings(predictor=args.predictor,
                                               shape="fit" if args.fit_shape else "template"),
                     progress=Progress(), n_points=args.points, seed=args.seed,
-                    frames=args.frames, cues=args.cues, contour_settings=csettings)
+                    frames=args.frames, cues=args.cues, contour_settings=csettings,
+                    tracks=args.tracks)
     st = res.state
     if st.n_frames < scene.n_frames:  # pad unfitted frames: hold the last pose, flagged
         st = _pad(st, scene.n_frames)

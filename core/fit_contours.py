@@ -55,6 +55,9 @@ class ContourSettings:
     max_dist_px: float = 12.0      # largest contour ↔ rim pairing distance [px]
     min_visibility: float = 0.2    # a part uses a camera with a visibility index ≥ this
     select: bool = True            # per-part camera selection (False: all cameras fused)
+    #: with selection: also rank a part's visible cameras by its predicted contour motion
+    #: (the paper's observability); False: every camera with visibility >= min_visibility
+    rank_motion: bool = True
     min_matches: int = 40          # a contours-only frame with fewer pairs is diverged
     max_rms_px: float = 6.0        # ... or with a larger RMS of its inlier pairs [px]
     min_part_matches: int = 30     # a part with fewer pairs is hidden to the contours
@@ -135,7 +138,7 @@ def match_frame(skel: Skeleton, balls: Metaballs, theta: np.ndarray, root: np.nd
         rims.append(rim)
     vis = np.stack([r.visibility_index for r in renders], axis=1)  # (P, C)
     observ = None
-    if cfg.select and theta_rate is not None:
+    if cfg.select and cfg.rank_motion and theta_rate is not None:
         observ = np.zeros((n_parts, len(cameras)))
         anc = skel.ancestors()
         for c, (cam, rim) in enumerate(zip(cameras, rims, strict=True)):

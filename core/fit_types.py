@@ -71,6 +71,13 @@ class SequenceSettings:
     min_inliers: float = 0.5
     inlier_m: float = 0.02
     resegment: bool = True
+    #: tracked trajectories as rigid-motion observations (:mod:`core.fit_trajectory`):
+    #: a point tracked since the previous fitted frame stays fixed in its part's frame,
+    #: σ its two positions' and ``traj_slip_m`` (skin and cloth) in quadrature, Cauchy
+    #: knee ``traj_robust`` σ
+    trajectories: bool = True
+    traj_slip_m: float = 0.004
+    traj_robust: float = 3.0
     search: bool = True  # annealed retry with the limb search (core.fit_search)
     search_tau: float = 0.05  # truncation of the search's point distances, metres
     search_min_gain: float = 100.0  # explain-cost decrease that moves a limb

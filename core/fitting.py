@@ -13,6 +13,9 @@ Observation equations by type, each weighted by its a-priori σ (eq. 12,
   the contour normal, of each observed silhouette contour point from the model's paired
   rim point, ``n · (z − proj(x(θ, root, shape)))`` over σ in pixels, Huber-weighted;
   the pairs are made afresh at the start of every re-weighting round;
+* **tracked trajectories** (optional, :mod:`core.fit_trajectory`): a point tracked
+  since the previous frame held in its bone's frame, ``x(θ, root, s) − z`` over σ in
+  metres, Cauchy-weighted (observes a part's twist and slide, which the surface does not);
 * **pose prior** (e.g. the prediction from the previous frames):
   ``(θ − θ_pred) / σ_pred``;
 * **soft joint limits** (:func:`core.skeleton.limit_residuals`);
@@ -61,6 +64,8 @@ class Observations:
     theta_pred, sigma_pred : optional pose prior (n,) radians and its σ (scalar or (n,))
     contours : optional :class:`core.fit_contours.ContourFrame` — the frame's silhouette
       contours as a further observation type (σ in pixels, its own settings)
+    trajectory : optional :class:`core.fit_trajectory.TrajectoryObs` — tracked points
+      held fixed in their bones' frames since the previous frame (rigid motion, metres)
     """
 
     xyz: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
@@ -72,6 +77,7 @@ class Observations:
     theta_pred: np.ndarray | None = None
     sigma_pred: float | np.ndarray = 0.2
     contours: object | None = None
+    trajectory: object | None = None
 
 
 @dataclass
@@ -145,6 +151,8 @@ class _Problem:
                 self.obs[f].contours.freeze(self.skel, Metaballs(b0.bone, centers, b0.group,
                                                                  b0.rot, radii),
                                             theta[f], root[f], s)
+            if self.obs[f].trajectory is not None:  # rigid-motion weights, this state
+                self.obs[f].trajectory.freeze(self.skel, theta[f], root[f], s)
             x, _, _, sig = self.gathers[f]
             if not len(x):
                 out.append(np.zeros(0))
@@ -202,6 +210,9 @@ class _Problem:
                                       theta[f], root[f], s, self.anc, shape=shape)
                 if len(cb[0]):
                     parts.append(("contour", *cb))
+            if o.trajectory is not None and len(o.trajectory):
+                parts.append(("trajectory", *o.trajectory.block(
+                    skel, theta[f], root[f], s, self.anc, M3 if shape else None)))
             if len(o.joint_idx):
                 xj, Jt, Js = joint_jacobians(skel, theta[f][None], root[f][None], s)
                 w = 1.0 / o.sigma_joint

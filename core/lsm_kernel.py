@@ -37,7 +37,7 @@ from .lsm_design import FLAT_SD
 from .lsm_kernel_jit import ENV_OFF as ENV_OFF  # re-exported: the switch
 from .lsm_kernel_jit import env_off, jit, numba
 from .lsm_kernel_linalg import _inv4, _normal_matrices, _solve4, _spd_inverses
-from .lsm_kernel_sample import _bilinear, _sample_inside, _upsampled_windows
+from .lsm_kernel_sample import _bilinear, _sample_grid, _upsampled_windows
 
 _LOCK = threading.Lock()
 _COMPILED: dict = {}                         # argument types -> seconds of the first call
@@ -119,6 +119,11 @@ def _iterate_round(img, rpc, size, bu, bv, w_lo, w_hi, f, todo,
     hx = 0.0                                 # largest |x|, |y| of a template pixel
     for j in range(npx):
         hx = max(hx, abs(np.float64(xs[j])), abs(np.float64(ys[j])))
+    # The square grids of template offsets (full, coarse: every other pixel).
+    gnf = int(np.sqrt(npx) + 0.5)
+    g0f = int(xs[0])
+    gnc = int(np.sqrt(xs_c.size) + 0.5)
+    g0c = int(xs_c[0])
     n_act = n_t
     while n_act > 0:
         coarse = True
@@ -161,7 +166,10 @@ def _iterate_round(img, rpc, size, bu, bv, w_lo, w_hi, f, todo,
             rv = hx * (abs(mv1) + abs(mv2))
             if (mu0 - ru >= 0.0 and mu0 + ru < img.shape[1] - 1.0 and mv0 - rv >= 0.0
                     and mv0 + rv < rows - 1.0):
-                _sample_inside(img, r0, m_u0, m_u1, m_u2, m_v0, m_v1, m_v2, xs_s, ys_s, S)
+                _sample_grid(img, r0, int(mu0 * 32.0), int(mv0 * 32.0), int(mu1 * 32.0),
+                             int(mu2 * 32.0), int(mv1 * 32.0), int(mv2 * 32.0),
+                             g0c if coarse else g0f, 2 if coarse else 1,
+                             gnc if coarse else gnf, S)
             else:
                 for j in range(npt):
                     pu = m_u0 + m_u1 * xs_s[j] + m_u2 * ys_s[j]

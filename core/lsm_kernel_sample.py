@@ -34,20 +34,37 @@ def _bilinear(img, r0, rows, pu, pv):
 
 
 @jit()
-def _sample_inside(img, r0, m_u0, m_u1, m_u2, m_v0, m_v1, m_v2, xs, ys, S):
-    """:func:`_bilinear` at the warped pixels ``(xs, ys)`` (P,) of one patch, all of
-    whose neighbours lie inside the source (no clamping): S (P,) float32."""
+def _sample_grid(img, r0, iu0, iv0, du_x, du_y, dv_x, dv_y, g0, gs, gn, S):
+    """:func:`_bilinear` at the warped square grid of one patch, all of whose
+    neighbours lie inside the source (no clamping): S (gn², ) float32, row-major.
+
+    The grid offsets are ``g0 + gs k`` (k < gn) in x and y; the warp in units of
+    1/32 px of the source: ``32 (u, v) = (iu0, iv0) + (du_x, dv_x) x + (du_y, dv_y) y``
+    (integers: the warp is snapped to 1/32 px), stepped incrementally per pixel.
+    """
     one = np.float32(1.0)
-    c32 = np.float32(32.0)
-    for j in range(xs.size):
-        iu = int((m_u0 + m_u1 * xs[j] + m_u2 * ys[j]) * c32)
-        iv = int((m_v0 + m_v1 * xs[j] + m_v2 * ys[j]) * c32)
-        x0 = iu >> 5
-        y0 = r0 + (iv >> 5)
-        fx = np.float32((iu & 31) * (1.0 / 32.0))
-        fy = np.float32((iv & 31) * (1.0 / 32.0))
-        S[j] = (img[y0, x0] * ((one - fy) * (one - fx)) + img[y0, x0 + 1] * ((one - fy) * fx)
-                + img[y0 + 1, x0] * (fy * (one - fx)) + img[y0 + 1, x0 + 1] * (fy * fx))
+    wt = np.empty(32, np.float32)
+    for q in range(32):
+        wt[q] = np.float32(q / 32.0)
+    ncol = img.shape[1]
+    flat = img.ravel()
+    sx_u = du_x * gs
+    sx_v = dv_x * gs
+    j = 0
+    for ky in range(gn):
+        y = g0 + gs * ky
+        iu = iu0 + du_x * g0 + du_y * y
+        iv = iv0 + dv_x * g0 + dv_y * y
+        for _ in range(gn):
+            base = (r0 + (iv >> 5)) * ncol + (iu >> 5)
+            fx = wt[iu & 31]
+            fy = wt[iv & 31]
+            S[j] = (flat[base] * ((one - fy) * (one - fx)) + flat[base + 1] * ((one - fy) * fx)
+                    + flat[base + ncol] * (fy * (one - fx))
+                    + flat[base + ncol + 1] * (fy * fx))
+            iu += sx_u
+            iv += sx_v
+            j += 1
 
 
 @jit()

@@ -49,6 +49,11 @@ in parallel threads (numpy, OpenBLAS and OpenCV release the GIL in the heavy ste
 meant for idle cores; each part repeats the per-iteration bookkeeping (~10 % more CPU
 time), and on a busy machine (2 cores, load ~10) it gained no wall-clock time.
 
+Where numba is installed, the normal matrices, their inverses, the upsampled windows
+and the iterations run compiled (:mod:`core.lsm_kernel`, same rules; ~1.6× the matches
+per CPU second).  Without numba (Blender) or with ``SOMACAP_NO_NUMBA=1``, and with a
+line constraint, this numpy path runs: same statuses and iterations, positions to ~1e-6 px.
+
 Optional geometric constraint (multi-photo geometrically constrained matching):
 the matched point must lie on a given line ``n · uv = d`` in the search image (the
 local epipolar line from the calibration, see :func:`epipolar_lines`), added as a

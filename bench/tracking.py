@@ -1,29 +1,35 @@
 """Surface and tracking on the default sample scene, against the true mesh.
 
-``python -m bench.tracking [--scene sample_scenes/walk_line3] [--frames N]``
+``python -m bench.tracking [--scene sample_scenes/walk_line3] [--frames N] [--gap N]``
 
 Prints: surface points at frame 0 from 5 clicked seeds and their distance to the true
 mesh, then without depth outliers (``--surface-depth-dev``, the points that are
-tracked); the ceiling of the survival set by visibility (frame-0 points that the true
-mesh shows to two or more cameras in every frame, :func:`truth_views`) and how many
-of the lost points were still visible; tracking survival of the frame-0 points
-(strictly: measured in every frame; and, labelled separately, through every frame
-counting the gaps bridged where a coasting or dormant point was measured again —
-those frames are flagged as not measured) and the live count; how many points were
-re-acquired and re-anchored; tracked positions against the same material point
-carried by the true mesh (barycentric coordinates on the nearest triangle of the mesh
-at the trajectory's first frame), over all, measured and bridged point-frames
-separately; the filters on 5 % injected false trajectories; speed in frames/s with
-the point count; the temporal success rate with the 3-D Kalman (EKF) prediction
-against the 2-D linear prediction at the same small search box (``--compare-frames``
-frames, no regeneration; the first step, where neither predictor has a velocity yet,
-uses the wide 29 px box for both).
+tracked); the survival of the frame-0 points: strictly (measured in every frame) and
+bridged (the same trajectory measured at the first and the last frame, with every
+run of unmeasured frames at most ``--gap`` frames long and bridged by a flagged
+position, :func:`through_with_gaps`); the ceilings set by visibility (frame-0 points
+that the true mesh shows to two or more cameras in every frame, :func:`truth_views`;
+and with runs of fewer than two views of at most ``--gap`` frames) with the survival
+among those points; the live count; which step of the tracker first lost each lost
+frame-0 point, for all of them and for those visible in every frame
+(:func:`loss_breakdown`, :mod:`core.track_diagnose`), with the cameras the occlusion
+test skipped although the truth sees them, the true error of the points the depth
+test dropped, and how many survivors the trajectory filters would hit; tracked
+positions against the same material point carried by the true mesh (barycentric
+coordinates on the nearest triangle of the mesh at the trajectory's first frame),
+over all, measured and bridged point-frames separately; the filters on 5 % injected
+false trajectories; speed in frames/s (wall and CPU, with the load average) with the
+point count; the temporal success rate with the 3-D Kalman (EKF) prediction against
+the 2-D linear prediction at the same small search box (``--compare-frames`` frames,
+no regeneration; the first step, where neither predictor has a velocity yet, uses the
+wide 29 px box for both).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 
 import numpy as np
@@ -184,6 +190,8 @@ def main(argv=None) -> int:
                          "neighbours' median before tracking, metres (0: keep all)")
     ap.add_argument("--gap", type=int, default=5,
                     help="longest flagged gap of the bridged survival figure, frames")
+    ap.add_argument("--steps", action="store_true",
+                    help="print the tracker's counts of every frame step")
     ap.add_argument("--no-compare", action="store_true",
                     help="skip the EKF-vs-linear prediction comparison")
     args = ap.parse_args(argv)
@@ -210,13 +218,13 @@ def main(argv=None) -> int:
     def frames(i):
         return [sc.image(c, i) for c in sc.cameras]
 
-    t1 = time.perf_counter()
+    t1, c1 = time.perf_counter(), time.process_time()
     kw = {"anchor": not args.no_anchor, **json.loads(args.track_kw)}
     if args.max_dormant is not None:
         kw["max_dormant"] = args.max_dormant
     log: list = []
     tr = track(frames, cams, surf, nf, sc.fps, predict=args.predict, log=log, **kw)
-    dt = time.perf_counter() - t1
+    dt, dc = time.perf_counter() - t1, time.process_time() - c1
     alive = tr.alive
     p0 = len(surf)
     m0 = tr.measured[:, :p0]
@@ -237,6 +245,13 @@ def main(argv=None) -> int:
     print(f"  truth: seen by >= 2 cameras in the first and last frame with runs of fewer "
           f"than 2 views of <= {args.gap} frames {100 * ceil_b.mean():.1f} % (the ceiling of "
           f"the bridged figure); among these, bridged {100 * bridged[ceil_b].mean():.1f} %")
+    miss = ceil_b & ~bridged
+    first = np.argmax(~m0, axis=0)
+    again = (m0 & (np.arange(nf)[:, None] >= first[None])).any(axis=0) & miss
+    print(f"  of the {int(miss.sum())} points under the bridged ceiling not bridged: "
+          f"{int((miss & ~again).sum())} never measured again after their first loss, "
+          f"{int((again & ~m0[-1]).sum())} measured again but not at the last frame, "
+          f"{int((again & m0[-1]).sum())} measured again with a longer gap")
     print(f"  live at last frame {int(alive[-1].sum())} = "
           f"{100 * alive[-1].sum() / alive[0].sum():.1f} % of the first ({int(alive[0].sum())})")
     back = alive[:, :p0].all(axis=0) & ~strict
@@ -245,9 +260,17 @@ def main(argv=None) -> int:
           f"every frame only with bridged frames ({int((alive[:, :p0] & ~m0).sum())} bridged "
           f"point-frames); re-anchored temporal matches {sum(s.get('anchored', 0) for s in log)} "
           f"of {sum(s.get('temporal_ok', 0) for s in log)}")
-    print(f"speed: {(nf - 1) / dt:.3f} frames/s with {int(alive.sum(axis=1).mean())} points "
-          f"per frame on average")
+    print(f"speed: {(nf - 1) / dt:.3f} frames/s wall, {(nf - 1) / dc:.3f} frames per CPU "
+          f"second, with {int(alive.sum(axis=1).mean())} points per frame on average (load "
+          f"average {os.getloadavg()[0]:.1f})")
     loss_breakdown(log, m0, stay_vis, views)
+    if args.steps:
+        keys = ("live_before", "measured", "coasting", "coast_predicted", "dormant",
+                "reacquired_dormant", "regenerated", "depth_outliers", "depth_retried")
+        for i, st in enumerate(log):
+            print(f"  step {i}->{i + 1}: " + ", ".join(f"{k} {st[k]}" for k in keys if k in st)
+                  + (f"; re-acquisition {st['reacquire_stats']}" if st.get("reacquire_stats")
+                     else ""))
     P = tr.xyz.shape[1]
     rej = [np.pad(s_["depth_rejected"], ((0, P - len(s_["depth_rejected"])), (0, 0)),
                   constant_values=np.nan) for s_ in log if "depth_rejected" in s_]

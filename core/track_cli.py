@@ -39,8 +39,9 @@ def add_arguments(parser) -> None:
                         help="regenerate points every N frames (0: never)")
     parser.add_argument("--predict", choices=("ekf", "linear"), default="ekf",
                         help="search prediction: 3-D Kalman filter or 2-D linear")
-    parser.add_argument("--max-coast", type=int, default=0,
-                        help="frames a point may coast on its Kalman prediction")
+    parser.add_argument("--max-coast", type=int, default=None,
+                        help="frames a point may coast on its neighbours' motion and be "
+                             "measured again (default: core.tracking.track's)")
     parser.add_argument("--max-dormant", type=int, default=None,
                         help="frames a lost point stays dormant and may be re-acquired "
                              "from its key templates (0: never)")
@@ -67,8 +68,9 @@ def run(args) -> int:
     t1 = time.perf_counter()
     tr = track(lambda i: [scene.image(c, i) for c in scene.cameras], cams, surf, n, scene.fps,
                step=args.step, regen_every=args.regen_every, predict=args.predict,
-               max_coast=args.max_coast, anchor=not args.no_anchor, progress=progress,
-               **({} if args.max_dormant is None else {"max_dormant": args.max_dormant}))
+               anchor=not args.no_anchor, progress=progress,
+               **({} if args.max_dormant is None else {"max_dormant": args.max_dormant}),
+               **({} if args.max_coast is None else {"max_coast": args.max_coast}))
     dt = time.perf_counter() - t1
     flt = filter_trajectories(tr.xyz, scene.fps)
     out = Path(args.output)

@@ -198,7 +198,8 @@ def reacquire(keys: KeyTemplates, stacks: dict, search_stack: ImageStack, valid:
               half: int = 6, radius: int = 4, min_score: float = 0.7,
               weight_sigma: float | None = 4.0, max_sigma_px: float = 0.2,
               max_rms_px: float = 1.0, max_dist_m: float = 0.01,
-              min_views: int = 2, skip: np.ndarray | None = None) -> Reacquired:
+              min_views: int = 2, skip: np.ndarray | None = None,
+              stats: dict | None = None) -> Reacquired:
     """Search dormant points at their predicted positions with their key templates.
 
     Parameters
@@ -222,6 +223,10 @@ def reacquire(keys: KeyTemplates, stacks: dict, search_stack: ImageStack, valid:
         Cameras in which the point must be matched (two or more).
     skip : ndarray, shape (Q, C), bool, optional
         Cameras not searched for a point (e.g. where it is predicted occluded).
+    stats : dict, optional
+        Receives counts: (point, camera) pairs ``searched``, ``ncc_ok``, ``lsm_ok``,
+        ``skipped`` (by ``skip``); points with two or more views ``two_views``, within
+        the reprojection limit ``rms_ok``, near the prediction ``near``.
     """
     q, c = len(points), len(cameras)
     uv = np.full((q, c, 2), np.nan)
@@ -234,6 +239,8 @@ def reacquire(keys: KeyTemplates, stacks: dict, search_stack: ImageStack, valid:
               & (proj[..., 1] <= h - 1 - m))
     search_pc = (kf >= 0) & inside & valid[None] & np.all(np.isfinite(proj), axis=2)
     if skip is not None:
+        if stats is not None:
+            stats["skipped"] = stats.get("skipped", 0) + int((search_pc & skip).sum())
         search_pc &= ~skip
     qi, ci = np.nonzero(search_pc)
     if len(qi):
@@ -248,6 +255,10 @@ def reacquire(keys: KeyTemplates, stacks: dict, search_stack: ImageStack, valid:
                   affine=keys.affine[points[qi], ci], template_index=tidx, search_index=ci,
                   max_shift_px=2.0, weight_sigma=weight_sigma, max_sigma_px=max_sigma_px)
         good = nc.ok & r.ok
+        if stats is not None:
+            for k_, v_ in (("searched", len(qi)), ("ncc_ok", int(nc.ok.sum())),
+                           ("lsm_ok", int(good.sum()))):
+                stats[k_] = stats.get(k_, 0) + v_
         uv[qi[good], ci[good]] = r.uv[good]
         aff[qi[good], ci[good]] = r.affine[good]
     inter = triangulate(cameras, uv, sigma_px=0.3)
@@ -255,12 +266,17 @@ def reacquire(keys: KeyTemplates, stacks: dict, search_stack: ImageStack, valid:
     dist = np.linalg.norm(inter.xyz - xyz_pred, axis=1)
     ok = (inter.ok & (n_views >= max(min_views, 2)) & (inter.rms < max_rms_px)
           & (np.nan_to_num(dist, nan=np.inf) < max_dist_m))
+    if stats is not None:
+        two = inter.ok & (n_views >= max(min_views, 2))
+        for k_, v_ in (("two_views", two), ("rms_ok", two & (inter.rms < max_rms_px)),
+                       ("near", ok)):
+            stats[k_] = stats.get(k_, 0) + int(v_.sum())
     return Reacquired(ok=ok, uv=uv, affine=aff, xyz=inter.xyz, cov=inter.cov)
 
 
 def predict_unmeasured(query: np.ndarray, xyz_hist: list, pred_hist: list,
                        rate_last: np.ndarray, xyz_new: np.ndarray, chosen: np.ndarray, *,
-                       max_rigid_rms: float = 0.005) -> np.ndarray:
+                       max_rigid_rms: float = 0.005, radius_m: float = 0.06) -> np.ndarray:
     """Carry unmeasured points one frame on by the rigid motion of their neighbours.
 
     Each queried point's position in the last frame (measured, else predicted:
@@ -281,6 +297,8 @@ def predict_unmeasured(query: np.ndarray, xyz_hist: list, pred_hist: list,
     max_rigid_rms : float
         Predictions whose neighbours moved less rigidly than this (RMS, metres) are
         not trusted.
+    radius_m : float
+        Neighbours are searched within this distance, metres.
 
     Returns
     -------
@@ -299,7 +317,8 @@ def predict_unmeasured(query: np.ndarray, xyz_hist: list, pred_hist: list,
         before = np.where(np.isfinite(xyz_hist[-2]), xyz_hist[-2], pred_hist[-2])
         rate = np.where(np.isfinite(rate), rate, pred_hist[-1] - before)
     xyz_p, rms, ok = neighbour_motion(last[chosen], xyz_new[chosen], last[d],
-                                      rate_then=rate_last[chosen], query_rate=rate[d])
+                                      rate_then=rate_last[chosen], query_rate=rate[d],
+                                      radius_m=radius_m)
     ok &= rms < max_rigid_rms
     pred[d[ok]] = xyz_p[ok]
     return pred
@@ -337,7 +356,9 @@ def dormant_step(dormant: np.ndarray, xyz_hist: list, pred_hist: list, rate_last
                  max_sigma_px: float = 0.2, max_rms_px: float = 1.0,
                  max_dist_m: float = 0.01, min_views: int = 2,
                  max_rigid_rms: float = 0.005, occlusion_m: float | None = None,
-                 depth_dev_m: float | None = None) -> tuple[np.ndarray, DormantStep]:
+                 depth_dev_m: float | None = None, radius_m: float = 0.06,
+                 fallback: np.ndarray | None = None,
+                 stats: dict | None = None) -> tuple[np.ndarray, DormantStep]:
     """Predict the dormant points one frame on and try to re-acquire them.
 
     The prediction carries each point's position in the last frame (measured, or
@@ -372,6 +393,13 @@ def dormant_step(dormant: np.ndarray, xyz_hist: list, pred_hist: list, rate_last
         A re-acquired point farther than this in depth from the median of its 8
         nearest points measured in the new frame
         (:func:`core.track_smooth.depth_deviation`) is not taken.
+    radius_m : float
+        Neighbour radius of the prediction (:func:`predict_unmeasured`), metres.
+    fallback : ndarray, shape (P, 3), optional
+        Predictions used where the neighbours give none (e.g. the points' own
+        constant-velocity filters), metres.
+    stats : dict, optional
+        Receives the counts of :func:`reacquire` and ``depth_rejected``.
 
     Returns
     -------
@@ -381,7 +409,9 @@ def dormant_step(dormant: np.ndarray, xyz_hist: list, pred_hist: list, rate_last
     DormantStep
     """
     pred = predict_unmeasured(dormant, xyz_hist, pred_hist, rate_last, xyz_new, chosen,
-                              max_rigid_rms=max_rigid_rms)
+                              max_rigid_rms=max_rigid_rms, radius_m=radius_m)
+    if fallback is not None:
+        pred = np.where(dormant[:, None] & ~np.isfinite(pred), fallback, pred)
     rows = np.flatnonzero(dormant & np.all(np.isfinite(pred), axis=1))
     c = len(cameras)
     empty = DormantStep(np.zeros(0, int), np.zeros((0, c, 2)), np.zeros((0, c, 2, 2)),
@@ -395,11 +425,14 @@ def dormant_step(dormant: np.ndarray, xyz_hist: list, pred_hist: list, rate_last
     ra = reacquire(keys, stacks, search_stack, valid, cameras, rows, pred[rows], half=half,
                    weight_sigma=weight_sigma, max_sigma_px=max_sigma_px,
                    max_rms_px=max_rms_px, max_dist_m=max_dist_m, min_views=min_views,
-                   skip=skip)
+                   skip=skip, stats=stats)
     if depth_dev_m is not None and chosen.sum() > 8:
         dev = depth_deviation(ra.xyz, np.mean([cam.center for cam in cameras], axis=0),
                               xyz_new[chosen])
-        ra.ok &= np.abs(np.nan_to_num(dev, nan=np.inf)) <= depth_dev_m
+        deep = ra.ok & ~(np.abs(np.nan_to_num(dev, nan=np.inf)) <= depth_dev_m)
+        if stats is not None:
+            stats["depth_rejected"] = stats.get("depth_rejected", 0) + int(deep.sum())
+        ra.ok &= ~deep
     r = rows[ra.ok]
     if len(r) == 0:
         return pred, empty

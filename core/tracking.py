@@ -29,11 +29,15 @@ cameras at once:
    ``max_rms_px`` and lies within ``gate`` (Mahalanobis) of the prediction; failing
    that, the temporal matches alone are tried (``fallback``, which also overrides a
    spatial veto).  A point whose depth departs from its measured neighbours'
-   median (``depth_dev_m``, :mod:`core.track_smooth`) is not measured.  An
-   unmeasured point coasts on its prediction for up to
-   ``max_coast`` frames and is re-acquired from its last templates; the gaps so
-   bridged are filled by cubic Hermite interpolation (:func:`fill_gaps`,
-   ``Tracks.measured`` tells them apart).
+   median (``depth_dev_m``, :mod:`core.track_smooth`) is not measured, unless
+   leaving out one of three or more cameras makes it pass (``depth_retry``).  An
+   unmeasured point coasts for up to ``max_coast`` frames, carried by the rigid
+   motion of its measured neighbours (``coast_neighbours``,
+   :func:`core.track_reacquire.predict_unmeasured`), and is searched from its last
+   templates; measured again (within ``coast_m`` of the prediction), it continues
+   its trajectory and the gap is bridged from the predictions (:func:`bridge_gaps`,
+   else :func:`fill_gaps`; ``Tracks.measured`` is False there).  ``log`` says which
+   step lost each point (:mod:`core.track_diagnose`).
 6. a lost point stays dormant for up to ``max_dormant`` frames
    (:mod:`core.track_reacquire`): predicted from the rigid motion of its measured
    neighbours and searched with its key templates; when found in two or more cameras
@@ -134,7 +138,8 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
           depth_dev_m: float | None = 0.01, depth_retry: bool = False,
           occlusion_confirm: bool = False, reacquire_checks: bool = True,
           occlusion_dilate: bool = True, coast_neighbours: bool = True,
-          coast_m: float | None = 0.01,
+          coast_m: float | None = 0.01, neighbour_radius_m: float = 0.06,
+          coast_fallback: bool = False,
           max_dormant: int = 0,
           reacquire_m: float = 0.01, reacquire_views: int = 2,
           step: int = 2, progress=None,
@@ -164,12 +169,14 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
     gate : float
         Largest Mahalanobis distance between a measured point and its prediction.
     max_coast : int
-        Frames a point may go unmeasured (occluded, no match) before it is dropped;
-        meanwhile it is re-acquired from its last templates at its predicted position,
-        and the gaps so bridged are filled afterwards (:attr:`Tracks.measured` is
-        False there).  Default 0: on the sample scene 3 frames raised the frame-0
-        points kept through 15 frames from 42 % to 57 %, but wrong re-acquisitions
-        raised the 95th percentile of the 3-D error over 50 frames to ~90 mm.
+        Frames a point may go unmeasured (occluded, no match, a failed check) before
+        it is dropped (or goes dormant); meanwhile it is carried by its neighbours'
+        motion (``coast_neighbours``) and searched from its last templates at that
+        prediction, and the gaps so bridged are filled afterwards
+        (:attr:`Tracks.measured` is False there).  Before the neighbour prediction
+        and the ``coast_m`` gate (and the key templates, ``confirm_rekey``, the
+        occlusion and depth tests), 3 frames raised the 95th percentile of the 3-D
+        error over 50 frames to ~90 mm; with them, see ``bench.tracking``: MAX_COAST.
     temporal_sigma : float or None
         Gaussian weighting σ of the temporal LSM patches, pixels (None: uniform).
     max_sigma_px : float
@@ -267,6 +274,13 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
         neighbours (:func:`core.track_reacquire.predict_unmeasured`) instead of its own
         constant-velocity prediction: that starts the next frame's search, and bridges
         the gap when it is measured again (:func:`bridge_gaps`; else :func:`fill_gaps`).
+    neighbour_radius_m : float
+        Radius of the neighbours whose rigid motion carries coasting and dormant
+        points, metres.
+    coast_fallback : bool
+        Where the neighbours give a coasting or dormant point no prediction, its own
+        constant-velocity prediction stands in (it keeps a position to be predicted
+        and searched from in the next frames) instead of the point being dropped.
     coast_m : float, optional
         A coasting point is measured again only within this distance of its
         prediction, metres (None: the Mahalanobis ``gate`` alone).
@@ -515,30 +529,43 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
         dead |= coast > max_coast
         gone |= dead & (coast > max_coast + max_dormant)
         pred_d = np.full((n, 3), np.nan)
+        back = was_coasting & chosen                 # the prediction it was measured at
+        pred_d[back] = xyz_p[back]                   # (closes the bridge of its gap)
+        rstats: dict = {}
+        stage["reacquire_stats"] = rstats
         coasting = ~dead & ~chosen
         if coast_neighbours and coasting.any() and chosen.any():
             # coasting points: carried by their neighbours' rigid motion (also the
             # start of next frame's search, and the bridge of the gap afterwards)
             pc = predict_unmeasured(coasting, xyz_hist, pred_hist, rate_hist[-1], xyz_new,
-                                    chosen)
+                                    chosen, radius_m=neighbour_radius_m)
             r = np.flatnonzero(np.all(np.isfinite(pc), axis=1))
+            before = np.where(np.isfinite(xyz_hist[-1][r]), xyz_hist[-1][r], pred_hist[-1][r])
+            kf.x[r, 3:] = np.where(np.isfinite(before), pc[r] - before, kf.x[r, 3:])
             kf.x[r, :3] = pc[r]
             pred_d[r] = pc[r]
             stage["coast_predicted"] = len(r)
+            if coast_fallback:                       # else the filter's own prediction
+                pred_d[coasting & ~np.all(np.isfinite(pc), axis=1)] = kf.x[
+                    coasting & ~np.all(np.isfinite(pc), axis=1), :3]
         if max_dormant and chosen.any() and (dead & ~gone).any():
-            pred_d, rd = dormant_step(
-                dead & ~gone, xyz_hist, pred_hist, rate_hist[-1], xyz_new, chosen, kf, keys,
+            dorm = dead & ~gone
+            pred_dm, rd = dormant_step(
+                dorm, xyz_hist, pred_hist, rate_hist[-1], xyz_new, chosen, kf, keys,
                 {f: ring[f].stack for f in keys.frames()}, nxt.stack, nxt.valid, cameras,
                 half=half, weight_sigma=temporal_sigma, max_sigma_px=max_sigma_px,
                 max_rms_px=max_rms_px, max_dist_m=reacquire_m, min_views=reacquire_views,
                 occlusion_m=occlusion_m if reacquire_checks else None,
-                depth_dev_m=depth_dev_m if reacquire_checks else None)
+                depth_dev_m=depth_dev_m if reacquire_checks else None,
+                radius_m=neighbour_radius_m,
+                fallback=kf.x[:, :3] if coast_fallback else None, stats=rstats)
             if len(rd.rows):
                 r = rd.rows
                 uv_new[r], xyz_new[r], cov_new[r] = rd.uv, rd.xyz, rd.cov
                 key_ok[r] = np.all(np.isfinite(rd.uv), axis=2)
                 key_aff[r] = rd.affine
                 chosen[r], dead[r], coast[r] = True, False, 0
+            pred_d = np.where(dorm[:, None], pred_dm, pred_d)
             gone |= dead & ~np.all(np.isfinite(pred_d), axis=1)     # no prediction
             stage.update(dormant=int((dead & ~gone).sum()) + len(rd.rows),
                          reacquired_dormant=len(rd.rows))

@@ -78,8 +78,10 @@ def test_occluded_points_are_reacquired_with_the_same_index():
     p0 = len(surf)
     truth = surf.xyz[None] + np.arange(F)[:, None, None] * motion
     band = (surf.xyz[:, 0] > 0.005) & (surf.xyz[:, 0] < 0.075)
-    lost = track(lambda i: frames[i], cams, surf, F, 25.0, regen_every=0, max_dormant=0)
-    tr = track(lambda i: frames[i], cams, surf, F, 25.0, regen_every=0, max_dormant=3)
+    lost = track(lambda i: frames[i], cams, surf, F, 25.0, regen_every=0, max_dormant=0,
+                 max_coast=0)
+    tr = track(lambda i: frames[i], cams, surf, F, 25.0, regen_every=0, max_dormant=3,
+               max_coast=0)
     assert not lost.alive[4, :p0][band].any()          # without: lost for good
     # hidden in both occluded frames, measured again after them (a point that only the
     # depth test dropped in frame 2 may be re-acquired in frame 3 already)
@@ -128,3 +130,29 @@ def test_unmeasured_points_are_carried_by_their_neighbours_over_two_frames(rng):
         assert np.max(np.linalg.norm(pred[hide] - truth[f][hide], axis=1)) < 0.002
         xyz_hist.append(meas)
         pred_hist.append(pred)
+
+
+def test_a_point_hidden_for_a_frame_coasts_on_its_neighbours_and_continues():
+    # the plane changes velocity at frame 2, where a band of it is hidden: the hidden
+    # points coast on their neighbours' motion (not on their own old velocity), are
+    # measured again at frame 3 and their frame 2 is bridged from that prediction
+    cams = cameras()
+    m1, m2 = np.array([0.004, 0.0, -0.003]), np.array([-0.002, 0.0, 0.004])
+    offs = [np.zeros(3), m1, m1 + m2, m1 + 2 * m2]
+    frames = [[(_band_occluded(c, o, (0.0, 0.05)) if k == 2 else render(c, o)) for c in cams]
+              for k, o in enumerate(offs)]
+    seeds = np.stack([c.project(np.array([[0.0, 0.0, 0.0]])) for c in cams], 1)
+    surf = measure_surface(frames[0], cams, seeds, step=6)
+    p0 = len(surf)
+    truth = surf.xyz[None] + np.array(offs)[:, None]
+    log: list = []
+    tr = track(lambda i: frames[i], cams, surf, 4, 25.0, regen_every=0, max_coast=2,
+               log=log)
+    hidden = tr.measured[[0, 1, 3], :p0].all(axis=0) & ~tr.measured[2, :p0]
+    band = (surf.xyz[:, 0] > 0.005) & (surf.xyz[:, 0] < 0.045)
+    assert hidden[band].mean() > 0.8                   # the same trajectories go on
+    assert log[1]["coast_predicted"] >= 0.8 * hidden.sum()
+    err = np.linalg.norm(tr.xyz[2, :p0][hidden] - truth[2, hidden], axis=1)
+    assert np.median(err) < 0.001                      # their own velocity: 6 mm off
+    err3 = np.linalg.norm(tr.xyz[3, :p0][hidden] - truth[3, hidden], axis=1)
+    assert np.median(err3) < 0.001

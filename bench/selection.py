@@ -1,7 +1,7 @@
 """Per-part camera selection against all cameras fused, on self-occluding studio scenes.
 
 ``python -m bench.selection [--scenes dance_line3,dance_ortho3,pirouette_line3,pirouette_ortho3]
-[--frames N]``
+[--frames N] [--fps F]``
 
 The second paper's claim (issue 7): tracking each body part only from the cameras that see
 it (visibility index ≥ 0.2) and observe its motion survives self-occlusion better than
@@ -67,20 +67,42 @@ def renamed_bvh(src: Path, dst: Path) -> Path:
     return dst
 
 
-def scene_dir(name: str) -> Path:
-    """The cached scene folder of ``name``, rendered first when missing."""
-    from bench.fit import FPS, FRAMES, MOCAP, RENDERS, SIZE, render_cached, render_studio_scene
+def scene_dir(name: str, fps: float | None = None) -> Path:
+    """The cached scene folder of ``name``, rendered first when missing.
 
-    if name not in PIROUETTE_SCENES:
+    ``fps`` other than the studio's 25 renders the same clip, BVH start and stretch of
+    motion (2 s) at that frame rate — more frames, less motion between them — cached
+    as ``<name>_<fps>fps``.  (The same stretch matters: the background is the robust
+    temporal median of the take, and over a shorter one a dancer turning in place
+    stays in it.)
+    """
+    from bench.fit import (
+        FPS,
+        FRAMES,
+        MOCAP,
+        RENDERS,
+        SIZE,
+        STUDIO_SCENES,
+        render_cached,
+        render_studio_scene,
+    )
+
+    fps = FPS if fps is None else float(fps)
+    if name not in PIROUETTE_SCENES and fps == FPS:
         return render_studio_scene(name)[0]
-    out = RENDERS / name
+    out = RENDERS / (name if fps == FPS else f"{name}_{fps:g}fps")
     if (out / "scene.toml").is_file() and (out / "truth.npz").is_file():
         return out
-    rig, start = PIROUETTE_SCENES[name]
-    bvh = renamed_bvh(MOCAP / "pirouette.bvh", RENDERS / "pirouette_cmu.bvh")
-    return render_cached(name, out,
+    if name in PIROUETTE_SCENES:
+        rig, start = PIROUETTE_SCENES[name]
+        bvh = renamed_bvh(MOCAP / "pirouette.bvh", RENDERS / "pirouette_cmu.bvh")
+    else:
+        clip, rig, start = STUDIO_SCENES[name]
+        bvh = MOCAP / clip
+    return render_cached(out.name, out,
                          ["--bvh", str(bvh), "--rig", rig, "--start", str(start),
-                          "--frames", str(FRAMES), "--fps", str(FPS), "--size", SIZE,
+                          "--frames", str(round(FRAMES * fps / FPS)), "--fps", f"{fps:g}",
+                          "--size", SIZE,
                           "--wand-positions", "0"])[0]
 
 
@@ -153,15 +175,19 @@ def _joints_like_truth(skel, theta, root, s, names):
     return xyz[:, order]
 
 
-def run_scene(name: str, n_frames: int, lost_mm: float = 100.0, settings: dict | None = None):
-    """Track one scene with selection and fused; returns a list of result dicts."""
+def run_scene(name: str, n_frames: int, lost_mm: float = 100.0, settings: dict | None = None,
+              fps: float | None = None):
+    """Track one scene with selection and fused; returns a list of result dicts.
+
+    ``fps``: the scene's frame rate (see :func:`scene_dir`); None for the studio's 25.
+    """
     from core.contour_track import ContourTrackSettings, fit_shape_to_contours, track_contours
     from core.evaluate import evaluate, truth_joints
     from core.fit_init import initialise
     from core.model_render import camera_rays
     from core.scene import load_scene
 
-    scene = load_scene(scene_dir(name))
+    scene = load_scene(scene_dir(name, fps))
     cams = scene.calibration()
     nf = min(n_frames, scene.n_frames)
     t0 = time.process_time()
@@ -199,7 +225,7 @@ def run_scene(name: str, n_frames: int, lost_mm: float = 100.0, settings: dict |
         lost = ev.curves["mpjpe_mm"] > lost_mm
         use = np.array([out[f].use for f in vis_frames])
         hidden_used, seen_unused = camera_agreement(use, ref_vi)
-        rows.append({"scene": name, "method": label, "mpjpe_mm": ev.mpjpe_mm,
+        rows.append({"scene": scene.root.name, "method": label, "mpjpe_mm": ev.mpjpe_mm,
                      "seg_rmse_deg": ev.segment_orientation_rmse_deg,
                      "diverged": int(diverged.sum()), "lost": int(lost.sum()),
                      "s_per_frame": dt, "curve": ev.curves["mpjpe_mm"], "track": out,
@@ -217,12 +243,12 @@ METHODS = ((True, True, "per-part selection"), (True, False, "selection, VI only
 
 
 def print_rows(rows, lost_mm: float) -> None:
-    print(f"{'scene':18s} {'cameras':20s} {'MPJPE mm':>9s} {'seg RMSE deg':>12s} "
+    print(f"{'scene':24s} {'cameras':20s} {'MPJPE mm':>9s} {'seg RMSE deg':>12s} "
           f"{'diverged':>8s} {f'>{lost_mm:g} mm':>8s} {'s/frame':>7s} {'hid.used':>8s} "
           f"{'seen.unused':>11s}   MPJPE per 5 frames")
     for r in rows:
         curve = " ".join(f"{e:4.0f}" for e in r["curve"][::5])
-        print(f"{r['scene']:18s} {r['method']:20s} {r['mpjpe_mm']:9.1f} {r['seg_rmse_deg']:12.1f} "
+        print(f"{r['scene']:24s} {r['method']:20s} {r['mpjpe_mm']:9.1f} {r['seg_rmse_deg']:12.1f} "
               f"{r['diverged']:8d} {r['lost']:8d} {r['s_per_frame']:7.2f} "
               f"{r['hidden_used']:8.2f} {r['seen_unused']:11.2f}   {curve}", flush=True)
 
@@ -234,10 +260,13 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=50, help="frames per scene")
     ap.add_argument("--lost-mm", type=float, default=100.0,
                     help="a frame with MPJPE above this counts as lost (truth check)")
+    ap.add_argument("--fps", type=float, default=None,
+                    help="render the scenes' 2 s at this frame rate (default: the studio's 25); "
+                         "--frames counts frames at this rate")
     args = ap.parse_args(argv)
     rows = []
     for name in args.scenes.split(","):
-        rows += run_scene(name.strip(), args.frames, args.lost_mm)
+        rows += run_scene(name.strip(), args.frames, args.lost_mm, fps=args.fps)
         print_rows(rows[-len(METHODS):], args.lost_mm)
     load = " ".join(f"{x:.2f}" for x in os.getloadavg())
     print(f"\nAll scenes (load average {load}):")

@@ -44,15 +44,14 @@ back the noise of the search patch that its resampling averaged out of the resid
 (see :func:`core.image_stack.resampling_noise_factor`; equal noise in both images
 assumed).  OpenBLAS runs on one thread inside :func:`match` (:mod:`core.blas_threads`):
 the many skinny GEMMs gain nothing from threads and lose a lot to their spinning.
-Optionally (``workers``), large calls split the patches into contiguous parts matched
-in parallel threads (numpy, OpenBLAS and OpenCV release the GIL in the heavy steps):
-meant for idle cores; each part repeats the per-iteration bookkeeping (~10 % more CPU
-time), and on a busy machine (2 cores, load ~10) it gained no wall-clock time.
+Optionally (``workers``), the patches are split into parts matched in parallel threads
+(the heavy steps release the GIL): for idle cores (on 2 busy cores it gained nothing).
 
 Where numba is installed, the normal matrices, their inverses, the upsampled windows
 and the iterations run compiled (:mod:`core.lsm_kernel`, same rules; ~1.6× the matches
-per CPU second).  Without numba (Blender) or with ``SOMACAP_NO_NUMBA=1``, and with a
-line constraint, this numpy path runs: same statuses and iterations, positions to ~1e-6 px.
+per CPU second).  Without numba (Blender), with ``SOMACAP_NO_NUMBA=1``, with a line
+constraint, or when compiling fails, this numpy path runs: same statuses and
+iterations, positions to ~1e-6 px.
 
 Optional geometric constraint (multi-photo geometrically constrained matching):
 the matched point must lie on a given line ``n · uv = d`` in the search image (the
@@ -91,8 +90,7 @@ __all__ = ["ImageStack", "LSMResult", "Status", "epipolar_lines", "match", "temp
            "upsample2"]
 
 
-#: Drift allowed for in a search window beyond the patch footprint, pixels (a patch
-#: that walks farther gets a new window).
+#: Drift allowed for in a search window beyond the patch footprint, px (then a new window).
 _DRIFT_PX = 1.0
 
 #: ``match(workers=0)`` splits its patches over threads only in parts of at least this many.
@@ -204,11 +202,9 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
         ``σ² = vᵀWv / (tr W - tr(N⁻¹ JᵀW²J))``.  Default: uniform weights (Gruen).
     workers : int, optional
         Threads over which the patches are split (contiguous parts, matched
-        independently; numpy, OpenBLAS and OpenCV release the GIL in the heavy
-        steps); 0: one per usable CPU core, at most one per
-        ``MIN_PATCHES_PER_WORKER`` patches.  Default 1: the calling thread only.  The search windows
-        are sized per part, so a split changes the matches within the convergence
-        tolerance.
+        independently); 0: one per usable CPU core, at most one per
+        ``MIN_PATCHES_PER_WORKER`` patches.  Default 1: the calling thread only.
+        Search windows are sized per part: a split changes matches within ``tol_px``.
 
     Returns
     -------
@@ -234,12 +230,17 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
                 max_shift_px=max_shift_px, max_sigma_px=max_sigma_px, min_texture=min_texture,
                 sigma_line_px=sigma_line_px, sigma_grey=sigma_grey, weight_sigma=weight_sigma)
     nw = _n_workers(workers, n)
-    if nw <= 1:
-        return _match_part(tstack, sstack, uv_t, uv_s0, ti, si, A, lines, **opts)
 
-    def part(k):
+    def part(k=slice(None)):
+        args = (tstack, sstack, uv_t[k], uv_s0[k], ti[k], si[k])
         ln = None if lines is None else (lines[0][k], lines[1][k])
-        return _match_part(tstack, sstack, uv_t[k], uv_s0[k], ti[k], si[k], A[k], ln, **opts)
+        try:
+            return _match_part(*args, A[k].copy(), ln, **opts)
+        except lsm_kernel.KernelError:           # compiling failed: the numpy path
+            return _match_part(*args, A[k].copy(), ln, **opts)
+
+    if nw <= 1:
+        return part()
 
     with ThreadPoolExecutor(nw) as ex:
         res = list(ex.map(part, np.array_split(np.arange(n), nw)))
@@ -300,8 +301,7 @@ def _match_part(tstack: ImageStack, sstack: ImageStack, uv_t, uv_s0, ti, si, A, 
     else:
         wpx = np.exp(-(xs * xs + ys * ys) / (2.0 * weight_sigma ** 2)).astype(np.float32)
         Tw = T * wpx
-    # b = Jᵀ W e per iteration: (w gx e, w gy e, w e) against 1, x, y (three GEMVs:
-    # faster in OpenBLAS than one (M, P) @ (P, 3) GEMM).
+    # b = Jᵀ W e: (w gx e, w gy e, w e) against 1, x, y (three GEMVs, faster than a GEMM).
     basis_w = basis * wpx                                       # (3, P)
     if kernel:
         T, gx, gy = (np.ascontiguousarray(x) for x in (T, gx, gy))

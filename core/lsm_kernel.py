@@ -41,12 +41,23 @@ from .lsm_kernel_sample import _bilinear, _sample_grid, _upsampled_windows
 
 _LOCK = threading.Lock()
 _COMPILED: dict = {}                         # argument types -> seconds of the first call
+_FAILED = {"error": None}                    # why a first call failed (kernel off then)
+
+
+class KernelError(RuntimeError):
+    """A compiled step failed on its first call (compiling); :func:`core.lsm.match`
+    then redoes the call on its numpy path, and the kernel stays off in this process."""
 
 
 def enabled() -> bool:
-    """Whether :func:`core.lsm.match` runs the compiled steps (numba imported, and
-    ``SOMACAP_NO_NUMBA`` not set to a true value now)."""
-    return numba is not None and not env_off()
+    """Whether :func:`core.lsm.match` runs the compiled steps (numba imported, no
+    compilation failed, ``SOMACAP_NO_NUMBA`` not set to a true value now)."""
+    return numba is not None and _FAILED["error"] is None and not env_off()
+
+
+def failure() -> str | None:
+    """The error of a failed first call (the kernel is off since), or None."""
+    return _FAILED["error"]
 
 
 _SUB = (0, 3, 6, 7)
@@ -342,9 +353,13 @@ def _first_call(fn, key, *args):
         with _LOCK:
             if sig not in _COMPILED:
                 t0 = time.perf_counter()
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore")
-                    fn(*args)
+                try:
+                    with warnings.catch_warnings():
+                        warnings.simplefilter("ignore")
+                        fn(*args)
+                except Exception as exc:     # e.g. a numba version that cannot type it
+                    _FAILED["error"] = f"{key}: {type(exc).__name__}: {exc}"[:1000]
+                    raise KernelError(_FAILED["error"]) from exc
                 _COMPILED[sig] = time.perf_counter() - t0
                 return
     fn(*args)

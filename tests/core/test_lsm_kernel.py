@@ -245,3 +245,26 @@ def test_switch_at_start_up_does_not_import_numba():
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
                          check=True, cwd=Path(__file__).resolve().parents[2]).stdout.split()
     assert out[:2] == ["False", "False"] and float(out[2]) > 0.9
+
+
+@needs_numba
+def test_a_failed_compilation_falls_back_to_numpy(monkeypatch):
+    """A compiled step that cannot be compiled (e.g. a future numba): the call is
+    redone on the numpy path and the kernel stays off, reporting why."""
+    P = make_pairs(30, seed=26, max_shift=1.0, noise=2.0)
+    n = len(P.template)
+    c = np.full((n, 2), P.centre)
+    kw = dict(template_index=np.arange(n), search_index=np.arange(n))
+    monkeypatch.setenv(lsm_kernel.ENV_OFF, "1")
+    ref = match(P.template, P.search, c, c, **kw)
+    monkeypatch.setenv(lsm_kernel.ENV_OFF, "0")
+
+    def untypable(*args):
+        raise TypeError("cannot determine Numba type")
+
+    monkeypatch.setattr(lsm_kernel, "_iterate_round", untypable)
+    monkeypatch.setattr(lsm_kernel, "_COMPILED", {})
+    monkeypatch.setitem(lsm_kernel._FAILED, "error", None)
+    got = match(P.template, P.search, c, c, **kw)
+    assert not lsm_kernel.enabled() and "iterate: TypeError" in lsm_kernel.failure()
+    assert np.array_equal(got.uv, ref.uv) and np.array_equal(got.status, ref.status)

@@ -1,6 +1,7 @@
 """Benchmark of ``core fit`` + ``core evaluate`` on studio scenes.
 
-``python -m bench.fit [SCENE ...] [--frames N] [--observations truth] [--renders DIR]``
+``python -m bench.fit [SCENE ...] [--frames N] [--observations truth|tracks] [--cues C]
+[--tracks NPZ] [--real texture|contours|both|none] [--renders DIR]``
 
 Without SCENE arguments it runs the default sample scene (``sample_scenes/walk_line3``)
 and the studio scenes of :data:`DEFAULT_SET` (walk, dance and jumps clips of
@@ -17,6 +18,14 @@ in :mod:`core.metaballs`), and prints one table row with per-joint MPJPE and
 per-segment orientation RMSE lines under it.  With ``--observations truth`` the fit
 uses truth-derived surface points — a development stand-in for the tracker, labelled
 as such in the table, never the pipeline's result.
+
+With truth-derived observations, the default scene's row is followed by a row of the
+same scene through the **real pipeline** (``--real``, default ``both``): the tracker's
+``tracks.npz`` (``python -m core track``, cached by :mod:`bench.looks` under
+``out/bench_fit/looks``, tracked first when missing: minutes) fitted with those cues
+(``python -m core fit --observations tracks --tracks ... --cues ...``) — the product,
+printed beside the stand-in.  ``--observations tracks --cues C`` fits every listed scene
+from its tracks instead.
 
 ``python -m bench.fit --fit-shape [SCENE] [--frames N]`` instead compares, on one scene
 (default ``walk_line3``) with truth-derived observations, the template shape with the

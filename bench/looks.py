@@ -173,9 +173,14 @@ def main(argv: list[str] | None = None) -> int:
         surv = track_survival(tracks, args.frames)
         rows = [fit_cue(scene, c, tracks, args.frames, args.model) for c in cues]
         print_look(look, scene, surv, rows, track_s)
+    from core.fit import SequenceSettings
     from core.fit_contours import ContourSettings
 
     print(f"contour observations: {ContourSettings()}")
+    seq = SequenceSettings()
+    print(f"tracked trajectories as rigid-motion observations: {seq.trajectories} (slip "
+          f"{1000 * seq.traj_slip_m:.0f} mm, Cauchy knee {seq.traj_robust:g} sigma); hidden "
+          f"parts held: {seq.hold_hidden}")
     print(f"load average {os.getloadavg()[0]:.1f} (2 shared cores: wall times are noisy)")
     return 0
 

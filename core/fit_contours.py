@@ -58,6 +58,9 @@ class ContourSettings:
     #: with selection: also rank a part's visible cameras by its predicted contour motion
     #: (the paper's observability); False: every camera with visibility >= min_visibility
     rank_motion: bool = True
+    #: body parts that use no contours (names of core.skeleton bones), e.g. the head,
+    #: whose template metaballs do not follow a real head's outline (hair, face)
+    skip_parts: tuple = ()
     min_matches: int = 40          # a contours-only frame with fewer pairs is diverged
     max_rms_px: float = 6.0        # ... or with a larger RMS of its inlier pairs [px]
     min_part_matches: int = 30     # a part with fewer pairs is hidden to the contours
@@ -155,6 +158,8 @@ def match_frame(skel: Skeleton, balls: Metaballs, theta: np.ndarray, root: np.nd
     else:
         sel = select_cameras(np.where(np.isfinite(vis), 1.0, np.nan))
     sel.use[:, [not contours[c] for c in range(len(cameras))]] = False  # nothing to pair
+    if cfg.skip_parts:
+        sel.use[[skel.bone_index(b) for b in cfg.skip_parts]] = False
     out = []
     for c, (cam, rim) in enumerate(zip(cameras, rims, strict=True)):
         use_parts = np.flatnonzero(sel.use[:, c])

@@ -252,3 +252,30 @@ def test_cli_contours_alone_with_one_unusable_camera(tmp_path, capsys):
     used = {c for f in range(st.n_frames) if not st.quality.diverged[f]
             for cams in st.quality.cameras[f].values() for c in cams}
     assert used and "cam02" not in used
+
+
+def test_skipped_parts_get_no_contour_pairs(body):
+    skel, balls, s, theta, root, cams, observed = body
+    head, neck = skel.bone_index("head"), skel.bone_index("neck")
+    full, _ = match_frame(skel, balls, theta, root, s, cams, observed, ContourSettings())
+    assert (full.bone == head).sum() > 20
+    skip, sel = match_frame(skel, balls, theta, root, s, cams, observed,
+                            ContourSettings(skip_parts=("head", "neck")))
+    assert not np.isin(skip.bone, [head, neck]).any()
+    assert not sel.use[[head, neck]].any()
+    others = ~np.isin(full.bone, [head, neck])
+    assert len(skip) >= 0.9 * others.sum()  # the other parts keep their pairs
+
+
+def test_selection_by_visibility_alone_ignores_the_predicted_motion(body):
+    skel, balls, s, theta, root, cams, observed = body
+    rate = np.zeros(skel.n_dof)
+    rate[skel.dof_index("l_hip_x")] = 0.2
+    _, by_motion = match_frame(skel, balls, theta, root, s, cams, observed, ContourSettings(),
+                               theta_rate=rate)
+    _, by_vis = match_frame(skel, balls, theta, root, s, cams, observed,
+                            ContourSettings(rank_motion=False), theta_rate=rate)
+    visible = np.nan_to_num(by_vis.visibility, nan=0.0) >= 0.2
+    np.testing.assert_array_equal(by_vis.use, visible)
+    assert np.all(by_motion.use <= by_vis.use)
+    assert np.any(by_motion.observability > 0)

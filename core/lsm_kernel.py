@@ -21,7 +21,8 @@ Optional at run time: without numba (Blender does not bundle it), or with the
 environment variable ``SOMACAP_NO_NUMBA=1``, :func:`enabled` is False and
 :mod:`core.lsm` runs its numpy path, the reference.  Compiled code is cached on disk
 (:func:`core.lsm_kernel_jit.jit`).  The first call per argument types compiles (or
-loads from the cache) under a lock with numba's warnings silenced.
+loads from the cache) under a lock with numba's warnings silenced; if it fails, the
+kernel is off for the process (:func:`failure`) and the call is redone with numpy.
 """
 
 from __future__ import annotations

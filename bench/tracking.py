@@ -245,6 +245,9 @@ def main(argv=None) -> int:
     print(f"  truth: seen by >= 2 cameras in the first and last frame with runs of fewer "
           f"than 2 views of <= {args.gap} frames {100 * ceil_b.mean():.1f} % (the ceiling of "
           f"the bridged figure); among these, bridged {100 * bridged[ceil_b].mean():.1f} %")
+    print("  the same truth ceiling for other longest gaps: " + ", ".join(
+        f"{g} frames {100 * through_with_gaps(vis2, np.ones_like(vis2), g).mean():.1f} %"
+        for g in (0, 2, 5, 10, 20, nf)))
     miss = ceil_b & ~bridged
     first = np.argmax(~m0, axis=0)
     again = (m0 & (np.arange(nf)[:, None] >= first[None])).any(axis=0) & miss

@@ -175,8 +175,10 @@ def main(argv: list[str] | None = None) -> int:
         print_look(look, scene, surv, rows, track_s)
     from core.fit import SequenceSettings
     from core.fit_contours import ContourSettings
+    from core.fit_scene import BOTH_SKIP_PARTS
 
-    print(f"contour observations: {ContourSettings()}")
+    print(f"contour observations: {ContourSettings()}; with both: skip_parts "
+          f"{BOTH_SKIP_PARTS}")
     seq = SequenceSettings()
     print(f"tracked trajectories as rigid-motion observations: {seq.trajectories} (slip "
           f"{1000 * seq.traj_slip_m:.0f} mm, Cauchy knee {seq.traj_robust:g} sigma); hidden "

@@ -279,3 +279,13 @@ def test_selection_by_visibility_alone_ignores_the_predicted_motion(body):
     np.testing.assert_array_equal(by_vis.use, visible)
     assert np.all(by_motion.use <= by_vis.use)
     assert np.any(by_motion.observability > 0)
+
+
+def test_both_cues_skip_the_head_contours_unless_the_settings_name_their_own():
+    from core.fit_scene import BOTH_SKIP_PARTS, _both_settings
+
+    assert _both_settings(None).skip_parts == BOTH_SKIP_PARTS
+    cs = _both_settings(ContourSettings(sigma_px=2.0))
+    assert cs.sigma_px == 2.0 and cs.skip_parts == BOTH_SKIP_PARTS
+    own = ContourSettings(skip_parts=("l_wrist",))
+    assert _both_settings(own) is own

@@ -4,14 +4,14 @@ Runs, each as the command a user would type, and says what it wrote:
 
 1. ``python -m core calibrate`` — self-calibration from the scene's reference-bar
    images alone, compared with the true cameras;
-2. ``python -m core fit`` — initialisation from the key-joint clicks and the
-   weighted least-squares fit of the metaball body across frames.  While the image
-   tracker's points still leave the head and one arm unobserved on this scene, the demo
-   fits from *truth-derived* observations (points on the true mesh with noise and
-   outliers, ``--observations truth``) and says so;
-3. ``python -m core evaluate`` — the fit against the scene's ground truth, with a PNG of
+2. ``python -m core track`` — the surface measured at frame 0 by least squares matching
+   from the clicked seeds, then tracked through every frame (``out/demo/tracks.npz``);
+3. ``python -m core fit --cues both`` — initialisation from the key-joint clicks and the
+   weighted least-squares fit of the metaball body across frames, from the tracked
+   points and trajectories and the occluding contours of every camera;
+4. ``python -m core evaluate`` — the fit against the scene's ground truth, with a PNG of
    the per-frame errors;
-4. ``python -m addon.launch fit`` — Blender (the ``bpy`` module): cameras with the
+5. ``python -m addon.launch fit`` — Blender (the ``bpy`` module): cameras with the
    footage, the metaball body, its action, and the motion retargeted onto a Rigify
    human rig generated from Blender's meta-rig; saved as ``out/demo.blend``.
 
@@ -62,11 +62,15 @@ def main() -> int:
 
     fit = demo / "fit.json"
     if importlib.util.find_spec("core.fit_cli") is not None:
-        _step(f"fit the body ({FIT_FRAMES} frames) from truth-derived observations",
-              ["-m", "core", "fit", SCENE, "-o", fit, "--observations", "truth",
-               "--frames", str(FIT_FRAMES)])
+        tracks = demo / "tracks.npz"
+        _step(f"measure the surface and track it ({FIT_FRAMES} frames)",
+              ["-m", "core", "track", SCENE, "-o", tracks, "--frames", str(FIT_FRAMES)])
+        wrote.append((tracks, "tracked surface points: 3-D trajectories with their precision"))
+        _step(f"fit the body ({FIT_FRAMES} frames) to the tracks and the contours",
+              ["-m", "core", "fit", SCENE, "-o", fit, "--observations", "tracks",
+               "--tracks", tracks, "--cues", "both", "--frames", str(FIT_FRAMES)])
         wrote.append((fit, "fitted state: skeleton, metaball shape, per-frame joint angles "
-                      f"({FIT_FRAMES} frames, truth-derived observations)"))
+                      f"({FIT_FRAMES} frames, tracked points and contours)"))
         plot = demo / "errors.png"
         _step("evaluate against the truth",
               ["-m", "core", "evaluate", SCENE, fit, "--plot", plot])

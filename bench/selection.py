@@ -130,24 +130,21 @@ def truth_visibility(scene, frames) -> np.ndarray:
     from bench.visibility import (
         MIN_AREA_PX,
         body_render,
+        mesh_visibility,
         model_vertex_parts,
-        splat_visibility,
-        surface_samples,
     )
     from core.truth_state import truth_to_state
 
     state, _ = truth_to_state(scene.truth, scene.fps)
     cams = scene.calibration()
-    rng = np.random.default_rng(0)
     P = len(state.skeleton.bone_names)
     out = np.full((len(frames), P, len(cams)), np.nan)
     for i, f in enumerate(frames):
         centers, axes, radii, bone = body_render(state, f)
         vpart = model_vertex_parts(scene.truth["vertices"][f], centers, axes, radii, bone)
-        xyz, part = surface_samples(scene.truth["vertices"][f], scene.truth["faces"], vpart, 4,
-                                    rng)
         for c, cam in enumerate(cams):
-            ref, full = splat_visibility(cam, xyz, part, P)
+            ref, full = mesh_visibility(cam, scene.truth["vertices"][f], scene.truth["faces"],
+                                        vpart, P)
             out[i, :, c] = np.where(full >= MIN_AREA_PX, ref, np.nan)
     return out
 

@@ -2,9 +2,7 @@
 
 import numpy as np
 
-from core.intersect import triangulate
-from core.track_smooth import depth_deviation, depth_outliers, drop_one_camera
-from tests.core._planescene import cameras
+from core.track_smooth import depth_deviation, depth_outliers
 
 
 def test_points_off_a_curved_surface_in_depth_are_flagged(rng):
@@ -45,23 +43,3 @@ def test_depth_deviation_is_signed_along_the_ray(rng):
     assert np.allclose(dev[:2], [0.02, -0.015], atol=1e-3)
     assert np.isnan(dev[2])
 
-
-def test_a_wrong_match_in_one_of_three_cameras_is_dropped_not_the_point(rng):
-    cams = cameras()
-    s = np.arange(-0.15, 0.1501, 0.015)
-    x, z = np.meshgrid(s, s)
-    ref = np.stack([x.ravel(), np.zeros(x.size), z.ravel()], axis=1)
-    truth = ref[rng.choice(len(ref), 30, replace=False)] + [0.0, 0.0, 0.004]
-    uv = np.stack([c.project(truth) for c in cams], axis=1)
-    bad_cam = rng.choice([0, 2], 30)              # an outer camera: the error is in depth
-    uv[np.arange(30), bad_cam, 0] += rng.choice([-1, 1], 30) * 3.0     # along the baseline
-    uv[:5, 1] = np.nan                                                 # two cameras only
-    view = np.mean([c.center for c in cams], axis=0)
-    full = triangulate(cams, uv[5:], sigma_px=0.3)
-    assert np.all(np.abs(depth_deviation(full.xyz, view, ref)) > 0.01)   # outliers in depth
-    uv_k, xyz, cov, ok = drop_one_camera(cams, uv, view, ref, 0.01, max_rms_px=1.0)
-    assert not ok[:5].any()                       # two cameras: nothing to drop
-    assert ok[5:].all()
-    assert np.all(np.isnan(uv_k[np.arange(5, 30), bad_cam[5:], 0]))   # the wrong camera left
-    assert np.max(np.linalg.norm(xyz[5:] - truth[5:], axis=1)) < 1e-6
-    assert np.all(np.isfinite(cov[5:]))

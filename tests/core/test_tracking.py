@@ -2,11 +2,21 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
+import pytest
 
 from core.surface import measure_surface
 from core.track_diagnose import REASONS
-from core.tracking import PointFilter, fill_gaps, filter_trajectories, predict_in_image, track
+from core.tracking import (
+    PointFilter,
+    TrackSettings,
+    fill_gaps,
+    filter_trajectories,
+    predict_in_image,
+    track,
+)
 from tests.core._planescene import cameras, render
 
 
@@ -113,3 +123,30 @@ def test_occluded_frame_is_coasted_and_reacquired():
         ok = tr.measured[3, :p0]
         err = tr.xyz[2, :p0][ok] - (surf.xyz[ok] + 2 * motion)
         assert np.median(np.linalg.norm(err, axis=1)) < 0.001   # the bridged frame
+
+
+def test_settings_object_and_keywords_are_the_same_options():
+    cams = cameras()
+    motion = np.array([0.003, 0.0, 0.002])
+    frames = [[render(c, offset=k * motion) for c in cams] for k in range(3)]
+    seeds = np.stack([c.project(np.array([[0.0, 0.0, 0.0]])) for c in cams], 1)
+    surf = measure_surface(frames[0], cams, seeds, step=6)
+    by_kw = track(lambda i: frames[i], cams, surf, 3, 25.0, regen_every=0, max_coast=2,
+                  predict="linear")
+    s = TrackSettings(regen_every=0, max_coast=2)
+    by_obj = track(lambda i: frames[i], cams, surf, 3, 25.0, settings=s, predict="linear")
+    for a in ("xyz", "uv", "sigma_xyz", "start", "measured"):
+        assert np.array_equal(getattr(by_kw, a), getattr(by_obj, a), equal_nan=True)
+    assert len(surf) > 10 and by_kw.measured[1:].all(axis=0).mean() > 0.8
+    # a keyword replaces the settings' value: no intersection reprojects within 1e-6 px
+    strict = track(lambda i: frames[i], cams, surf, 3, 25.0, settings=s, max_rms_px=1e-6)
+    assert not strict.measured[1:].any()
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        s.max_coast = 3
+
+
+def test_unknown_option_and_bad_predict_are_refused():
+    with pytest.raises(TypeError, match="depth_retry"):       # pruned: tried and left off
+        TrackSettings.of(depth_retry=True)
+    with pytest.raises(ValueError, match="predict must be"):
+        TrackSettings(predict="kalman")

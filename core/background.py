@@ -1,10 +1,19 @@
 """Per-camera background model and foreground masks (SPEC.md stage 6).
 
 The background of each camera is a per-pixel colour with a per-pixel noise level,
-estimated from frames without the person when there are some, or else by a robust
-temporal median that is refined iteratively: pixels classified as foreground in a
-frame are left out of that pixel's median in the next round, so a person who stays
-a while in one place does not burn into the background.
+estimated from frames without the person when there are some, or else from the take
+itself: the start is each pixel's *temporal mode* — the colour cluster (three adjacent
+grey-level bins of 8) that the most frames share — and it is refined iteratively:
+pixels classified as foreground in a frame are left out of that pixel's median in the
+next round.  The mode, unlike a median, finds the backdrop where the person covers a
+pixel in most frames but with changing colours (textured clothing moving past): the
+backdrop returns to one colour, the person's colours scatter.  The noise level comes
+from the frames close to the background colour only (:func:`_inlier_sigma`), so that
+the person's frames do not inflate it.  On the studio's ``orthogonal3`` rig, where the
+walker comes straight at the frontal camera and the dancers turn on the spot in front
+of it, that camera's foreground IoU against the truth went from 0.22 / 0.66 / 0.61
+(temporal median and the median absolute deviation over all frames) to 0.95 / 0.96 /
+0.96 (walk / dance / pirouette), the other cameras unchanged at 0.95–0.96.
 
 A pixel is foreground when its colour differs from the background by more than
 ``threshold`` noise levels *and* the difference is not a shadow: a cast shadow
@@ -141,7 +150,8 @@ def clean_mask(mask: np.ndarray, clean_px: int = 1, min_area_frac: float = 0.1,
 
 def fit_background(frames: np.ndarray, empty: np.ndarray | None = None, iterations: int = 2,
                    threshold: float = 5.0, min_sigma: float = 2.0,
-                   max_frames: int = 40, min_known_frac: float = 0.15,
+                   max_frames: int = 40, min_known_frac: float = 0.05,
+                   min_mode_frames: int = 3,
                    exclude: np.ndarray | None = None) -> BackgroundModel:
     """Estimate a camera's background.
 
@@ -160,7 +170,12 @@ def fit_background(frames: np.ndarray, empty: np.ndarray | None = None, iteratio
     max_frames : int
         At most this many frames (evenly spaced) enter the medians, for speed.
     min_known_frac : float
-        A pixel is *known* when it was background in at least this fraction of frames.
+        A pixel is *known* when it was background in at least this fraction of frames
+        in the last refinement round, ...
+    min_mode_frames : int
+        ... or when its temporal mode is shared by at least this many frames (then the
+        mode's colour stands; a person covering the pixel in nearly every frame leaves
+        the refinement too few background frames, but the mode still has them).
     exclude : ndarray, shape (N, H, W), bool, optional
         Pixels known to show the person in each frame (e.g. the fitted body projected
         and dilated): they never enter the medians.  This is what frees the background
@@ -189,16 +204,19 @@ def fit_background(frames: np.ndarray, empty: np.ndarray | None = None, iteratio
         src = src[pick]
         exclude = None if exclude is None else exclude[pick]
     stack = src.astype(np.float32)
-    if exclude is None:
+    if use_empty:
         colour = np.median(stack, axis=0)
-        sigma = _mad_sigma(stack, colour, min_sigma)
+        return BackgroundModel(colour, _inlier_sigma(stack, colour, min_sigma),
+                               np.ones(colour.shape[:2], bool))
+    mode, mode_n = _mode_colour(stack)
+    if exclude is None:
+        colour = mode
+        sigma = _inlier_sigma(stack, colour, min_sigma)
     else:
         colour = _nanmedian0(np.where(exclude[..., None], np.nan, stack))
-        colour = np.where(np.isfinite(colour), colour, np.median(stack, axis=0))
-        sigma = _mad_sigma(stack, colour, min_sigma, weights=~exclude)
+        colour = np.where(np.isfinite(colour), colour, mode)
+        sigma = _inlier_sigma(stack, colour, min_sigma, weights=~exclude)
     known = np.ones(colour.shape[:2], bool)
-    if use_empty:
-        return BackgroundModel(colour, sigma, known)
     for _ in range(iterations):
         model = BackgroundModel(colour, sigma, np.ones_like(known))
         bg = np.empty(stack.shape[:3], bool)
@@ -214,7 +232,12 @@ def fit_background(frames: np.ndarray, empty: np.ndarray | None = None, iteratio
         new = _nanmedian0(masked[:, known])
         colour = colour.copy()
         colour[known] = new
-        sigma = _mad_sigma(stack, colour, min_sigma, weights=bg)
+        sigma = _inlier_sigma(stack, colour, min_sigma, weights=bg)
+    by_mode = ~known & (mode_n >= min_mode_frames)
+    if exclude is not None:      # the person's pixels' mode is not the background
+        by_mode &= np.sum(~exclude, axis=0) >= min_mode_frames
+    colour[by_mode] = mode[by_mode]
+    known |= by_mode
     return BackgroundModel(colour.astype(np.float32), sigma.astype(np.float32), known)
 
 
@@ -225,17 +248,49 @@ def _nanmedian0(a: np.ndarray) -> np.ndarray:
         return np.nanmedian(a, axis=0)
 
 
-def _mad_sigma(stack, colour, min_sigma, weights=None):
-    """Per-pixel robust noise level of the colour distance (MAD scaled to σ)."""
+def _mode_colour(stack: np.ndarray, bins: int = 32) -> tuple[np.ndarray, np.ndarray]:
+    """Temporal mode of every pixel: colour (H, W, 3) and frame count (H, W).
+
+    Each frame's grey level falls into one of ``bins`` bins; the three adjacent bins
+    holding the most frames win, and the colour is the median of those frames.
+    ``stack`` (N, H, W, 3) float32.
+    """
+    N, H, W, _ = stack.shape
+    b = np.clip((stack.mean(axis=3) * (bins / 256.0)).astype(np.int64), 0, bins - 1)
+    idx = (np.arange(H * W, dtype=np.int64).reshape(1, H, W) * bins + b).ravel()
+    cnt = np.bincount(idx, minlength=H * W * bins).reshape(H, W, bins)
+    near = cnt.copy()
+    near[..., 1:] += cnt[..., :-1]
+    near[..., :-1] += cnt[..., 1:]
+    best = np.argmax(near, axis=2)
+    pick = np.abs(b - best[None]) <= 1
+    colour = _nanmedian0(np.where(pick[..., None], stack, np.nan))
+    return colour, np.take_along_axis(near, best[..., None], axis=2)[..., 0]
+
+
+def _inlier_sigma(stack, colour, min_sigma, weights=None, k: float = 4.0,
+                  min_tol: float = 12.0):
+    """Per-pixel noise level (H, W) of the colour distance, from background frames only.
+
+    The camera-wide level ``g`` (the median distance over all pixels and frames —
+    mostly background — scaled to σ) sets a tolerance ``max(k g, min_tol)``; each
+    pixel's level is the robust spread (median / 1.54: the median of the norm of
+    3-channel Gaussian noise is 1.54 σ) of its frames within that tolerance of the
+    background colour (``weights`` (N, H, W) bool: frames allowed), ``g`` where fewer
+    than 3 are.  Frames showing the person lie outside the tolerance and do not inflate
+    the level, as they did with a median absolute deviation over every frame.
+    """
     d = np.sqrt(((stack - colour[None]) ** 2).sum(axis=-1))  # (N, H, W)
     if weights is not None:
         d = np.where(weights, d, np.nan)
-        med = _nanmedian0(d)
-        med = np.where(np.isfinite(med), med, min_sigma)
-    else:
-        med = np.median(d, axis=0)
-    # |difference| of 3-channel Gaussian noise: median ≈ 1.54 σ
-    sigma = med / 1.54
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        g = float(np.nanmedian(d)) / 1.54
+    g = max(g if np.isfinite(g) else min_sigma, min_sigma)
+    inl = np.where(d < max(k * g, min_tol), d, np.nan)
+    med = _nanmedian0(inl)
+    enough = np.sum(np.isfinite(inl), axis=0) >= 3
+    sigma = np.where(enough & np.isfinite(med), med / 1.54, g)
     # a little spatial pooling keeps single noisy estimates from making holes
     sigma = cv2.blur(sigma.astype(np.float32), (5, 5))
     return np.maximum(sigma, min_sigma).astype(np.float32)

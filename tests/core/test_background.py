@@ -77,3 +77,43 @@ def test_known_person_pixels_free_a_long_standing_background(rng):
     guided = fit_background(frames, exclude=dilated)
     ious = [_iou(guided.foreground(f), m) for f, m in zip(frames, masks, strict=True)]
     assert min(ious) > 0.85, np.round(ious, 3)
+
+
+def _approaching(rng, n=40, h=96, w=128):
+    """A textured person who stays in front of the camera and grows (walking towards
+    it): the middle of the body covers its pixels in ~90 % of the frames, with the
+    clothing's pattern (reds and browns) moving over them (grey backdrop, noise σ 2)."""
+    bg = np.full((h, w, 3), 115.0, np.float32)
+    cloth = rng.uniform([0, 0, 0], [255, 90, 90], (3 * h, 3 * w, 3)).astype(np.float32)
+    cloth = cv2.resize(cv2.resize(cloth, (w // 2, h // 2)), (3 * w, 3 * h),
+                       interpolation=cv2.INTER_NEAREST)
+    frames, masks = [], []
+    for i in range(n):
+        img = bg.copy()
+        mask = np.zeros((h, w), np.uint8)
+        if i >= 0.1 * n:                     # enters after the first few frames
+            ax = (12 + (10 * i) // n, 26 + (14 * i) // n)
+            cv2.ellipse(mask, (64 + (i % 5) - 2, 50), ax, 0, 0, 360, 1, -1)
+        m = mask.astype(bool)
+        dy, dx = (7 * i) % (2 * h), (11 * i) % (2 * w)     # the pattern moves
+        img[m] = cloth[dy:dy + h, dx:dx + w][m]
+        img += rng.normal(0, 2.0, img.shape)
+        frames.append(np.clip(img, 0, 255).astype(np.uint8))
+        masks.append(m)
+    return np.array(frames), np.array(masks)
+
+
+def test_a_person_covering_pixels_most_of_the_take_does_not_burn_in(rng):
+    frames, masks = _approaching(rng)
+    covered = masks.mean(axis=0)
+    assert (covered[masks[-1]] > 0.8).mean() > 0.3          # the case this is about
+    model = fit_background(frames)
+    late = range(len(frames) // 2, len(frames))
+    ious = [_iou(model.foreground(frames[i]), masks[i]) for i in late]
+    assert np.mean(ious) > 0.9, np.round(ious, 3)
+    # a temporal median cannot: more than half of the frames show the person there
+    med = np.median(frames, axis=0)
+    off = np.linalg.norm(med.astype(float) - 115.0, axis=2) > 20
+    assert off[masks[-1]].mean() > 0.2
+    # the noise level stays that of the camera, not of the person's pattern
+    assert np.median(model.sigma[masks[-1]]) < 4.0

@@ -357,7 +357,6 @@ def dormant_step(dormant: np.ndarray, xyz_hist: list, pred_hist: list, rate_last
                  max_dist_m: float = 0.01, min_views: int = 2,
                  max_rigid_rms: float = 0.005, occlusion_m: float | None = None,
                  depth_dev_m: float | None = None, radius_m: float = 0.06,
-                 fallback: np.ndarray | None = None,
                  stats: dict | None = None) -> tuple[np.ndarray, DormantStep]:
     """Predict the dormant points one frame on and try to re-acquire them.
 
@@ -395,9 +394,6 @@ def dormant_step(dormant: np.ndarray, xyz_hist: list, pred_hist: list, rate_last
         (:func:`core.track_smooth.depth_deviation`) is not taken.
     radius_m : float
         Neighbour radius of the prediction (:func:`predict_unmeasured`), metres.
-    fallback : ndarray, shape (P, 3), optional
-        Predictions used where the neighbours give none (e.g. the points' own
-        constant-velocity filters), metres.
     stats : dict, optional
         Receives the counts of :func:`reacquire` and ``depth_rejected``.
 
@@ -410,8 +406,6 @@ def dormant_step(dormant: np.ndarray, xyz_hist: list, pred_hist: list, rate_last
     """
     pred = predict_unmeasured(dormant, xyz_hist, pred_hist, rate_last, xyz_new, chosen,
                               max_rigid_rms=max_rigid_rms, radius_m=radius_m)
-    if fallback is not None:
-        pred = np.where(dormant[:, None] & ~np.isfinite(pred), fallback, pred)
     rows = np.flatnonzero(dormant & np.all(np.isfinite(pred), axis=1))
     c = len(cameras)
     empty = DormantStep(np.zeros(0, int), np.zeros((0, c, 2)), np.zeros((0, c, 2, 2)),

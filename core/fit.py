@@ -206,7 +206,9 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
             cf.part_scale = np.where(cnt >= cfg.min_part_points, cf.cfg.textured_scale, 1.0)
             cf.freeze(skel, balls.copy(radii=radii), q[:n], q[n:], s)
             if len(xyz) < cfg.min_points or cf.cfg.unhide:
-                hidden &= (cf.part_counts(len(skel.bone_names))[dof_bone]
+                # beside points, one view's contours do not un-hide a part (its depth)
+                views = cf.cfg.unhide_views if len(xyz) >= cfg.min_points else 1
+                hidden &= (cf.part_counts(len(skel.bone_names), views)[dof_bone]
                            < cf.cfg.min_part_matches)
         return hidden
 

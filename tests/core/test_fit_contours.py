@@ -289,3 +289,23 @@ def test_both_cues_skip_the_head_contours_unless_the_settings_name_their_own():
     assert cs.sigma_px == 2.0 and cs.skip_parts == BOTH_SKIP_PARTS
     own = ContourSettings(skip_parts=("l_wrist",))
     assert _both_settings(own) is own
+
+
+def test_one_view_does_not_unhide_a_part_beside_points(body):
+    """part_counts(min_views=2): a part's contour pairs count only when two or more
+    cameras give it 10 or more pairs each (one view's contours leave its depth free)."""
+    skel, balls, s, theta, root, cams, observed = body
+    P = len(skel.bone_names)
+    cf = ContourFrame(cams, observed, ContourSettings())
+    cf.freeze(skel, balls, theta, root, s)
+    one, two = cf.part_counts(P), cf.part_counts(P, min_views=2)
+    per = np.zeros((P, len(cams)), int)
+    np.add.at(per, (cf.pairs.bone, cf.pairs.camera), 1)
+    multi = (per >= 10).sum(axis=1) >= 2
+    np.testing.assert_array_equal(two, np.where(multi, one, 0))
+    assert multi.sum() >= 5 and two.sum() > 0.5 * one.sum()
+    # only the first camera's contours: every part is seen by one view
+    only = ContourFrame(cams, [observed[0], [], []], ContourSettings())
+    only.freeze(skel, balls, theta, root, s)
+    assert only.part_counts(P).sum() > 100
+    assert not only.part_counts(P, min_views=2).any()

@@ -175,14 +175,15 @@ def main(argv: list[str] | None = None) -> int:
         print_look(look, scene, surv, rows, track_s)
     from core.fit import SequenceSettings
     from core.fit_contours import ContourSettings
-    from core.fit_scene import BOTH_SKIP_PARTS
+    from core.fit_scene import CONTOUR_SKIP_PARTS
 
-    print(f"contour observations: {ContourSettings()}; with both: skip_parts "
-          f"{BOTH_SKIP_PARTS}")
+    print(f"contour observations: {ContourSettings()}; in the scene fits: skip_parts "
+          f"{CONTOUR_SKIP_PARTS}")
     seq = SequenceSettings()
     print(f"tracked trajectories as rigid-motion observations: {seq.trajectories} (slip "
           f"{1000 * seq.traj_slip_m:.0f} mm, Cauchy knee {seq.traj_robust:g} sigma); hidden "
-          f"parts held: {seq.hold_hidden}")
+          f"parts held: {seq.hold_hidden}; silhouette limb search (contours alone): "
+          f"{seq.silhouette_search}")
     print(f"load average {os.getloadavg()[0]:.1f} (2 shared cores: wall times are noisy)")
     return 0
 

@@ -68,8 +68,13 @@ metaball outline is not the body's, a larger factor lets the contours mainly pla
 the points miss); a part with fewer than ``min_part_matches`` contour pairs *and* too
 few points is hidden (with points and ``unhide`` False: too few points alone).  A frame with fewer
 than ``min_points`` points (always, with contours alone) is fitted from its contours,
-judged by them (at least ``min_matches`` pairs, inlier RMS ≤ ``max_rms_px``) and has no
-limb search; the cameras each part used are recorded in the quality.
+judged by them (at least ``min_matches`` pairs, inlier RMS ≤ ``max_rms_px``); instead of
+the point-based limb search it has the silhouette one (``silhouette_search``,
+:func:`core.silhouette_search.search_limbs_silhouette`: a limb moved to where it best
+explains the foreground that the rest of the body leaves unexplained — an arm that
+swung out from in front of the trunk beyond the contour pairing's reach — and the frame
+refitted from there, kept when the body's projection then disagrees with the foreground
+at fewer pixels); the cameras each part used are recorded in the quality.
 
 Frames before the clicked frame are processed backwards from it the same way.
 :func:`core.fit_scene.fit_scene` runs what a scene needs (calibration from the wand when
@@ -94,6 +99,7 @@ from .metaballs import Metaballs, world_frames
 from .progress import Progress
 from .segment import carry_labels, no_labels, segment_points
 from .shape_fit import ShapeSettings, fit_shape
+from .silhouette_search import search_limbs_silhouette, silhouette_disagreement
 from .skeleton import Skeleton, anchor_sigma, forward, stiff_sigma
 from .state import FitState, Quality
 
@@ -347,6 +353,35 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
             msgs.append(f"frame {f}: {why}: marked diverged" if stats is not None
                         else f"{why}: marked diverged")
 
+    def silhouette_retry(f, res, st, sig_pred, joints, q_hold):
+        """Contours alone: every limb placed where it best explains the frame's
+        foreground (:func:`core.silhouette_search.search_limbs_silhouette`) and the frame
+        refitted from there, the moved DOFs' hold and prior following the search; the
+        refit is kept when it is accepted and the body's projection disagrees with the
+        foreground at fewer pixels.  Returns ``(res, ok, why, stats)``."""
+        cf = cframe(f)
+        q = res[0]
+        body = balls.copy(radii=radii)
+        sr = search_limbs_silhouette(skel, body, s, q[:n], q[n:], cf.cameras, cf.masks())
+        if not sr.moved:
+            return res, True, "", st
+        q1 = q.copy()
+        q1[:n] = sr.theta
+        hold = None
+        if q_hold is not None:
+            hold = q_hold.copy()
+            moved = sr.theta != q[:n]
+            hold[:n][moved] = sr.theta[moved]
+        res2 = one_frame(f, q1, sig_pred, joints, hold)
+        ok2, why2, st2 = assess(f, res2)
+        if ok2 and (silhouette_disagreement(skel, body, res2[0][:n], res2[0][n:], s,
+                                            cf.cameras, cf.grids())
+                    < silhouette_disagreement(skel, body, q[:n], q[n:], s, cf.cameras,
+                                              cf.grids())):
+            retried[f] = True
+            return res2, ok2, why2, st2
+        return res, True, "", st
+
     def fit_frame(f, q_pred, sig_pred, alternatives=(), joints=None, q_hold=None):
         """Fit frame f: the plain fit from the prediction, then
 
@@ -381,6 +416,8 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
             if ok2 and (not ok or st2["cost"] < st["cost"]):
                 res, ok, why, st = res2, ok2, why2, st2
                 retried[f] = True
+        elif ok and cfg.silhouette_search and cframe(f) is not None:
+            res, ok, why, st = silhouette_retry(f, res, st, sig_pred, joints, q_hold)
         record(f, res, ok, why, st)
         if ok:
             hid[f] = hidden_dofs(frames[f].xyz, res[0], cfg.segment_max_dist, cframe(f))

@@ -39,6 +39,7 @@ import numpy as np
 from .camera import Camera, camera_project_jacobians
 from .camera_selection import Selection, select_cameras
 from .contour_match import match_contours
+from .contour_obs import contour_mask
 from .contours import Contour, occluding_contours
 from .metaballs import VISIBLE, Metaballs, world_frames
 from .model_contours import rim_points
@@ -326,6 +327,8 @@ class ContourFrame:
         self.selection: Selection | None = None
         self.part_scale: np.ndarray | None = None
         self._key: bytes | None = None
+        self._masks: list | None = None
+        self._grids: list | None = None
 
     @property
     def n_contour_points(self) -> int:
@@ -363,6 +366,23 @@ class ContourFrame:
         w = self.weights
         return tuple(None if a is None else (a * w if a.ndim == 1 else a * w[:, None])
                      for a in out)
+
+    def masks(self) -> list:
+        """Foreground (H, W) bool of every camera, enclosed by its contours (None for a
+        camera without contours); computed once."""
+        if self._masks is None:
+            self._masks = [contour_mask(cons, cam.size) if cons else None
+                           for cons, cam in zip(self.contours, self.cameras, strict=True)]
+        return self._masks
+
+    def grids(self) -> list:
+        """:func:`core.silhouette_search.mask_grid` of every camera's :meth:`masks`."""
+        from .silhouette_search import MaskGrid, mask_grid
+
+        if self._grids is None:
+            self._grids = [mask_grid(m) if m is not None else
+                           MaskGrid(np.zeros((0, 2)), np.zeros(0, bool), 2) for m in self.masks()]
+        return self._grids
 
     def part_counts(self, n_parts: int, min_views: int = 1) -> np.ndarray:
         """Pairs per body part at the last freeze, shape (P,); 0 for a part whose pairs

@@ -14,7 +14,7 @@ frame's silhouettes after the click initialisation
 (:func:`core.contour_track.fit_shape_to_contours`), and every frame is fitted to its
 contours; ``"both"`` adds the contours to the points in every pose solve (and shapes the
 body from the silhouettes, as with contours alone, when the clicked frame has too few
-points); the head and neck then use no contours (:data:`BOTH_SKIP_PARTS`).
+points); with either, the head and neck use no contours (:data:`CONTOUR_SKIP_PARTS`).
 """
 
 from __future__ import annotations
@@ -146,8 +146,8 @@ def run_scene(scene, observations: str = "auto", model: str = "complete",
                                  frames=range(nf))
         timings["observations"] = time.perf_counter() - t1
     cframes = None
-    if cues == "both":
-        contour_settings = _both_settings(contour_settings)
+    if cues != "texture":
+        contour_settings = _skip_settings(contour_settings)
     if cues != "texture":
         t3 = time.perf_counter()
         cframes, cmsgs = _scene_contour_frames(scene, cameras, nf, cues, contour_settings,
@@ -183,24 +183,26 @@ def run_scene(scene, observations: str = "auto", model: str = "complete",
 #: The observation types ``run_scene`` / ``python -m core fit --cues`` can fit.
 CUES = ("texture", "contours", "both")
 
-#: Body parts whose contours are not used with ``cues="both"`` (unless the contour
-#: settings name their own ``skip_parts``): the head's template metaballs do not follow a
-#: real head's outline (hair, face, a neck that the template makes a cylinder), and with
-#: points fitting the rest of the body its contour pairs only bent the neck.  On
-#: walk_line3 (real tracks): MPJPE 28.6 -> 25.8 mm, head 93 -> 25 mm.
-BOTH_SKIP_PARTS = ("head", "neck")
+#: Body parts whose contours are not used with ``cues="both"`` or ``"contours"`` (unless
+#: the contour settings name their own ``skip_parts``): the head's template metaballs do
+#: not follow a real head's outline (hair, face, a neck that the template makes a
+#: cylinder).  With points fitting the rest of the body its contour pairs only bent the
+#: neck (walk_line3, real tracks: MPJPE 28.6 -> 25.8 mm, head 93 -> 25 mm); with contours
+#: alone the head and neck then follow the trunk and the clicked posture (walk, line3,
+#: with the silhouette limb search: skin 35.1 -> 29.0 mm, sweater 32.1 -> 30.4 mm).
+CONTOUR_SKIP_PARTS = ("head", "neck")
 
 
-def _both_settings(cfg):
-    """The contour settings of a ``cues="both"`` fit: ``cfg`` (default
-    :class:`core.fit_contours.ContourSettings`) with :data:`BOTH_SKIP_PARTS` unless it
+def _skip_settings(cfg):
+    """The contour settings of a fit with contours: ``cfg`` (default
+    :class:`core.fit_contours.ContourSettings`) with :data:`CONTOUR_SKIP_PARTS` unless it
     names parts to skip itself."""
     from dataclasses import replace
 
     from .fit_contours import ContourSettings
 
     cfg = cfg or ContourSettings()
-    return cfg if cfg.skip_parts else replace(cfg, skip_parts=BOTH_SKIP_PARTS)
+    return cfg if cfg.skip_parts else replace(cfg, skip_parts=CONTOUR_SKIP_PARTS)
 
 
 def _scene_contour_frames(scene, cameras, nf: int, cues: str, cfg, progress):

@@ -81,6 +81,9 @@ class SequenceSettings:
     search: bool = True  # annealed retry with the limb search (core.fit_search)
     search_tau: float = 0.05  # truncation of the search's point distances, metres
     search_min_gain: float = 100.0  # explain-cost decrease that moves a limb
+    #: contours alone: limbs re-placed where they explain the foreground best, then the
+    #: frame refitted (core.silhouette_search)
+    silhouette_search: bool = True
     retry_unexplained: float = 0.2  # share of points > inlier_m from the body: retry
     max_unexplained: float = 0.3  # ... above this share the frame is marked diverged
     #: (segmentation reach m, robust knee in σ) per stage of an annealed fit

@@ -281,14 +281,14 @@ def test_selection_by_visibility_alone_ignores_the_predicted_motion(body):
     assert np.any(by_motion.observability > 0)
 
 
-def test_both_cues_skip_the_head_contours_unless_the_settings_name_their_own():
-    from core.fit_scene import BOTH_SKIP_PARTS, _both_settings
+def test_scene_fits_skip_the_head_contours_unless_the_settings_name_their_own():
+    from core.fit_scene import CONTOUR_SKIP_PARTS, _skip_settings
 
-    assert _both_settings(None).skip_parts == BOTH_SKIP_PARTS
-    cs = _both_settings(ContourSettings(sigma_px=2.0))
-    assert cs.sigma_px == 2.0 and cs.skip_parts == BOTH_SKIP_PARTS
+    assert _skip_settings(None).skip_parts == CONTOUR_SKIP_PARTS
+    cs = _skip_settings(ContourSettings(sigma_px=2.0))
+    assert cs.sigma_px == 2.0 and cs.skip_parts == CONTOUR_SKIP_PARTS
     own = ContourSettings(skip_parts=("l_wrist",))
-    assert _both_settings(own) is own
+    assert _skip_settings(own) is own
 
 
 def test_one_view_does_not_unhide_a_part_beside_points(body):
@@ -309,3 +309,33 @@ def test_one_view_does_not_unhide_a_part_beside_points(body):
     only.freeze(skel, balls, theta, root, s)
     assert only.part_counts(P).sum() > 100
     assert not only.part_counts(P, min_views=2).any()
+
+
+def test_contours_alone_find_an_arm_that_swung_beyond_the_pairing_reach():
+    """An arm raised 0.6 rad per frame leaves the contour pairing's reach: the silhouette
+    limb search (SequenceSettings.silhouette_search) puts it back, without it the fit
+    leaves it behind."""
+    skel = sk.make_skeleton()
+    s = np.ones(skel.n_groups)
+    balls = mb.make_metaballs(skel, "simplified", s)
+    nf = 4
+    base, _ = _pose(skel)
+    theta = np.repeat(base[None], nf, axis=0)
+    theta[:, skel.dof_index("r_shoulder_x")] = np.linspace(0.0, -1.8, nf)
+    root = np.repeat(np.array([[0.0, 0.0, 1.0]]), nf, axis=0)
+    cams = _cams()
+    cons = [_silhouettes(skel, balls, theta[f], root[f], s, cams) for f in range(nf)]
+    init = initialise(clicks_of(skel, theta[0], root[0], s, cams, CLICK_JOINTS), cams,
+                      model="simplified")
+    init.metaballs = balls.copy()
+    frames = [FramePoints(np.zeros((0, 3)), np.zeros(0)) for _ in range(nf)]
+    wrist = skel.joint_index("r_wrist")
+    err = {}
+    for on in (False, True):
+        cfr = contour_frames(cams, cons, ContourSettings(sigma_px=1.0, huber_px=2.0))
+        res = fit_sequence(frames, init, SequenceSettings(max_nfev=15, shape_frames=1,
+                                                          silhouette_search=on), contours=cfr)
+        err[on] = np.linalg.norm(res.state.joints_xyz()[:, wrist]
+                                 - sk.joint_positions(skel, theta, root, s)[:, wrist], axis=-1)
+    assert err[False][-1] > 0.2, err
+    assert np.all(err[True] < 0.05), err

@@ -1,0 +1,289 @@
+"""Limb search against the foreground masks: the silhouette counterpart of :mod:`core.fit_search`.
+
+With contours alone (bare skin: the tracker finds no points) a limb is seen only by
+its share of the *outer* occluding contour (:func:`core.fit_contours.outer_rim`).
+An arm swinging in front of the trunk has none — its parts are held as hidden — and
+when its hand comes out of the silhouette again it is often further from the model's
+rim than the contour pairing reaches (``max_dist_px``), so the hold keeps it where
+it went in.  On the walk with the ``skin`` look (line3) the wrists ended 225–235 mm
+off, the rest of the body 17–54 mm.
+
+Here every limb is placed, as :func:`core.fit_search.search_limbs` does with points,
+at the grid pose that best explains the frame's foreground:
+
+* each metaball's visible ellipsoid (:func:`core.contour_obs.body_ellipsoids`) is
+  projected to an image ellipse by the camera's Jacobian at its centre (weak
+  perspective per metaball: an ellipsoid of ≤ 15 cm at 3 m or more is within a
+  fraction of a pixel of its true outline);
+* on a grid of pixels (every ``step`` px) around the person, the foreground that the
+  rest of the body leaves unexplained counts for the limb where the limb covers it,
+  background the limb covers against it (× ``w_background``); foreground the rest of
+  the body already covers is neutral, so an arm over the trunk costs nothing;
+* a weak prior towards the start (σ ``sigma_prior`` per grid DOF, ``prior_px`` grid
+  pixels per σ²) keeps a limb without evidence where it was.
+
+Arrays: ``theta`` (n,) radians; ``root`` (3,) metres; image points ``(u, v)`` pixels
+(:mod:`core.camera`); masks (H, W) bool.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .camera import Camera, camera_project_jacobians
+from .contour_obs import body_ellipsoids
+from .fit_search import LIMBS, _grid
+from .metaballs import Metaballs
+from .skeleton import Skeleton, forward, joint_positions
+
+
+@dataclass
+class MaskGrid:
+    """Pixels sampled from one camera's foreground mask around the person.
+
+    Attributes
+    ----------
+    uv : ndarray, shape (G, 2)
+        Pixel centres on a grid of ``step`` px over the mask's bounding box plus a
+        margin, pixels.
+    fg : ndarray, shape (G,), bool
+        Foreground at those pixels.
+    step : int
+        Grid spacing, pixels (each sample stands for step² pixels).
+    """
+
+    uv: np.ndarray
+    fg: np.ndarray
+    step: int
+
+
+def mask_grid(mask: np.ndarray, step: int = 2, margin_px: int = 40) -> MaskGrid:
+    """:class:`MaskGrid` of a foreground mask (H, W) bool; empty when the mask is."""
+    mask = np.asarray(mask, bool)
+    vs, us = np.nonzero(mask)
+    if not len(us):
+        return MaskGrid(np.zeros((0, 2)), np.zeros(0, bool), step)
+    h, w = mask.shape
+    u0, u1 = max(us.min() - margin_px, 0), min(us.max() + margin_px, w - 1)
+    v0, v1 = max(vs.min() - margin_px, 0), min(vs.max() + margin_px, h - 1)
+    gu, gv = np.meshgrid(np.arange(u0, u1 + 1, step), np.arange(v0, v1 + 1, step))
+    uv = np.stack([gu.ravel(), gv.ravel()], axis=1)
+    return MaskGrid(uv.astype(float), mask[uv[:, 1], uv[:, 0]], step)
+
+
+def image_ellipses(camera: Camera, centers: np.ndarray, axes: np.ndarray,
+                   radii: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Image ellipses of ellipsoids: centres (M, 2) px and inverse shapes (M, 2, 2).
+
+    A pixel ``u`` is inside ellipse m when ``(u - mu_m)ᵀ S_m (u - mu_m) <= 1``, with
+    ``S_m = (J A diag(r²) Aᵀ Jᵀ)⁻¹`` and ``J`` (2, 3) the projection's Jacobian at the
+    ellipsoid's centre.  ``axes`` (M, 3, 3) has the world axes as columns, ``radii``
+    (M, 3) metres.  Ellipsoids behind the camera get a zero shape (cover nothing).
+    """
+    centers = np.asarray(centers, float).reshape(-1, 3)
+    uv, _, J = camera_project_jacobians(camera, centers)
+    cov3 = np.einsum("mij,mj,mkj->mik", axes, np.asarray(radii, float) ** 2, axes)
+    cov2 = np.einsum("mai,mij,mbj->mab", J, cov3, J)
+    det = cov2[:, 0, 0] * cov2[:, 1, 1] - cov2[:, 0, 1] * cov2[:, 1, 0]
+    z = camera.to_camera(centers)[:, 2]
+    ok = np.all(np.isfinite(uv), axis=1) & (z > 1e-6) & (det > 1e-12)
+    inv = np.zeros_like(cov2)
+    d = np.where(ok, det, 1.0)
+    inv[:, 0, 0], inv[:, 1, 1] = cov2[:, 1, 1] / d, cov2[:, 0, 0] / d
+    inv[:, 0, 1] = inv[:, 1, 0] = -cov2[:, 0, 1] / d
+    inv[~ok] = 0.0
+    return np.where(ok[:, None], uv, 0.0), inv
+
+
+def _covered(uv: np.ndarray, mu: np.ndarray, inv: np.ndarray) -> np.ndarray:
+    """(..., G) bool: grid pixels ``uv`` (G, 2) inside any of the ellipses (..., E)."""
+    du = uv[:, 0] - mu[..., 0, None]                                 # (..., E, G)
+    dv = uv[:, 1] - mu[..., 1, None]
+    q = (inv[..., 0, 0, None] * du * du + 2.0 * inv[..., 0, 1, None] * du * dv
+         + inv[..., 1, 1, None] * dv * dv)
+    live = np.any(inv != 0, axis=(-1, -2))[..., None]                # (..., E, 1)
+    return np.any((q <= 1.0) & live, axis=-2)
+
+
+def silhouette_disagreement(skel: Skeleton, balls: Metaballs, theta: np.ndarray,
+                            root: np.ndarray, s: np.ndarray, cameras: list[Camera],
+                            grids: list[MaskGrid]) -> float:
+    """Pixels (summed over cameras) where the body's projection and the foreground
+    disagree (either covers what the other does not), counted on the grids."""
+    centers, axes, radii, _ = body_ellipsoids(skel, theta, root, s, balls)
+    total = 0.0
+    for cam, g in zip(cameras, grids, strict=True):
+        if not len(g.fg):
+            continue
+        mu, inv = image_ellipses(cam, centers, axes, radii)
+        total += float(np.sum(_covered(g.uv, mu, inv) != g.fg)) * g.step**2
+    return total
+
+
+@dataclass
+class SilhouetteSearch:
+    """Outcome of :func:`search_limbs_silhouette`.
+
+    Attributes
+    ----------
+    theta : ndarray, shape (n,)
+        The start with every moved limb at its best grid pose, radians.
+    moved : list of str
+        Limbs (names of :data:`core.fit_search.LIMBS`) whose pose changed.
+    gain_px : float
+        Decrease of the search cost (pixels, prior included) over all moves.
+    """
+
+    theta: np.ndarray
+    moved: list
+    gain_px: float
+
+
+#: Unit-disc sample pattern (K, 2) for the background a projected ellipse covers: the
+#: centre and two rings of six, at radii splitting the disc into near-equal areas.
+_DISC = np.vstack([np.zeros((1, 2))] + [
+    r * np.stack([np.cos(a), np.sin(a)], axis=1)
+    for r, a in ((0.5, np.arange(6) * np.pi / 3), (0.85, (np.arange(6) + 0.5) * np.pi / 3))])
+
+
+def _ellipse_background(mask: np.ndarray, mu: np.ndarray, inv: np.ndarray) -> np.ndarray:
+    """Background area (..., E) in pixels that ellipses (mu (..., E, 2), inverse shapes
+    inv (..., E, 2, 2)) cover: each ellipse's area times the share of its
+    :data:`_DISC` samples on background (outside the image counts as background)."""
+    a, b, c = inv[..., 0, 0], inv[..., 0, 1], inv[..., 1, 1]
+    det = a * c - b * b
+    live = det > 1e-18
+    det = np.where(live, det, 1.0)
+    # covariance = inv⁻¹, its Cholesky factor maps the unit disc onto the ellipse
+    s00, s01, s11 = c / det, -b / det, a / det
+    l00 = np.sqrt(np.maximum(s00, 0.0))
+    l10 = s01 / np.maximum(l00, 1e-12)
+    l11 = np.sqrt(np.maximum(s11 - l10**2, 0.0))
+    u = mu[..., None, 0] + l00[..., None] * _DISC[:, 0]
+    v = mu[..., None, 1] + l10[..., None] * _DISC[:, 0] + l11[..., None] * _DISC[:, 1]
+    h, w = mask.shape
+    iu, iv = np.rint(u).astype(np.int64), np.rint(v).astype(np.int64)
+    inside = (iu >= 0) & (iv >= 0) & (iu < w) & (iv < h)
+    fg = np.zeros(iu.shape, bool)
+    fg[inside] = mask[iv[inside], iu[inside]]
+    area = np.pi / np.sqrt(det)
+    return np.where(live, area * (1.0 - fg.mean(axis=-1)), 0.0)
+
+
+def _limb_gain(skel, balls, s, theta, root, limb, cameras, masks, sigma_prior, prior_px,
+               w_background, step):
+    """Best grid pose of one limb against the masks: ``(gain px, theta)`` or (0, None)."""
+    from .metaballs import world_frames
+
+    bones, root_joint, tail_joint, grid = limb
+    on = np.isin(balls.bone, [skel.bone_index(b) for b in bones])
+    if not on.any():
+        return 0.0, None
+    centers, axes, radii, _ = body_ellipsoids(skel, theta, root, s, balls)
+    jx = joint_positions(skel, theta, root, s)
+    base = jx[skel.joint_index(root_joint)]
+    reach = np.linalg.norm(jx[skel.joint_index(tail_joint)] - base) * 1.15 + 0.1
+    views = []
+    for cam, mask in zip(cameras, masks, strict=True):
+        if mask is None:
+            continue
+        b_uv = cam.project(base[None])[0]
+        z = cam.to_camera(base[None])[0, 2]
+        if not (np.all(np.isfinite(b_uv)) and z > 1e-6):
+            continue
+        r_px = reach * cam.K[0, 0] / z
+        h, w = mask.shape
+        gu, gv = np.meshgrid(np.arange(max(b_uv[0] - r_px, 0), min(b_uv[0] + r_px, w - 1), step),
+                             np.arange(max(b_uv[1] - r_px, 0), min(b_uv[1] + r_px, h - 1), step))
+        uv = np.stack([gu.ravel(), gv.ravel()], axis=1)
+        uv = uv[np.sum((uv - b_uv) ** 2, axis=1) <= r_px**2]
+        uv = uv[mask[np.rint(uv[:, 1]).astype(int), np.rint(uv[:, 0]).astype(int)]]
+        if not len(uv):
+            continue
+        mu, inv = image_ellipses(cam, centers[~on], axes[~on], radii[~on])
+        unexplained = uv[~_covered(uv, mu, inv)]  # foreground the rest leaves to the limb
+        if len(unexplained):
+            views.append((cam, mask, unexplained))
+    if not views:
+        return 0.0, None
+    r_on = radii[on]
+
+    def score(th):
+        """(H,) unexplained foreground covered minus weighted background, pixels."""
+        pose = forward(skel, th, np.repeat(root[None], len(th), axis=0), s)
+        Rw, cw = world_frames(skel, pose, balls, s)
+        H, E = len(th), int(on.sum())
+        total = np.zeros(H)
+        for cam, mask, uv in views:
+            mu, inv = image_ellipses(cam, cw[:, on].reshape(-1, 3), Rw[:, on].reshape(-1, 3, 3),
+                                     np.tile(r_on, (H, 1)))
+            mu, inv = mu.reshape(H, E, 2), inv.reshape(H, E, 2, 2)
+            total += _covered(uv, mu, inv).sum(axis=1) * float(step) ** 2
+            total -= w_background * _ellipse_background(mask, mu, inv).sum(axis=1)
+        return total
+
+    base_score = float(score(theta[None])[0])
+    best, best_cost = theta, -base_score
+    for level in range(3):  # the grid, then finer grids around its best pose
+        if level == 0:
+            th, idx = _grid(skel, best, grid)
+        else:
+            st = [np.diff(gr).min() / 2**level for _, gr in grid]
+            th, idx = _grid(skel, best, [(d, (-x, 0.0, x)) for (d, _), x in zip(
+                grid, st, strict=True)])
+        cost = -score(th) + prior_px * np.sum(((th[:, idx] - theta[idx][None])
+                                               / sigma_prior) ** 2, axis=1)
+        k = int(np.argmin(cost))
+        if cost[k] < best_cost - 1e-9:
+            best, best_cost = th[k].copy(), float(cost[k])
+    if best is theta:
+        return 0.0, None
+    return -base_score - best_cost, best
+
+
+def search_limbs_silhouette(skel: Skeleton, balls: Metaballs, s: np.ndarray,
+                            theta0: np.ndarray, root: np.ndarray, cameras: list[Camera],
+                            masks: list, limbs: tuple | None = None,
+                            sigma_prior: float = 0.6, prior_px: float = 20.0,
+                            w_background: float = 1.0, min_gain_px: float = 200.0,
+                            rounds: int = 2, step: int = 2) -> SilhouetteSearch:
+    """Place each limb at the grid pose that best explains the foreground near it.
+
+    Parameters
+    ----------
+    balls : Metaballs with the fitted radii (the search renders their visible ellipsoids)
+    theta0 : (n,) start pose, radians; root : (3,) metres
+    cameras, masks : the frame's cameras and their foreground masks (H, W) bool (None
+        leaves a camera out)
+    limbs : names of :data:`core.fit_search.LIMBS` (default all four)
+    sigma_prior, prior_px : the prior towards the start, ``prior_px · Σ (Δθ/σ)²`` pixels
+    w_background : weight of background pixels a limb covers, against 1 for the
+        unexplained foreground it covers
+    min_gain_px : a move must gain more than this many pixels (summed over cameras)
+    rounds : moves per limb at most, greedy (the limb that gains most moves first)
+    step : spacing of the foreground pixels sampled near a limb, pixels
+
+    Returns
+    -------
+    SilhouetteSearch
+    """
+    theta = np.asarray(theta0, float).copy()
+    root = np.asarray(root, float).reshape(3)
+    names = tuple(LIMBS) if limbs is None else tuple(limbs)
+    moved: list[str] = []
+    total = 0.0
+    for _ in range(rounds * len(names)):
+        best_gain, best_theta, best_name = min_gain_px, None, None
+        for name in names:
+            gain, th = _limb_gain(skel, balls, s, theta, root, LIMBS[name], cameras, masks,
+                                  sigma_prior, prior_px, w_background, step)
+            if gain > best_gain:
+                best_gain, best_theta, best_name = gain, th, name
+        if best_theta is None:
+            break
+        theta, total = best_theta, total + best_gain
+        if best_name not in moved:
+            moved.append(best_name)
+    return SilhouetteSearch(theta, moved, total)

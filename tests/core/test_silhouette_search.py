@@ -1,0 +1,83 @@
+"""Limb search against foreground masks (core/silhouette_search.py)."""
+
+import numpy as np
+import pytest
+
+from core import metaballs as mb
+from core import skeleton as sk
+from core.contour_obs import body_ellipsoids
+from core.model_render import render_parts
+from core.silhouette_search import (
+    image_ellipses,
+    mask_grid,
+    search_limbs_silhouette,
+    silhouette_disagreement,
+)
+from tests.core._bodyscene import cameras, look_at
+
+
+@pytest.fixture
+def body():
+    skel = sk.make_skeleton()
+    s = np.ones(skel.n_groups)
+    return skel, s, mb.make_metaballs(skel, "simplified", s)
+
+
+def _masks(skel, balls, theta, root, s, cams):
+    """Exact ray-cast silhouettes (core.model_render) of the model in every camera."""
+    c, a, r, p = body_ellipsoids(skel, theta, root, s, balls)
+    return [render_parts(cam, c, a, r, p).mask for cam in cams]
+
+
+def test_image_ellipse_matches_the_ray_cast_outline(rng):
+    cam = look_at("c", (0.4, -3.0, 1.3), target=(0.0, 0.0, 1.0))
+    for _ in range(5):
+        q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+        centre = rng.normal([0, 0, 1.0], 0.3)
+        radii = rng.uniform(0.04, 0.15, 3)
+        mask = render_parts(cam, centre[None], q[None], radii[None], np.zeros(1, int)).mask
+        mu, inv = image_ellipses(cam, centre[None], q[None], radii[None])
+        v, u = np.mgrid[0:mask.shape[0], 0:mask.shape[1]]
+        d = np.stack([u - mu[0, 0], v - mu[0, 1]], axis=-1)
+        ours = np.einsum("hwi,ij,hwj->hw", d, inv[0], d) <= 1.0
+        iou = (ours & mask).sum() / (ours | mask).sum()
+        assert iou > 0.95, iou
+
+
+def test_an_arm_out_of_place_is_put_back_and_an_arm_without_evidence_stays(body):
+    skel, s, balls = body
+    cams = cameras()
+    root = np.array([0.0, 0.0, 1.0])
+    true = np.zeros(skel.n_dof)
+    true[skel.dof_index("r_shoulder_x")] = -1.0  # right arm raised forward
+    true[skel.dof_index("r_elbow_x")] = 0.6
+    masks = _masks(skel, balls, true, root, s, cams)
+    start = true.copy()
+    start[skel.dof_index("r_shoulder_x")] = 0.0  # the fit lost it: hanging down
+    start[skel.dof_index("r_elbow_x")] = 0.0
+    res = search_limbs_silhouette(skel, balls, s, start, root, cams, masks)
+    wrist = skel.joint_index("r_wrist")
+    before = np.linalg.norm(sk.joint_positions(skel, start, root, s)[wrist]
+                            - sk.joint_positions(skel, true, root, s)[wrist])
+    after = np.linalg.norm(sk.joint_positions(skel, res.theta, root, s)[wrist]
+                           - sk.joint_positions(skel, true, root, s)[wrist])
+    assert before > 0.3 and after < 0.08, (before, after)
+    assert res.moved == ["r_arm"]
+    grids = [mask_grid(m) for m in masks]
+    assert (silhouette_disagreement(skel, balls, res.theta, root, s, cams, grids)
+            < 0.3 * silhouette_disagreement(skel, balls, start, root, s, cams, grids))
+    # at the true pose nothing is left unexplained: no limb moves
+    again = search_limbs_silhouette(skel, balls, s, true, root, cams, masks)
+    assert again.moved == [] and np.array_equal(again.theta, true)
+
+
+def test_a_camera_without_a_mask_is_left_out(body):
+    skel, s, balls = body
+    cams = cameras()
+    root = np.array([0.0, 0.0, 1.0])
+    theta = np.zeros(skel.n_dof)
+    res = search_limbs_silhouette(skel, balls, s, theta, root, cams, [None] * len(cams))
+    assert res.moved == [] and res.gain_px == 0.0
+    empty = mask_grid(np.zeros((384, 512), bool))
+    assert len(empty.uv) == 0
+    assert silhouette_disagreement(skel, balls, theta, root, s, cams, [empty] * 3) == 0.0

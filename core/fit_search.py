@@ -82,22 +82,14 @@ def _limb_move(xyz, skel, balls, s, radii, theta, root, limb, tau, sigma, sigma_
     Lr, gr = L_rest[:, near], g_rest[:, near]
     d0 = _distance(*_combine(Lr, gr, L_self[:, near], g_self[:, near]))[0]
     cost0 = float(_rho(d0, tau, sigma).sum())
-    best, best_cost = theta, cost0
-    for level in range(3):  # the grid, then finer grids around its best pose
-        if level == 0:
-            th, idx = _grid(skel, best, grid)
-        else:
-            step = [np.diff(g).min() / 2**level for _, g in grid]
-            th, idx = _grid(skel, best, [(d, (-st, 0.0, st)) for (d, _), st in zip(
-                grid, step, strict=True)])
+
+    def cost(th):
         pose = forward(skel, th, np.repeat(root[None], len(th), axis=0), s)
         Rw, cw = world_frames(skel, pose, balls, s)
         d = _distance(*_combine(Lr, gr, *_log_field(x, Rw[:, on], cw[:, on], radii[on])))
-        cost = _rho(d, tau, sigma).sum(axis=1)
-        cost += np.sum(((th[:, idx] - theta[idx][None]) / sigma_prior) ** 2, axis=1)
-        k = int(np.argmin(cost))
-        if cost[k] < best_cost - 1e-9:
-            best, best_cost = th[k].copy(), float(cost[k])
+        return _rho(d, tau, sigma).sum(axis=1)
+
+    best, best_cost = grid_search(skel, theta, grid, cost, cost0, 1.0 / sigma_prior**2)
     if best is theta:
         return 0.0, None
     return cost0 - best_cost, best
@@ -204,6 +196,40 @@ def _grid(skel: Skeleton, theta0: np.ndarray, grid) -> tuple[np.ndarray, np.ndar
     th = np.repeat(theta0[None], len(offs), axis=0)
     th[:, idx] = np.clip(theta0[idx][None] + offs, skel.dof_lo[idx], skel.dof_hi[idx])
     return th, idx
+
+
+def grid_search(skel: Skeleton, theta: np.ndarray, grid, cost, cost0: float,
+                prior_weight: float, levels: int = 3) -> tuple[np.ndarray, float]:
+    """Lowest-cost pose of one limb over a grid around ``theta``, then finer grids.
+
+    Parameters
+    ----------
+    theta : (n,) start pose, radians
+    grid : ((DOF name, offsets in degrees), ...) — see :data:`LIMBS`
+    cost : callable, poses (H, n) -> (H,) costs
+    cost0 : the cost of ``theta`` itself
+    prior_weight : weight of the prior towards the start, ``prior_weight · Σ Δθ²``
+        over the grid DOFs (radians²)
+    levels : the grid, then ``levels - 1`` 3×3×… grids of half, quarter … its spacing
+        about the best pose so far
+
+    Returns
+    -------
+    (best pose — ``theta`` itself (the same object) when nothing beats it — and its cost)
+    """
+    best, best_cost = theta, cost0
+    for level in range(levels):
+        if level == 0:
+            th, idx = _grid(skel, best, grid)
+        else:
+            step = [np.diff(g).min() / 2**level for _, g in grid]
+            th, idx = _grid(skel, best, [(d, (-st, 0.0, st)) for (d, _), st in zip(
+                grid, step, strict=True)])
+        c = cost(th) + prior_weight * np.sum((th[:, idx] - theta[idx][None]) ** 2, axis=1)
+        k = int(np.argmin(c))
+        if c[k] < best_cost - 1e-9:
+            best, best_cost = th[k].copy(), float(c[k])
+    return best, best_cost
 
 
 def search_limbs(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarray,

@@ -34,7 +34,7 @@ import numpy as np
 
 from .camera import Camera, camera_project_jacobians
 from .contour_obs import body_ellipsoids
-from .fit_search import LIMBS, _grid
+from .fit_search import LIMBS, grid_search
 from .metaballs import Metaballs
 from .skeleton import Skeleton, forward, joint_positions
 
@@ -225,19 +225,8 @@ def _limb_gain(skel, balls, s, theta, root, limb, cameras, masks, sigma_prior, p
         return total
 
     base_score = float(score(theta[None])[0])
-    best, best_cost = theta, -base_score
-    for level in range(3):  # the grid, then finer grids around its best pose
-        if level == 0:
-            th, idx = _grid(skel, best, grid)
-        else:
-            st = [np.diff(gr).min() / 2**level for _, gr in grid]
-            th, idx = _grid(skel, best, [(d, (-x, 0.0, x)) for (d, _), x in zip(
-                grid, st, strict=True)])
-        cost = -score(th) + prior_px * np.sum(((th[:, idx] - theta[idx][None])
-                                               / sigma_prior) ** 2, axis=1)
-        k = int(np.argmin(cost))
-        if cost[k] < best_cost - 1e-9:
-            best, best_cost = th[k].copy(), float(cost[k])
+    best, best_cost = grid_search(skel, theta, grid, lambda th: -score(th), -base_score,
+                                  prior_px / sigma_prior**2)
     if best is theta:
         return 0.0, None
     return -base_score - best_cost, best

@@ -124,16 +124,20 @@ def test_pose_from_contours_alone_recovers_a_perturbed_pose(body):
     assert used["pelvis"] and set(used["pelvis"]) <= {c.name for c in cams}
 
 
+def _motion(nf):
+    """Skeleton, scales, simplified metaballs and nf frames (nf, n) of :func:`_pose`."""
+    skel = sk.make_skeleton()
+    s = np.ones(skel.n_groups)
+    base, _ = _pose(skel)
+    return skel, s, mb.make_metaballs(skel, "simplified", s), np.repeat(base[None], nf, axis=0)
+
+
 @pytest.mark.slow
 def test_sequence_from_contours_alone_and_a_frame_without_contours():
     """fit_sequence with no points at all: contours carry the motion; a frame whose
     contours are missing is marked diverged with a finite pose; cameras recorded."""
-    skel = sk.make_skeleton()
-    s = np.ones(skel.n_groups)
-    balls = mb.make_metaballs(skel, "simplified", s)
+    skel, s, balls, theta = _motion(4)
     nf = 4
-    base, _ = _pose(skel)
-    theta = np.repeat(base[None], nf, axis=0)
     theta[:, skel.dof_index("l_elbow_x")] += np.linspace(0.0, -0.3, nf)
     theta[:, skel.dof_index("r_knee_x")] += np.linspace(0.0, 0.2, nf)
     root = np.array([[0.0, 0.02 * f, 1.0] for f in range(nf)])
@@ -311,16 +315,13 @@ def test_one_view_does_not_unhide_a_part_beside_points(body):
     assert not only.part_counts(P, min_views=2).any()
 
 
+@pytest.mark.slow
 def test_contours_alone_find_an_arm_that_swung_beyond_the_pairing_reach():
     """An arm raised 0.6 rad per frame leaves the contour pairing's reach: the silhouette
     limb search (SequenceSettings.silhouette_search) puts it back, without it the fit
     leaves it behind."""
-    skel = sk.make_skeleton()
-    s = np.ones(skel.n_groups)
-    balls = mb.make_metaballs(skel, "simplified", s)
+    skel, s, balls, theta = _motion(4)
     nf = 4
-    base, _ = _pose(skel)
-    theta = np.repeat(base[None], nf, axis=0)
     theta[:, skel.dof_index("r_shoulder_x")] = np.linspace(0.0, -1.8, nf)
     root = np.repeat(np.array([[0.0, 0.0, 1.0]]), nf, axis=0)
     cams = _cams()

@@ -68,7 +68,8 @@ metaball outline is not the body's, a larger factor lets the contours mainly pla
 the points miss); a part with fewer than ``min_part_matches`` contour pairs *and* too
 few points is hidden (with points and ``unhide`` False: too few points alone).  A frame with fewer
 than ``min_points`` points (always, with contours alone) is fitted from its contours,
-judged by them (at least ``min_matches`` pairs, inlier RMS ≤ ``max_rms_px``); instead of
+judged by them (at least ``min_matches`` pairs, inlier RMS ≤ ``max_rms_px``, the body's
+projection overlapping the foreground at a mean IoU ≥ ``min_silhouette_iou``); instead of
 the point-based limb search it has the silhouette one (``silhouette_search``,
 :func:`core.silhouette_search.search_limbs_silhouette`: a limb moved to where it best
 explains the foreground that the rest of the body leaves unexplained — an arm that
@@ -99,7 +100,11 @@ from .metaballs import Metaballs, world_frames
 from .progress import Progress
 from .segment import carry_labels, no_labels, segment_points
 from .shape_fit import ShapeSettings, fit_shape
-from .silhouette_search import search_limbs_silhouette, silhouette_disagreement
+from .silhouette_search import (
+    search_limbs_silhouette,
+    silhouette_disagreement,
+    silhouette_iou,
+)
 from .skeleton import Skeleton, anchor_sigma, forward, stiff_sigma
 from .state import FitState, Quality
 
@@ -311,6 +316,10 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
                 bad.append(f"only {cst['n']} contour pairs")
             elif cst["rms_px"] > cf.cfg.max_rms_px:
                 bad.append(f"contour RMS {cst['rms_px']:.1f} px")
+            iou = silhouette_iou(skel, balls.copy(radii=radii), q[:n], q[n:], s, cf.cameras,
+                                 cf.grids())
+            if np.isfinite(iou).any() and np.nanmean(iou) < cfg.min_silhouette_iou:
+                bad.append(f"silhouette IoU {np.nanmean(iou):.2f}")
             return not bad, ", ".join(bad), stats
         d = surface_residuals(skel, balls, q[:n], q[n:], s, radii, frames[f].xyz[use],
                               part[use], cfg.fit.members)

@@ -107,19 +107,38 @@ def _covered(uv: np.ndarray, mu: np.ndarray, inv: np.ndarray) -> np.ndarray:
     return np.any((q <= 1.0) & live, axis=-2)
 
 
+def _body_coverage(skel, balls, theta, root, s, cameras, grids):
+    """Per camera the body's coverage (G,) bool of its grid's pixels (None: empty grid)."""
+    centers, axes, radii, _ = body_ellipsoids(skel, theta, root, s, balls)
+    out = []
+    for cam, g in zip(cameras, grids, strict=True):
+        if not len(g.fg):
+            out.append(None)
+            continue
+        mu, inv = image_ellipses(cam, centers, axes, radii)
+        out.append(_covered(g.uv, mu, inv))
+    return out
+
+
 def silhouette_disagreement(skel: Skeleton, balls: Metaballs, theta: np.ndarray,
                             root: np.ndarray, s: np.ndarray, cameras: list[Camera],
                             grids: list[MaskGrid]) -> float:
     """Pixels (summed over cameras) where the body's projection and the foreground
     disagree (either covers what the other does not), counted on the grids."""
-    centers, axes, radii, _ = body_ellipsoids(skel, theta, root, s, balls)
-    total = 0.0
-    for cam, g in zip(cameras, grids, strict=True):
-        if not len(g.fg):
-            continue
-        mu, inv = image_ellipses(cam, centers, axes, radii)
-        total += float(np.sum(_covered(g.uv, mu, inv) != g.fg)) * g.step**2
-    return total
+    cover = _body_coverage(skel, balls, theta, root, s, cameras, grids)
+    return float(sum(np.sum(c != g.fg) * g.step**2
+                     for c, g in zip(cover, grids, strict=True) if c is not None))
+
+
+def silhouette_iou(skel: Skeleton, balls: Metaballs, theta: np.ndarray, root: np.ndarray,
+                   s: np.ndarray, cameras: list[Camera], grids: list[MaskGrid]) -> np.ndarray:
+    """Intersection over union (C,) of the body's projection and each camera's foreground
+    on its grid (NaN for a camera with an empty grid).  Only the pixels of the grid count:
+    the foreground's bounding box plus its margin."""
+    cover = _body_coverage(skel, balls, theta, root, s, cameras, grids)
+    return np.array([np.nan if c is None else
+                     float(np.sum(c & g.fg)) / max(float(np.sum(c | g.fg)), 1.0)
+                     for c, g in zip(cover, grids, strict=True)])
 
 
 @dataclass

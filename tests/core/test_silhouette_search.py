@@ -12,6 +12,7 @@ from core.silhouette_search import (
     mask_grid,
     search_limbs_silhouette,
     silhouette_disagreement,
+    silhouette_iou,
 )
 from tests.core._bodyscene import cameras, look_at
 
@@ -81,3 +82,18 @@ def test_a_camera_without_a_mask_is_left_out(body):
     empty = mask_grid(np.zeros((384, 512), bool))
     assert len(empty.uv) == 0
     assert silhouette_disagreement(skel, balls, theta, root, s, cams, [empty] * 3) == 0.0
+
+
+def test_silhouette_iou_is_high_at_the_pose_and_falls_as_the_body_leaves(body):
+    skel, s, balls = body
+    cams = cameras()
+    root = np.array([0.0, 0.0, 1.0])
+    theta = np.zeros(skel.n_dof)
+    theta[skel.dof_index("l_shoulder_x")] = -0.7
+    grids = [mask_grid(m) for m in _masks(skel, balls, theta, root, s, cams)]
+    at = silhouette_iou(skel, balls, theta, root, s, cams, grids)
+    near = silhouette_iou(skel, balls, theta, root + [0.1, 0.0, 0.0], s, cams, grids)
+    far = silhouette_iou(skel, balls, theta, root + [0.0, 0.0, -25.0], s, cams, grids)
+    assert np.all(at > 0.95) and np.all(near < 0.8) and np.all(far == 0.0), (at, near, far)
+    grids[1] = mask_grid(np.zeros((384, 512), bool))
+    assert np.isnan(silhouette_iou(skel, balls, theta, root, s, cams, grids)[1])

@@ -69,7 +69,10 @@ the points miss); a part with fewer than ``min_part_matches`` contour pairs *and
 few points is hidden (with points and ``unhide`` False: too few points alone).  A frame with fewer
 than ``min_points`` points (always, with contours alone) is fitted from its contours,
 judged by them (at least ``min_matches`` pairs, inlier RMS ≤ ``max_rms_px``, the body's
-projection overlapping the foreground at a mean IoU ≥ ``min_silhouette_iou``); instead of
+projection overlapping the foreground at a mean IoU ≥ ``min_silhouette_iou``; a frame that
+fails is refitted once more with the root re-centred on the foreground,
+:func:`core.silhouette_search.recentre_root`, from the fit and then from the
+prediction); instead of
 the point-based limb search it has the silhouette one (``silhouette_search``,
 :func:`core.silhouette_search.search_limbs_silhouette`: a limb moved to where it best
 explains the foreground that the rest of the body leaves unexplained — an arm that
@@ -101,6 +104,7 @@ from .progress import Progress
 from .segment import carry_labels, no_labels, segment_points
 from .shape_fit import ShapeSettings, fit_shape
 from .silhouette_search import (
+    recentre_root,
     search_limbs_silhouette,
     silhouette_disagreement,
     silhouette_iou,
@@ -362,6 +366,26 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
             msgs.append(f"frame {f}: {why}: marked diverged" if stats is not None
                         else f"{why}: marked diverged")
 
+    def recentre_retry(f, res, ok, why, st, q_pred, sig_pred, joints, q_hold):
+        """Contours alone, a frame that failed: the root moved to centre the body on
+        the foreground (:func:`core.silhouette_search.recentre_root`, from the fit or
+        the prediction) and the frame refitted from there; the first refit accepted
+        wins.  Returns ``(res, ok, why, stats)``."""
+        cf = cframe(f)
+        body = balls.copy(radii=radii)
+        starts = [q_pred]
+        if res[0] is not None and np.all(np.isfinite(res[0])):
+            starts.insert(0, res[0])
+        for q0 in starts:
+            q1 = q0.copy()
+            q1[n:] = recentre_root(skel, body, q0[:n], q0[n:], s, cf.cameras, cf.grids())
+            res2 = one_frame(f, q1, sig_pred, joints, q_hold)
+            ok2, why2, st2 = assess(f, res2)
+            if ok2:
+                retried[f] = True
+                return res2, ok2, why2, st2
+        return res, ok, why, st
+
     def silhouette_retry(f, res, st, sig_pred, joints, q_hold):
         """Contours alone: every limb placed where it best explains the frame's
         foreground (:func:`core.silhouette_search.search_limbs_silhouette`) and the frame
@@ -425,8 +449,12 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
             if ok2 and (not ok or st2["cost"] < st["cost"]):
                 res, ok, why, st = res2, ok2, why2, st2
                 retried[f] = True
-        elif ok and cfg.silhouette_search and cframe(f) is not None:
-            res, ok, why, st = silhouette_retry(f, res, st, sig_pred, joints, q_hold)
+        elif cfg.silhouette_search and cframe(f) is not None:
+            if not ok:
+                res, ok, why, st = recentre_retry(f, res, ok, why, st, q_pred, sig_pred,
+                                                  joints, q_hold)
+            if ok:
+                res, ok, why, st = silhouette_retry(f, res, st, sig_pred, joints, q_hold)
         record(f, res, ok, why, st)
         if ok:
             hid[f] = hidden_dofs(frames[f].xyz, res[0], cfg.segment_max_dist, cframe(f))

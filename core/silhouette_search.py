@@ -141,6 +141,41 @@ def silhouette_iou(skel: Skeleton, balls: Metaballs, theta: np.ndarray, root: np
                      for c, g in zip(cover, grids, strict=True)])
 
 
+def recentre_root(skel: Skeleton, balls: Metaballs, theta: np.ndarray, root: np.ndarray,
+                  s: np.ndarray, cameras: list[Camera], grids: list[MaskGrid],
+                  iterations: int = 3) -> np.ndarray:
+    """The root (3,) moved so that the body's projection is centred on the foreground.
+
+    Per camera with a mask the image shift between the foreground's centroid and the
+    centroid of the body's coverage (the root's projection when the body covers none
+    of the grid), mapped to a world shift by the least squares of the cameras'
+    projection Jacobians at the root (2 per camera; at least two cameras needed, else
+    the root is returned unchanged).  A coarse re-localisation for a body the contour
+    fit lost: the contours then refine it.
+    """
+    root = np.asarray(root, float).copy()
+    for _ in range(iterations):
+        cover = _body_coverage(skel, balls, theta, root, s, cameras, grids)
+        rows, rhs = [], []
+        for cam, g, c in zip(cameras, grids, cover, strict=True):
+            if c is None or not g.fg.any():
+                continue
+            uv_r, _, J = camera_project_jacobians(cam, root[None])
+            if not np.all(np.isfinite(uv_r)):
+                continue
+            at = g.uv[c].mean(axis=0) if c.any() else uv_r[0]
+            rows.append(J[0])
+            rhs.append(g.uv[g.fg].mean(axis=0) - at)
+        if len(rows) < 2:
+            break
+        A, b = np.vstack(rows), np.concatenate(rhs)
+        step = np.linalg.lstsq(A, b, rcond=None)[0]
+        root += step
+        if np.linalg.norm(step) < 1e-3:
+            break
+    return root
+
+
 @dataclass
 class SilhouetteSearch:
     """Outcome of :func:`search_limbs_silhouette`.

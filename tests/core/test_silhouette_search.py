@@ -10,6 +10,7 @@ from core.model_render import render_parts
 from core.silhouette_search import (
     image_ellipses,
     mask_grid,
+    recentre_root,
     search_limbs_silhouette,
     silhouette_disagreement,
     silhouette_iou,
@@ -97,3 +98,18 @@ def test_silhouette_iou_is_high_at_the_pose_and_falls_as_the_body_leaves(body):
     assert np.all(at > 0.95) and np.all(near < 0.8) and np.all(far == 0.0), (at, near, far)
     grids[1] = mask_grid(np.zeros((384, 512), bool))
     assert np.isnan(silhouette_iou(skel, balls, theta, root, s, cams, grids)[1])
+
+
+def test_recentre_root_finds_a_body_that_moved_beyond_the_contours_reach(body):
+    skel, s, balls = body
+    cams = cameras()
+    theta = np.zeros(skel.n_dof)
+    true_root = np.array([0.3, 0.15, 1.05])
+    grids = [mask_grid(m) for m in _masks(skel, balls, theta, true_root, s, cams)]
+    for start in (np.array([0.0, 0.0, 1.0]), np.array([-0.4, 0.3, 1.0])):
+        got = recentre_root(skel, balls, theta, start, s, cams, grids)
+        assert np.linalg.norm(got - true_root) < 0.03, (start, got)
+    # one camera alone cannot place it in depth: unchanged
+    one = [grids[0]] + [mask_grid(np.zeros((384, 512), bool))] * 2
+    start = np.array([0.0, 0.0, 1.0])
+    assert np.array_equal(recentre_root(skel, balls, theta, start, s, cams, one), start)

@@ -148,7 +148,6 @@ def run_scene(scene, observations: str = "auto", model: str = "complete",
     cframes = None
     if cues != "texture":
         contour_settings = _skip_settings(contour_settings)
-    if cues != "texture":
         t3 = time.perf_counter()
         cframes, cmsgs = _scene_contour_frames(scene, cameras, nf, cues, contour_settings,
                                                progress)

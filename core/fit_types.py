@@ -82,7 +82,8 @@ class SequenceSettings:
     search_tau: float = 0.05  # truncation of the search's point distances, metres
     search_min_gain: float = 100.0  # explain-cost decrease that moves a limb
     #: contours alone: limbs re-placed where they explain the foreground best, then the
-    #: frame refitted (core.silhouette_search)
+    #: frame refitted; a failed frame refitted with the root re-centred on the foreground
+    #: (core.silhouette_search)
     silhouette_search: bool = True
     #: contours alone: a frame whose body overlaps the foreground less (mean IoU over the
     #: cameras with one) is diverged.  Walk, skin look, a 29 mm fit: 0.81-0.90; the dance

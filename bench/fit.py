@@ -246,7 +246,7 @@ def shape_comparison(scene_dir: Path, frames: int | None, model: str = "complete
     ``"fit-output"``: tracked with the per-part shape, the fitted one written): ``eval``
     (:class:`core.evaluate.Evaluation` over the fitted frames), ``ball_mesh_mm`` /
     ``mesh_ball_mm`` / ``seen_mesh_ball_mm`` mean surface distances (mm), ``seconds`` of
-    the fit, ``record`` (the :class:`core.fit.ShapeRecord` or None) and ``diverged`` frames.
+    the fit, ``record`` (the :class:`core.fit_types.ShapeRecord` or None) and ``diverged`` frames.
     """
     from bench.shape import seen_vertices, surface_distances
     from core.evaluate import evaluate_state

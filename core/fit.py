@@ -97,12 +97,12 @@ from .fit_init import Initialisation
 from .fit_predict import PosePredictor
 from .fit_search import explain_cost, explain_distance, search_limbs
 from .fit_trajectory import TrajectoryAnchors
-from .fit_types import FramePoints, SequenceResult, SequenceSettings, ShapeRecord
+from .fit_types import FramePoints, SequenceResult, SequenceSettings
+from .fit_whole_shape import whole_body_shape
 from .fitting import FitSettings, Observations, fit
 from .metaballs import Metaballs, world_frames
 from .progress import Progress
 from .segment import carry_labels, no_labels, segment_points
-from .shape_fit import ShapeSettings, fit_shape
 from .silhouette_search import (
     recentre_root,
     search_limbs_silhouette,
@@ -530,7 +530,7 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
     shape_rec = None
     fitted_balls = None
     if cfg.shape == "fit":
-        fitted_balls, _, shape_rec = _whole_body_shape(
+        fitted_balls, _, shape_rec = whole_body_shape(
             skel, init.metaballs, s, theta, root, frames,
             [f for f in shape_range if not div[f]], cameras, cfg.shape_fit, msgs)
         if cfg.shape_fit_track:
@@ -582,40 +582,3 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
                           retried=retried, messages=msgs,
                           seconds=time.perf_counter() - t_start, shape=shape_rec,
                           contour_matches=c_n, contour_rms_px=c_rms)
-
-
-def _whole_body_shape(skel: Skeleton, template: Metaballs, s: np.ndarray, theta: np.ndarray,
-                      root: np.ndarray, frames: list[FramePoints], use: list[int],
-                      cameras: list | None, settings: ShapeSettings | None,
-                      msgs: list) -> tuple[Metaballs, np.ndarray, ShapeRecord]:
-    """The whole-body shape of ``frames[use]`` at their held poses.
-
-    Runs :func:`core.shape_fit.fit_shape` from the ``template`` metaballs (its prior)
-    with the bone scales ``s`` (G,), the poses ``theta[use]`` (K, n) radians and
-    ``root[use]`` (K, 3) metres, every point's σ the larger of its own and the shape
-    fit's ``sigma_point`` (metres).  Appends its message to ``msgs``; with no usable
-    frame the template is kept.
-
-    Returns
-    -------
-    (metaballs, radii (M, 3) metres, :class:`ShapeRecord`)
-    """
-    sc = settings or ShapeSettings()
-    t0 = time.perf_counter()
-    use = np.asarray(use, int)
-    if not len(use):
-        msgs.append("whole-body shape fit: no fitted shape frame, the template is kept")
-        rec = ShapeRecord(use, np.zeros(0, bool), np.zeros(0), False,
-                          "no fitted shape frame", 0.0)
-        return template.copy(), template.radii.copy(), rec
-    sf = fit_shape(skel, template, s, theta[use], root[use], [frames[f].xyz for f in use],
-                   cameras, sigma=[np.maximum(frames[f].sigma, sc.sigma_point) for f in use],
-                   settings=sc)
-    rec = ShapeRecord(use, sf.frame_ok.copy(), sf.rms_m.copy(), bool(sf.converged), sf.message,
-                      time.perf_counter() - t0)
-    rms = sf.rms_m[sf.frame_ok]
-    msgs.append(f"whole-body shape fit of frames {use.tolist()}: {sf.message}"
-                + (f" (surface RMS {1e3 * np.mean(rms):.2f} mm)" if len(rms) else ""))
-    if not sf.frame_ok.any():
-        return template.copy(), template.radii.copy(), rec
-    return sf.metaballs, sf.metaballs.radii.copy(), rec

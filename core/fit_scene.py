@@ -25,7 +25,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import InputError
-from .fit import FramePoints, SequenceSettings, ShapeRecord, fit_sequence
+from .fit import FramePoints, SequenceSettings, fit_sequence
+from .fit_types import ShapeRecord
 from .progress import Progress
 from .state import FitState
 

@@ -93,6 +93,7 @@ import time
 import numpy as np
 
 from .attractor import attractor, gather, member_table
+from .fit_contours import containment_parts
 from .fit_init import Initialisation
 from .fit_predict import PosePredictor
 from .fit_search import explain_cost, explain_distance, search_limbs
@@ -219,6 +220,8 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
         if cf is not None:
             # parts that the points observe: their contour pairs weigh less (σ × scale)
             cf.part_scale = np.where(cnt >= cfg.min_part_points, cf.cfg.textured_scale, 1.0)
+            cf.containment_parts = containment_parts(cnt, len(xyz) >= cfg.min_points,
+                                                     cfg.min_part_points, cf.cfg)
             cf.freeze(skel, balls.copy(radii=radii), q[:n], q[n:], s)
             if len(xyz) < cfg.min_points or cf.cfg.unhide:
                 # beside points, one view's contours do not un-hide a part (its depth)

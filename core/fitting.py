@@ -13,6 +13,10 @@ Observation equations by type, each weighted by its a-priori σ (eq. 12,
   the contour normal, of each observed silhouette contour point from the model's paired
   rim point, ``n · (z − proj(x(θ, root, shape)))`` over σ in pixels, Huber-weighted;
   the pairs are made afresh at the start of every re-weighting round;
+* **silhouette containment** (optional, with the contours,
+  :meth:`core.fit_contours.ContourFrame.containment_block`): points inside the
+  metaballs of the parts it holds project into every camera's foreground — their
+  distance outside it over σ in pixels, Huber-robust, re-evaluated at every state;
 * **tracked trajectories** (optional, :mod:`core.fit_trajectory`): a point tracked
   since the previous frame held in its bone's frame, ``x(θ, root, s) − z`` over σ in
   metres, Cauchy-weighted (observes a part's twist and slide, which the surface does not);
@@ -210,6 +214,12 @@ class _Problem:
                                       theta[f], root[f], s, self.anc, shape=shape)
                 if len(cb[0]):
                     parts.append(("contour", *cb))
+                hb = o.contours.containment_block(skel, Metaballs(b0.bone, centers, b0.group,
+                                                                  b0.rot, radii),
+                                                  theta[f], root[f], s)
+                if hb is not None and len(hb[0]):
+                    z = zeros(len(hb[0]))
+                    parts.append(("containment", *hb, *z[2:]))
             if o.trajectory is not None and len(o.trajectory):
                 parts.append(("trajectory", *o.trajectory.block(
                     skel, theta[f], root[f], s, self.anc, M3 if shape else None)))

@@ -340,3 +340,79 @@ def test_contours_alone_find_an_arm_that_swung_beyond_the_pairing_reach():
                                  - sk.joint_positions(skel, theta, root, s)[:, wrist], axis=-1)
     assert err[False][-1] > 0.2, err
     assert np.all(err[True] < 0.05), err
+
+
+def test_containment_jacobians_match_finite_differences(body):
+    """The containment rows (robust above the Huber knee) against central differences,
+    at a pose with the right arm swung out of every camera's silhouette."""
+    skel, balls, s, theta, root, cams, observed = body
+    th = theta.copy()
+    th[skel.dof_index("r_shoulder_y")] += 0.7
+    th[skel.dof_index("l_hip_x")] -= 0.3
+    rt = root + np.array([0.01, -0.01, 0.005])
+    cf = ContourFrame(cams, observed, ContourSettings(containment_px=2.0, huber_px=4.0))
+    r, Jt, Jr = cf.containment_block(skel, balls, th, rt, s)
+    assert (r > 0).sum() > 20 and r.max() * 2.0 > 3 * 4.0  # some beyond the knee
+    live = np.flatnonzero(np.abs(Jt).max(axis=0) > 0)
+    assert skel.dof_index("r_shoulder_y") in live
+    eps = 1e-6
+    for k in live:
+        d = np.zeros_like(th)
+        d[k] = eps
+        num = (cf.containment_block(skel, balls, th + d, rt, s)[0]
+               - cf.containment_block(skel, balls, th - d, rt, s)[0]) / (2 * eps)
+        # the distance field is bilinear: compare where no sample crossed a pixel edge
+        np.testing.assert_allclose(np.median(np.abs(Jt[:, k] - num)), 0.0,
+                                   atol=1e-3 * max(np.abs(num).max(), 1e-9))
+    for k in range(3):
+        d = np.zeros(3)
+        d[k] = eps
+        num = (cf.containment_block(skel, balls, th, rt + d, s)[0]
+               - cf.containment_block(skel, balls, th, rt - d, s)[0]) / (2 * eps)
+        np.testing.assert_allclose(np.median(np.abs(Jr[:, k] - num)), 0.0,
+                                   atol=1e-3 * np.abs(num).max())
+    # off: no rows; at the silhouettes' own pose nothing is outside
+    assert ContourFrame(cams, observed, ContourSettings(containment_px=0.0)).containment_block(
+        skel, balls, th, rt, s) is None
+    r0 = cf.containment_block(skel, balls, theta, root, s)[0]
+    assert np.all(r0 == 0)
+
+
+def test_containment_brings_back_an_arm_beyond_the_pairing_reach(body):
+    """An arm swung 1.2 rad out of the silhouettes is beyond the contour pairing's reach
+    (12 px): the contours alone leave it out there; with the containment term the
+    weighted LM pulls it back inside every camera's foreground."""
+    skel, balls, s, theta, root, cams, observed = body
+    th0 = theta.copy()
+    arm = [skel.dof_index(n) for n in ("r_shoulder_x", "r_shoulder_y", "r_shoulder_z",
+                                       "r_elbow_x")]
+    th0[skel.dof_index("r_shoulder_y")] += 1.2
+    truth = sk.joint_positions(skel, theta, root, s)
+    wrist = skel.joint_index("r_wrist")
+    sig = np.full(skel.n_dof, 0.02)
+    sig[arm] = 1.0
+    err = {}
+    for px in (0.0, 3.0):
+        cf = ContourFrame(cams, observed, ContourSettings(containment_px=px))
+        obs = Observations(theta_pred=th0, sigma_pred=sig, contours=cf)
+        r = fit(skel, balls, obs, th0, root, s, solve="pose",
+                settings=FitSettings(irls_rounds=4, max_nfev=40))
+        err[px] = np.linalg.norm(sk.joint_positions(skel, r.theta, r.root_xyz, s)[wrist]
+                                 - truth[wrist])
+        if px:
+            assert np.all(cf.containment_block(skel, balls, r.theta, r.root_xyz, s)[0] < 1.0)
+    assert err[0.0] > 0.25, err
+    assert err[3.0] < 0.08 and err[3.0] < 0.25 * err[0.0], err
+
+
+def test_containment_holds_the_untextured_parts_in_frames_with_points_only():
+    from core.fit_contours import containment_parts
+
+    counts = np.array([0, 3, 8, 40])
+    cfg = ContourSettings(containment_px=3.0, containment_textured=False)
+    np.testing.assert_array_equal(containment_parts(counts, True, 8, cfg),
+                                  [True, True, False, False])
+    np.testing.assert_array_equal(containment_parts(counts, False, 8, cfg), [False] * 4)
+    every = ContourSettings(containment_px=3.0, containment_textured=True)
+    assert containment_parts(counts, True, 8, every).all()
+    assert not containment_parts(counts, False, 8, every).any()

@@ -1,7 +1,7 @@
 """Per-part camera selection against all cameras fused, on self-occluding studio scenes.
 
 ``python -m bench.selection [--scenes dance_line3,dance_ortho3,pirouette_line3,pirouette_ortho3]
-[--frames N] [--fps F]``
+[--frames N] [--fps F] [--tracker ekf|fit]``
 
 The second paper's claim (issue 7): tracking each body part only from the cameras that see
 it (visibility index ≥ 0.2) and observe its motion survives self-occlusion better than
@@ -20,6 +20,12 @@ the agreement of the cameras each part used with the truth's visibility (which c
 see ≥ 20 % of the part in the true mesh, :func:`truth_visibility`, every 5th frame):
 ``hid.used`` — fraction of the part-views used that the truth says are hidden;
 ``seen.unused`` — fraction of the truth's visible part-views left out.
+
+``--tracker fit`` runs the sequence fit (:func:`core.fit_scene.run_scene`, ``cues=
+"contours"``: the weighted least squares of each frame with contour observations, the
+silhouette limb search, the constant-velocity prediction) instead of the EKF, with the
+same three camera choices (:class:`core.fit_contours.ContourSettings` ``select`` and
+``rank_motion``); its own shape comes from the first frame's silhouettes.
 
 Scenes: the dance scenes are :data:`bench.fit.STUDIO_SCENES` (rendered and cached by
 :func:`bench.fit.render_studio_scene`); the pirouette scenes (``pirouette.bvh``, CMU
@@ -172,11 +178,44 @@ def _joints_like_truth(skel, theta, root, s, names):
     return xyz[:, order]
 
 
+def _fit_rows(scene, nf: int, lost_mm: float, vis_frames, ref_vi):
+    """The sequence fit with contours alone, once per camera choice of :data:`METHODS`."""
+    from core.evaluate import evaluate_state
+    from core.fit_contours import ContourSettings
+    from core.fit_scene import run_scene as fit_run
+
+    truth = {k: (v[:nf] if getattr(v, "ndim", 0) and v.shape[0] == scene.n_frames else v)
+             for k, v in scene.truth.items()}
+    cams = [c.name for c in scene.calibration()]
+    rows = []
+    for select, ranked, label in METHODS:
+        t0 = time.process_time()
+        res = fit_run(scene, observations="tracks", cues="contours", frames=nf,
+                      contour_settings=ContourSettings(select=select, rank_motion=ranked))
+        dt = (time.process_time() - t0) / nf
+        st = res.state
+        ev = evaluate_state(st, truth)
+        parts = st.skeleton.bone_names
+        use = np.array([[[c in st.quality.cameras[f].get(p, ()) for c in cams] for p in parts]
+                        for f in vis_frames])
+        hidden_used, seen_unused = camera_agreement(use, ref_vi)
+        diverged = np.asarray(st.quality.diverged, bool)
+        curve = np.where(diverged, np.nan, ev.curves["mpjpe_mm"])
+        rows.append({"scene": scene.root.name, "method": label, "mpjpe_mm": ev.mpjpe_mm,
+                     "seg_rmse_deg": ev.segment_orientation_rmse_deg,
+                     "diverged": int(diverged.sum()), "lost": int((curve > lost_mm).sum()),
+                     "s_per_frame": dt, "curve": curve, "diverged_mask": diverged,
+                     "hidden_used": hidden_used, "seen_unused": seen_unused})
+    return rows
+
+
 def run_scene(name: str, n_frames: int, lost_mm: float = 100.0, settings: dict | None = None,
-              fps: float | None = None):
+              fps: float | None = None, tracker: str = "ekf"):
     """Track one scene with selection and fused; returns a list of result dicts.
 
     ``fps``: the scene's frame rate (see :func:`scene_dir`); None for the studio's 25.
+    ``tracker``: ``"ekf"`` (the contour EKF) or ``"fit"`` (the sequence fit with
+    contours alone; its MPJPE leaves out the frames it marked diverged).
     """
     from core.contour_track import ContourTrackSettings, fit_shape_to_contours, track_contours
     from core.evaluate import evaluate, truth_joints
@@ -187,6 +226,12 @@ def run_scene(name: str, n_frames: int, lost_mm: float = 100.0, settings: dict |
     scene = load_scene(scene_dir(name, fps))
     cams = scene.calibration()
     nf = min(n_frames, scene.n_frames)
+    if tracker == "fit":
+        vis_frames = list(range(0, nf, 5))
+        ref_vi = truth_visibility(scene, vis_frames)
+        print(f"\n{name}: {len(cams)} cameras, {nf} frames; the sequence fit with contours "
+              "alone", flush=True)
+        return _fit_rows(scene, nf, lost_mm, vis_frames, ref_vi)
     t0 = time.process_time()
     contours = scene_contours(scene, nf)
     t_seg = time.process_time() - t0
@@ -260,10 +305,13 @@ def main(argv=None) -> int:
     ap.add_argument("--fps", type=float, default=None,
                     help="render the scenes' 2 s at this frame rate (default: the studio's 25); "
                          "--frames counts frames at this rate")
+    ap.add_argument("--tracker", choices=("ekf", "fit"), default="ekf",
+                    help="the contour EKF (default) or the sequence fit with contours alone")
     args = ap.parse_args(argv)
     rows = []
     for name in args.scenes.split(","):
-        rows += run_scene(name.strip(), args.frames, args.lost_mm, fps=args.fps)
+        rows += run_scene(name.strip(), args.frames, args.lost_mm, fps=args.fps,
+                          tracker=args.tracker)
         print_rows(rows[-len(METHODS):], args.lost_mm)
     load = " ".join(f"{x:.2f}" for x in os.getloadavg())
     print(f"\nAll scenes (load average {load}):")

@@ -277,10 +277,15 @@ class ContainmentObservations:
         return len(self.residual)
 
 
+def _no_containment(n: int) -> ContainmentObservations:
+    return ContainmentObservations(np.zeros(0), np.zeros((0, n)), np.zeros((0, 3)),
+                                   np.zeros(0, int), np.zeros(0, int), np.zeros(0, bool))
+
+
 def containment_observations(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray,
                              s: np.ndarray, balls: Metaballs, cameras: list[Camera],
-                             fields: list[SilhouetteField], tol_px: float = 2.0
-                             ) -> ContainmentObservations:
+                             fields: list[SilhouetteField], tol_px: float = 2.0,
+                             keep_parts: np.ndarray | None = None) -> ContainmentObservations:
     """Silhouette containment: points inside every metaball must project into the foreground.
 
     Unlike a contour, this holds in every camera whatever occludes the part (a limb in
@@ -289,10 +294,17 @@ def containment_observations(skel: Skeleton, theta: np.ndarray, root_xyz: np.nda
     towards the nearest foreground.  Seven points per metaball (:data:`_INNER`), each
     a residual ``max(D(proj(x)) - tol_px, 0)`` with the distance field ``D`` of
     :func:`silhouette_field`; points projecting outside the image are left out.
+    ``keep_parts`` (P,) bool, optional: only the metaballs of these body parts.
     """
     theta = np.asarray(theta, float)
     root_xyz = np.asarray(root_xyz, float)
     centers, axes, radii, part = body_ellipsoids(skel, theta, root_xyz, s, balls)
+    if keep_parts is not None:
+        keep = np.asarray(keep_parts, bool)[part]
+        centers, axes, radii, part = centers[keep], axes[keep], radii[keep], part[keep]
+    n = skel.n_dof
+    if not len(part):
+        return _no_containment(n)
     K = len(_INNER)
     xyz = (centers[:, None] + np.einsum("eij,ekj->eki", axes, _INNER[None] * radii[:, None])
            ).reshape(-1, 3)
@@ -318,10 +330,8 @@ def containment_observations(skel: Skeleton, theta: np.ndarray, root_xyz: np.nda
         parts.append(bone[ok])
         cams.append(np.full(int(ok.sum()), c))
         outside.append(on)
-    n = skel.n_dof
     if not res:
-        return ContainmentObservations(np.zeros(0), np.zeros((0, n)), np.zeros((0, 3)),
-                                       np.zeros(0, int), np.zeros(0, int), np.zeros(0, bool))
+        return _no_containment(n)
     return ContainmentObservations(np.concatenate(res), np.vstack(Jt), np.vstack(Jr),
                                    np.concatenate(parts), np.concatenate(cams),
                                    np.concatenate(outside))

@@ -401,7 +401,8 @@ class ContourFrame:
     def containment_block(self, skel: Skeleton, balls: Metaballs, theta: np.ndarray,
                           root: np.ndarray, s: np.ndarray):
         """Silhouette-containment rows ``(r, J_theta, J_root)`` at a state, or None when
-        the term is off (``containment_px`` 0) or no camera has contours.
+        the term is off (``containment_px`` 0), holds no part (:attr:`containment_parts`)
+        or no camera has contours.
 
         :func:`core.contour_obs.containment_observations` (seven points inside every
         metaball, each a residual ``max(D − tol, 0)`` of the distance ``D`` outside the
@@ -411,7 +412,8 @@ class ContourFrame:
         ``r`` becomes ``sqrt(2 k r − k²)`` (its square is the Huber loss).
         """
         k_px = self.cfg.containment_px
-        if k_px <= 0:
+        held = self.containment_parts
+        if k_px <= 0 or (held is not None and not np.any(held)):
             return None
         if self._fields is None:
             self._fields = [silhouette_field(cons, cam.size) if cons else None
@@ -422,12 +424,9 @@ class ContourFrame:
         co = containment_observations(skel, np.asarray(theta, float), np.asarray(root, float),
                                       s, balls, [self.cameras[c] for c in use],
                                       [self._fields[c] for c in use],
-                                      tol_px=self.cfg.containment_tol_px)
+                                      tol_px=self.cfg.containment_tol_px, keep_parts=held)
         k = self.cfg.huber_px
         r = co.residual
-        if self.containment_parts is not None:
-            keep = np.asarray(self.containment_parts, bool)[co.part]
-            r, co.J_theta, co.J_root = r[keep], co.J_theta[keep], co.J_root[keep]
         big = r > k
         r_eff = np.where(big, np.sqrt(np.maximum(2.0 * k * r - k * k, 0.0)), r)
         d = np.where(big, k / np.maximum(r_eff, 1e-12), 1.0) / k_px

@@ -376,6 +376,21 @@ def test_containment_jacobians_match_finite_differences(body):
         skel, balls, th, rt, s) is None
     r0 = cf.containment_block(skel, balls, theta, root, s)[0]
     assert np.all(r0 == 0)
+    # the parts it holds: the same rows as the whole body's, restricted to them
+    from core.contour_obs import containment_observations, silhouette_field
+
+    fields = [silhouette_field(cons, cam.size) for cons, cam in zip(observed, cams, strict=True)]
+    full = containment_observations(skel, th, rt, s, balls, cams, fields, tol_px=2.0)
+    arm = np.isin(np.arange(len(skel.bone_names)),
+                  [skel.bone_index(b) for b in ("r_shoulder", "r_elbow", "r_wrist")])
+    cf.containment_parts = arm
+    ra, Jta, _ = cf.containment_block(skel, balls, th, rt, s)
+    sel = arm[full.part]
+    assert 0 < len(ra) == sel.sum() < len(full.residual)
+    np.testing.assert_allclose(ra * 2.0, np.where(full.residual[sel] > 4.0, np.sqrt(
+        np.maximum(8.0 * full.residual[sel] - 16.0, 0.0)), full.residual[sel]))
+    cf.containment_parts = np.zeros(len(skel.bone_names), bool)
+    assert cf.containment_block(skel, balls, th, rt, s) is None
 
 
 def test_containment_brings_back_an_arm_beyond_the_pairing_reach(body):

@@ -65,7 +65,15 @@ class ContourSettings:
     min_matches: int = 40          # a contours-only frame with fewer pairs is diverged
     max_rms_px: float = 6.0        # ... or with a larger RMS of its inlier pairs [px]
     min_part_matches: int = 30     # a part with fewer pairs is hidden to the contours
-    unhide: bool = True            # with points: contours may un-hide a part they miss
+    #: with points: contours may un-hide a part the points miss.  Off since the tracker
+    #: seeds surface across depth jumps (``core track``, :mod:`core.surface_seed`): a
+    #: part that two cameras see then has points, and one the points miss is one whose
+    #: depth the contours of the line rig cannot fix — un-hidden, it swung away in
+    #: depth.  make demo's walk (line3, cues both) with those tracks: un-hiding 27.0 mm
+    #: (1 frame diverged, right wrist 148 mm) -> 13.0 mm (none, right wrist 57 mm).
+    #: Without the seeding it was better on (tracks 18.1 vs 25.7 mm, bench.looks'
+    #: 25.7 vs 44.5 mm).
+    unhide: bool = False
     #: ... only when its pairs come from at least this many cameras (10 pairs each): one
     #: view's occluding contours leave the part's depth free.  Truth-derived points +
     #: contours on walk_ortho3 (the walker's right limbs seen by no two cameras): 1 ->

@@ -267,6 +267,14 @@ def subset(surf: Surface, keep: np.ndarray) -> Surface:
                    ref=surf.ref)
 
 
+def concat(a: Surface, b: Surface) -> Surface:
+    """The points of two surfaces measured with the same cameras and reference."""
+    if a.ref != b.ref:
+        raise ValueError(f"reference cameras differ: {a.ref} and {b.ref}")
+    return Surface(*(np.concatenate([getattr(a, k), getattr(b, k)]) for k in
+                     ("xyz", "cov", "uv", "affine", "sigma_uv", "rms")), ref=a.ref)
+
+
 def refine(images, cameras: list[Camera], surf: Surface, *, half: int = 6,
            weight_sigma: float = REFINE_SIGMA, max_rms_px: float = 1.0,
            max_sigma_px: float = 0.15) -> Surface:

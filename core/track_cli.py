@@ -25,7 +25,8 @@ import numpy as np
 from .errors import InputError
 from .progress import Progress
 from .scene import load_scene
-from .surface import measure_surface, seeds_from_clicks
+from .surface import concat, measure_surface, seeds_from_clicks
+from .surface_seed import grow_from_jumps
 from .tracking import filter_trajectories, track
 
 
@@ -47,6 +48,10 @@ def add_arguments(parser) -> None:
                              "from its key templates (0: never)")
     parser.add_argument("--no-anchor", action="store_true",
                         help="no re-anchoring of temporal matches on key templates")
+    parser.add_argument("--no-jump-seeds", action="store_true",
+                        help="do not seed surface beyond the depth jumps that region growing "
+                             "stops at (a limb beside or behind the trunk; core.surface_seed)"
+                             " at frame 0 and when regenerating")
 
 
 def run(args) -> int:
@@ -63,12 +68,18 @@ def run(args) -> int:
     surf = measure_surface([scene.image(c, 0) for c in scene.cameras], cams, seeds,
                            step=args.step, progress=progress,
                            max_depth_dev_m=0.01)      # as track()'s depth_dev_m
+    if not args.no_jump_seeds:
+        jump = grow_from_jumps([scene.image(c, 0) for c in scene.cameras], cams, surf.ref,
+                               surf.xyz, surf.uv[:, surf.ref], step=args.step,
+                               max_depth_dev_m=0.01)
+        if jump is not None and len(jump):  # a limb the growth did not reach from the seeds
+            surf = concat(surf, jump)
     print(f"surface: {len(surf)} points at frame 0 ({time.perf_counter() - t0:.1f} s)",
           file=sys.stderr)
     t1 = time.perf_counter()
     tr = track(lambda i: [scene.image(c, i) for c in scene.cameras], cams, surf, n, scene.fps,
                step=args.step, regen_every=args.regen_every, predict=args.predict,
-               anchor=not args.no_anchor, progress=progress,
+               anchor=not args.no_anchor, jump_seeds=not args.no_jump_seeds, progress=progress,
                **({} if args.max_dormant is None else {"max_dormant": args.max_dormant}),
                **({} if args.max_coast is None else {"max_coast": args.max_coast}))
     dt = time.perf_counter() - t1

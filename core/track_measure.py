@@ -14,7 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .intersect import triangulate
-from .surface import measure_surface
+from .surface import concat, measure_surface
+from .surface_seed import grow_from_jumps
 from .track_filter import COV_FLOOR, neighbour_rates
 from .track_reacquire import dormant_step, predict_unmeasured
 from .track_settings import TrackSettings
@@ -201,7 +202,9 @@ def regenerate(st: TrackerState, nxt: Frame, pr: Prediction, ms: Measurement, i:
 
     The surface at frame i+1 is grown again (:func:`core.surface.measure_surface`)
     from about 20 of the measured points over the reference camera's grid cells that
-    no live point (measured, or coasting at its prediction) covers; the K new points
+    no live point (measured, or coasting at its prediction) covers, and with
+    ``jump_seeds`` also from seeds found along the epipolar lines beyond the depth jumps
+    that growth stops at (:func:`core.surface_seed.grow_from_jumps`); the K new points
     are added to ``st`` (:meth:`core.track_state.TrackerState.append`) with rates
     from their measured neighbours.
     """
@@ -217,6 +220,14 @@ def regenerate(st: TrackerState, nxt: Frame, pr: Prediction, ms: Measurement, i:
     new = measure_surface(nxt.stack, st.cameras, seeds, ref=ref, step=s.step, half=s.half,
                           occupied_uv=occ, max_sigma_px=s.spatial_sigma_px,
                           max_depth_dev_m=s.depth_dev_m)
+    if s.jump_seeds:  # surface beyond the depth jumps the growth stops at (a limb)
+        jump = grow_from_jumps(nxt.stack, st.cameras, ref, ms.xyz[chosen],
+                               np.concatenate([occ, new.uv[:, ref]]), step=s.step,
+                               half=s.half, max_sigma_px=s.spatial_sigma_px,
+                               max_depth_dev_m=s.depth_dev_m)
+        if jump is not None and len(jump):
+            new = concat(new, jump)
+            stage["jump_seeded"] = len(jump)
     if len(new):
         rate0, rsig = neighbour_rates(ms.xyz[chosen], st.kf.x[chosen, 3:], new.xyz)
         st.append(new, rate0, rsig, i + 1)

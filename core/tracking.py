@@ -50,7 +50,10 @@ on the per-point state of :mod:`core.track_state`; the options are
 Beyond the paper, every ``regen_every`` frames (:func:`~core.track_measure.regenerate`)
 the surface is grown again from the live points (:func:`core.surface.measure_surface`)
 over grid cells that no live point covers: lost points are regenerated and newly
-visible surface is seeded.
+visible surface is seeded; with ``jump_seeds`` (the default; ``core track
+--no-jump-seeds``) also surface that growth cannot reach across a depth jump — a limb
+beside or behind the trunk — by a depth search along the epipolar lines
+(:mod:`core.surface_seed`).
 
 :func:`filter_trajectories` (:mod:`core.track_trajectories`) applies the paper's
 filters afterwards; the point filters live in :mod:`core.track_filter`.

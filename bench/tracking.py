@@ -269,7 +269,8 @@ def main(argv=None) -> int:
     loss_breakdown(log, m0, stay_vis, views)
     if args.steps:
         keys = ("live_before", "measured", "coasting", "coast_predicted", "dormant",
-                "reacquired_dormant", "regenerated", "depth_outliers", "depth_retried")
+                "reacquired_dormant", "regenerated", "jump_seeded", "depth_outliers",
+                "depth_retried")
         for i, st in enumerate(log):
             print(f"  step {i}->{i + 1}: " + ", ".join(f"{k} {st[k]}" for k in keys if k in st)
                   + (f"; re-acquisition {st['reacquire_stats']}" if st.get("reacquire_stats")

@@ -71,8 +71,8 @@ class ContourSettings:
     #: depth the contours of the line rig cannot fix — un-hidden, it swung away in
     #: depth.  make demo's walk (line3, cues both) with those tracks: un-hiding 27.0 mm
     #: (1 frame diverged, right wrist 148 mm) -> 13.0 mm (none, right wrist 57 mm).
-    #: Without the seeding it was better on (tracks 18.1 vs 25.7 mm, bench.looks'
-    #: 25.7 vs 44.5 mm).
+    #: Without the seeding un-hiding was the better choice (the old tracks: 18.1 vs
+    #: 25.7 mm; bench.looks' old tracks: 25.7 vs 44.5 mm).
     unhide: bool = False
     #: ... only when its pairs come from at least this many cameras (10 pairs each): one
     #: view's occluding contours leave the part's depth free.  Truth-derived points +

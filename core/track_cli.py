@@ -65,13 +65,12 @@ def run(args) -> int:
     progress = Progress()
     seeds = seeds_from_clicks(scene.clicks(), scene.cameras, args.seeds)
     t0 = time.perf_counter()
-    surf = measure_surface([scene.image(c, 0) for c in scene.cameras], cams, seeds,
-                           step=args.step, progress=progress,
+    first = [scene.image(c, 0) for c in scene.cameras]
+    surf = measure_surface(first, cams, seeds, step=args.step, progress=progress,
                            max_depth_dev_m=0.01)      # as track()'s depth_dev_m
     if not args.no_jump_seeds:
-        jump = grow_from_jumps([scene.image(c, 0) for c in scene.cameras], cams, surf.ref,
-                               surf.xyz, surf.uv[:, surf.ref], step=args.step,
-                               max_depth_dev_m=0.01)
+        jump = grow_from_jumps(first, cams, surf.ref, surf.xyz, surf.uv[:, surf.ref],
+                               step=args.step, max_depth_dev_m=0.01)
         if jump is not None and len(jump):  # a limb the growth did not reach from the seeds
             surf = concat(surf, jump)
     print(f"surface: {len(surf)} points at frame 0 ({time.perf_counter() - t0:.1f} s)",

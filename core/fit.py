@@ -57,7 +57,10 @@ clicked frame's initial posture (:mod:`core.fit_init`):
    converged and diverged flags.  A frame with fewer than ``min_points`` assigned
    points, a non-finite solution, an RMS above ``max_rmse_m``, too few inliers or
    more than ``max_unexplained`` of its points far from the body is *diverged*: its
-   pose is the prediction (finite), flagged, and not fed to the filter.
+   pose is the prediction (finite), flagged, and not fed to the filter;
+5. **bridging** (``bridge_hidden``, :mod:`core.fit_bridge`) — once every frame is
+   fitted, an angle whose every part was hidden is interpolated across each stretch
+   between two observed frames, instead of staying held at the first of them.
 
 **Contours** (``contours``, one :class:`core.fit_contours.ContourFrame` per frame, issue 7
 item 6): the frame's silhouette contours join every pose solve as one more observation
@@ -93,6 +96,7 @@ import time
 import numpy as np
 
 from .attractor import attractor, gather, member_table
+from .fit_bridge import bridge_hidden, unobserved
 from .fit_contours import containment_parts
 from .fit_init import Initialisation
 from .fit_predict import PosePredictor
@@ -573,6 +577,11 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
             done += 1
             if progress is not None:
                 progress.update(done, nf + len(shape_range), f"frame {f}")
+    if cfg.bridge_hidden:
+        theta[:], bridged = bridge_hidden(theta, unobserved(hid, skel.dof_parent), div)
+        if bridged.any():
+            msgs.append(f"{int(bridged.any(axis=1).sum())} frames with angles interpolated "
+                        "across an unobserved stretch")
     balls_out = balls.copy(radii=radii) if fitted_balls is None else fitted_balls.copy()
     q = Quality(rmse_m=rmse, theta_sigma=q_sig, converged=conv & ~div, diverged=div,
                 cameras=cams_used)
@@ -584,4 +593,4 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
     return SequenceResult(state=state, n_points=n_pts, inlier_share=inl, unexplained=unexpl,
                           retried=retried, messages=msgs,
                           seconds=time.perf_counter() - t_start, shape=shape_rec,
-                          contour_matches=c_n, contour_rms_px=c_rms)
+                          contour_matches=c_n, contour_rms_px=c_rms, hidden=hid)

@@ -82,6 +82,7 @@ class SceneFit:
     #: (F,) contour pairs and their inlier RMS (px) at the fitted pose (None: no contours)
     contour_matches: np.ndarray | None = None
     contour_rms_px: np.ndarray | None = None
+    hidden: np.ndarray | None = None  # (F, n) bool: DOFs held for want of observations
 
 
 def run_scene(scene, observations: str = "auto", model: str = "complete",
@@ -177,7 +178,8 @@ def run_scene(scene, observations: str = "auto", model: str = "complete",
     return SceneFit(state=res.state, messages=msgs + res.messages, timings=timings,
                     source=source, n_points=res.n_points, shape=res.shape, cues=cues,
                     contour_matches=None if cframes is None else res.contour_matches,
-                    contour_rms_px=None if cframes is None else res.contour_rms_px)
+                    contour_rms_px=None if cframes is None else res.contour_rms_px,
+                    hidden=res.hidden)
 
 
 #: The observation types ``run_scene`` / ``python -m core fit --cues`` can fit.

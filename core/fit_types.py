@@ -63,6 +63,9 @@ class SequenceSettings:
     hold_hidden: bool = True  # ... held at the previous frame's angles (else following
     #                           the damped prediction); fed back to the filter only
     sigma_hidden_meas: float = 0.3  # ... as a measurement of this σ (rad): its σ grows
+    #: afterwards, angles whose every part is hidden are interpolated across the gap
+    #: between two observed frames (:mod:`core.fit_bridge`)
+    bridge_hidden: bool = True
     sigma_click: float = 0.003  # σ of a forward-intersected click, metres
     segment_max_dist: float = 0.04
     segment_margin: float = 0.015  # ambiguous points between non-adjacent parts dropped
@@ -148,3 +151,5 @@ class SequenceResult:
     #: without contours
     contour_matches: np.ndarray | None = None
     contour_rms_px: np.ndarray | None = None
+    #: (F, n) bool: the DOFs of parts too little observed at the fitted pose (held)
+    hidden: np.ndarray | None = None

@@ -20,6 +20,12 @@ can be compared and a limb placed near its points before the fit:
   ``explained_m`` and within the limb's reach count (a limb with fewer than 10 such
   points is not moved: a hidden limb stays where the prediction put it), so one limb
   costs (H × N_near × M_limb); the best grid pose is refined on two finer 3×3×3 grids.
+  The limbs move greedily (the largest gain first); afterwards a moved limb whose move
+  no longer pays (another limb's move explained the same points) is put back
+  (``prune``).  Without that, on jumps_line3 the right leg — hidden behind the left in
+  all three cameras — took the points of the left arm that moved in the same frame and
+  was thrown up to chest height (MPJPE 62.3 mm, right knee 290 mm; with it 25.7 mm,
+  45 mm).
 
 Arrays: ``xyz`` (N, 3) world metres; ``theta`` (H, n) radians; ``root`` (H, 3) metres.
 """
@@ -236,7 +242,8 @@ def search_limbs(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarra
                  radii: np.ndarray, theta0: np.ndarray, root: np.ndarray,
                  limbs: tuple | None = None, tau: float = 0.05, sigma: float = 0.01,
                  sigma_prior: float = 0.6, explained_m: float = 0.01,
-                 rounds: int = 2, min_gain: float = 0.0) -> SearchResult:
+                 rounds: int = 2, min_gain: float = 0.0,
+                 prune: bool = True) -> SearchResult:
     """Place each limb at the grid pose that best explains the points near it.
 
     Parameters
@@ -252,6 +259,8 @@ def search_limbs(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarra
         limb do not move it)
     rounds : moves per limb at most; each move goes to the limb whose best grid pose
         lowers the cost most (so a limb takes its own points before another can)
+    prune : afterwards, a moved limb whose move no longer lowers the cost by more
+        than ``min_gain`` (another limb's move explained its points) is put back
 
     Returns
     -------
@@ -280,4 +289,14 @@ def search_limbs(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarra
             moved.append(best_name)
     after = float(explain_cost(xyz, skel, balls, s, radii, theta[None], root[None],
                                tau, sigma)[0])
+    if prune:
+        for name in list(moved):  # a move the others' moves made needless is undone
+            back = theta.copy()
+            idx = [skel.dof_index(d) for d, _ in LIMBS[name][3]]
+            back[idx] = theta0[idx]
+            cost = float(explain_cost(xyz, skel, balls, s, radii, back[None], root[None],
+                                      tau, sigma)[0])
+            if cost <= after + min_gain:
+                theta, after = back, cost
+                moved.remove(name)
     return SearchResult(theta, before, after, moved)

@@ -76,3 +76,32 @@ def test_a_limb_that_moved_far_is_found_and_a_hidden_one_stays(body, rng):
     assert res.cost_after < 0.2 * res.cost_before
     assert set(res.moved) == {"l_leg", "r_arm"}
     assert res.theta[skel.dof_index("l_shoulder_x")] == pytest.approx(-1.4)
+
+
+def test_a_hidden_limb_does_not_keep_points_another_limb_then_took(body):
+    skel, s, balls = body
+    rng = np.random.default_rng(1)  # a draw where the greedy moves the leg first
+    root = np.array([0.0, 0.0, 1.0])
+    true = np.zeros(skel.n_dof)
+    true[skel.dof_index("r_shoulder_x")] = -0.6  # the right arm swung forward
+    true[skel.dof_index("r_hip_x")] = -1.2  # the right leg raised, knee bent ...
+    true[skel.dof_index("r_knee_x")] = 1.0
+    x = _outer(skel, balls, true, root, s, rng)
+    leg = np.isin(balls.bone, [skel.bone_index(b) for b in ("r_hip", "r_knee", "r_ankle")])
+    on_leg = np.abs(explain_distance(x, skel, mb.Metaballs(
+        balls.bone[leg], balls.center0[leg], balls.group[leg], balls.rot[leg],
+        balls.radii[leg]), s, balls.radii[leg], true, root)) < 0.05
+    x = x[~on_leg]  # ... and hidden: none of its points are observed
+    start = true.copy()
+    start[skel.dof_index("r_shoulder_x")] = 0.0  # the arm moved since the last frame
+    ankle = skel.joint_index("r_ankle")
+    greedy = search_limbs(x, skel, balls, s, balls.radii, start, root, prune=False)
+    assert set(greedy.moved) == {"r_arm", "r_leg"}  # the leg took arm points first
+    res = search_limbs(x, skel, balls, s, balls.radii, start, root)
+    assert res.moved == ["r_arm"]
+    assert res.theta[skel.dof_index("r_hip_x")] == pytest.approx(-1.2)
+    got, want = (sk.joint_positions(skel, th, root, s) for th in (res.theta, true))
+    assert np.linalg.norm(got[ankle] - want[ankle]) < 1e-9
+    assert np.linalg.norm(got[skel.joint_index("r_wrist")]
+                          - want[skel.joint_index("r_wrist")]) < 0.02
+    assert res.cost_after <= greedy.cost_after + 100.0

@@ -77,7 +77,17 @@ def write_keys(fc, frames: np.ndarray, values: np.ndarray) -> None:
     fc.update()
 
 
-def key_channels(obj, action, channels: dict, frames: np.ndarray) -> int:
+def mark_keys(fc, which: np.ndarray, key_type: str = "BREAKDOWN") -> int:
+    """Give the keys ``which`` (K,) int (indices into the F-curve's keys) the keyframe
+    type ``key_type`` (the dope sheet draws them apart); returns K."""
+    kp = fc.keyframe_points
+    for i in np.asarray(which, dtype=int):
+        kp[int(i)].type = key_type
+    return len(which)
+
+
+def key_channels(obj, action, channels: dict, frames: np.ndarray,
+                 marked: dict | None = None, key_type: str = "BREAKDOWN") -> int:
     """Key many channels at once.
 
     Parameters
@@ -85,15 +95,22 @@ def key_channels(obj, action, channels: dict, frames: np.ndarray) -> int:
     channels : dict
         ``(data_path, group) -> values (F, k)``: one F-curve per column ``k``.
     frames : (F,) frame numbers.
+    marked : dict, optional
+        ``group -> (F,) bool``: the frames whose keys in that group get ``key_type``.
 
     Returns
     -------
     int : number of keys written.
     """
     n = 0
+    marked = marked or {}
     for (path, group), values in channels.items():
         values = np.asarray(values).reshape(len(frames), -1)
+        which = np.flatnonzero(marked[group]) if group in marked else ()
         for i in range(values.shape[1]):
-            write_keys(new_fcurve(obj, action, path, i, group), frames, values[:, i])
+            fc = new_fcurve(obj, action, path, i, group)
+            write_keys(fc, frames, values[:, i])
+            if len(which):
+                mark_keys(fc, which, key_type)
             n += len(frames)
     return n

@@ -15,7 +15,10 @@ only turns those arrays into Blender data.
   of one family blend into one surface).  Each element is an ellipsoid whose visible
   surface has the state's visible semi-axes ``VISIBLE · (lx, ly, lz)``.
 * **Action** — named after the take; bones in quaternion mode, one key per frame on
-  every rotation channel and on the root's location (bulk ``foreach_set``).
+  every rotation channel and on the root's location (bulk ``foreach_set``).  A bone's
+  keys at frames where the cameras did not observe it (the state's
+  ``quality.unobserved``: held, or interpolated across the gap) are *breakdown* keys,
+  so the dope sheet shows an animator which poses were inferred.
 """
 
 from __future__ import annotations
@@ -155,9 +158,25 @@ def keyframe_state(obj, state, action_name: str, frame_start: int = 1):
         if parent[i] < 0 or np.abs(loc).max() > 1e-6:
             channels[(pb_path + ".location", n)] = loc
     action = action_api.assign_new_action(obj, action_name)
-    action_api.key_channels(obj, action, channels, frames)
+    action_api.key_channels(obj, action, channels, frames, unobserved_bones(state, names))
     action["somacap_take"] = action_name
     return action
+
+
+def unobserved_bones(state, names: list) -> dict:
+    """``bone name -> (F,) bool``: frames at which any of the bone's own angles was not
+    observed (the state's ``quality.unobserved``); bones never unobserved are left out."""
+    un = state.quality.unobserved
+    if un is None:
+        return {}
+    dof_bone = [d.rsplit("_", 1)[0] for d in state.skeleton.dof_names]
+    out = {}
+    for n in names:
+        cols = [k for k, b in enumerate(dof_bone) if b == n]
+        flags = np.asarray(un)[:, cols].any(axis=1) if cols else None
+        if flags is not None and flags.any():
+            out[n] = flags
+    return out
 
 
 def build_metaballs(state, armature, name: str = "SomacapBody", collection=None,

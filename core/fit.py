@@ -577,14 +577,15 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
             done += 1
             if progress is not None:
                 progress.update(done, nf + len(shape_range), f"frame {f}")
+    unobs = unobserved(hid, skel.dof_parent)
     if cfg.bridge_hidden:
-        theta[:], bridged = bridge_hidden(theta, unobserved(hid, skel.dof_parent), div)
+        theta[:], bridged = bridge_hidden(theta, unobs, div)
         if bridged.any():
             msgs.append(f"{int(bridged.any(axis=1).sum())} frames with angles interpolated "
                         "across an unobserved stretch")
     balls_out = balls.copy(radii=radii) if fitted_balls is None else fitted_balls.copy()
     q = Quality(rmse_m=rmse, theta_sigma=q_sig, converged=conv & ~div, diverged=div,
-                cameras=cams_used)
+                cameras=cams_used, unobserved=unobs)
     state = FitState(skeleton=skel, s=s, metaballs=balls_out, root_xyz=root, theta=theta,
                      quality=q, fps=fps, source_scene=source_scene,
                      metaball_model=metaball_model)

@@ -121,7 +121,9 @@ def _pad(state, n_frames: int):
                                              np.full((extra, q.theta_sigma.shape[1]), np.nan)]),
                  converged=np.concatenate([q.converged, np.zeros(extra, bool)]),
                  diverged=np.concatenate([q.diverged, np.ones(extra, bool)]),
-                 cameras=list(q.cameras) + [{} for _ in range(extra)])
+                 cameras=list(q.cameras) + [{} for _ in range(extra)],
+                 unobserved=None if q.unobserved is None else np.concatenate(
+                     [q.unobserved, np.ones((extra, q.unobserved.shape[1]), bool)]))
     return FitState(skeleton=state.skeleton, s=state.s, metaballs=state.metaballs,
                     root_xyz=rep(state.root_xyz), theta=rep(state.theta), quality=qq,
                     fps=state.fps, source_scene=state.source_scene,

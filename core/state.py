@@ -32,7 +32,10 @@ by the Blender add-on.  One JSON object, UTF-8::
       "quality": {"rmse_m": [F] (residual RMSE, metres, null = unknown),
                   "theta_sigma": F x [n] (σ of each angle, radians, null = unknown),
                   "converged": [F] bool, "diverged": [F] bool,
-                  "cameras": F x {part: [camera names]}},
+                  "cameras": F x {part: [camera names]},
+                  "unobserved": optional F x [n] bool — angles no observation reached
+                  that frame (every part they move hidden): held, or interpolated
+                  across the gap (core.fit_bridge)},
       "joints_override": optional F x J x [3] — world joint positions that replace the
                  skeleton's (only for truth that the skeleton cannot reproduce)
     }
@@ -71,6 +74,7 @@ class Quality:
     converged: np.ndarray  # (F,) bool
     diverged: np.ndarray  # (F,) bool
     cameras: list = field(default_factory=list)  # F dicts part -> [camera names]
+    unobserved: np.ndarray | None = None  # (F, n) bool: angles no observation reached
 
     @classmethod
     def empty(cls, n_frames: int, n_dof: int, converged: bool = True) -> Quality:
@@ -166,6 +170,8 @@ def state_to_dict(state: FitState) -> dict:
                     "diverged": [bool(v) for v in q.diverged],
                     "cameras": [dict(c) for c in q.cameras]},
     }
+    if q.unobserved is not None:
+        out["quality"]["unobserved"] = np.asarray(q.unobserved, bool).tolist()
     if state.joints_override is not None:
         out["joints_override"] = np.asarray(state.joints_override, float).tolist()
     return out
@@ -284,13 +290,23 @@ def state_from_dict(data: dict, path: str | Path = "<state>") -> FitState:
     cams = qd.get("cameras", [{} for _ in range(frames)])
     if not isinstance(cams, list) or len(cams) != frames:
         raise InputError(f"{path}: quality.cameras must list one object per frame")
+    unobs = None
+    if "unobserved" in qd:
+        v = qd["unobserved"]
+        if (not isinstance(v, list) or len(v) != frames
+                or not all(isinstance(r, list) and len(r) == n
+                           and all(isinstance(x, bool) for x in r) for r in v)):
+            raise InputError(f"{path}: quality.unobserved must be {frames} lists of {n} "
+                             "true/false values")
+        unobs = np.array(v, dtype=bool).reshape(frames, n)
 
     override = None
     if "joints_override" in data:
         override = _array(path, data, "joints_override", (frames, len(skel.joint_names), 3))
     return FitState(skeleton=skel, s=s, metaballs=balls, root_xyz=root, theta=theta,
                     quality=Quality(rmse_m=rmse, theta_sigma=sig, converged=flags["converged"],
-                                    diverged=flags["diverged"], cameras=cams),
+                                    diverged=flags["diverged"], cameras=cams,
+                                    unobserved=unobs),
                     fps=fps, source_scene=str(data.get("source_scene", "")),
                     metaball_model=str(mb.get("model", "")), joints_override=override)
 

@@ -107,3 +107,24 @@ def test_second_take_never_overwrites_the_first(built):
     if keys_before is not None:
         assert [tuple(k.co) for k in action.fcurves[0].keyframe_points] == keys_before
     arm.animation_data.action = action
+
+
+def test_unobserved_frames_are_breakdown_keys(bpy_module):
+    from addon import action_api, builders
+
+    bpy = bpy_module
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    state = synthetic_state(n_frames=8, seed=5)
+    skel = state.skeleton
+    un = np.zeros((8, skel.n_dof), bool)
+    un[3:6, skel.dof_index("r_elbow_x")] = True  # the forearm unseen in frames 3-5
+    state.quality.unobserved = un
+    arm, _, action = builders.build_body(state, take="hidden")
+    kinds = {}
+    for fc in action_api.fcurves(arm, action):
+        bone = fc.data_path.split('"')[1]
+        kinds.setdefault(bone, set()).add(tuple(k.type for k in fc.keyframe_points))
+    want = tuple("BREAKDOWN" if 3 <= f < 6 else "KEYFRAME" for f in range(8))
+    assert kinds["r_elbow"] == {want}
+    assert all(v == {("KEYFRAME",) * 8} for b, v in kinds.items() if b != "r_elbow")
+    bpy.ops.wm.read_factory_settings(use_empty=True)

@@ -39,6 +39,19 @@ def test_round_trip(state, tmp_path):
     names, M = bone_world_matrices(back)
     assert names == state.skeleton.bone_names and M.shape == (4, len(names), 4, 4)
     assert back.joints_xyz(JOINTS[:3]).shape == (4, 3, 3)
+    assert back.quality.unobserved is None  # optional: absent when not given
+
+
+def test_unobserved_angles_round_trip_and_are_validated(state, tmp_path):
+    n = state.skeleton.n_dof
+    state.quality.unobserved = np.zeros((4, n), bool)
+    state.quality.unobserved[1:3, state.skeleton.dof_index("r_elbow_x")] = True
+    back = read_state(write_state(tmp_path / "fit.json", state))
+    np.testing.assert_array_equal(back.quality.unobserved, state.quality.unobserved)
+    data = json.loads((tmp_path / "fit.json").read_text())
+    data["quality"]["unobserved"][2] = data["quality"]["unobserved"][2][:-1]
+    with pytest.raises(InputError, match=rf"quality\.unobserved must be 4 lists of {n}"):
+        read_state(_write(tmp_path, data))
 
 
 def _write(tmp_path, data):

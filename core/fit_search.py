@@ -259,8 +259,9 @@ def search_limbs(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarra
         limb do not move it)
     rounds : moves per limb at most; each move goes to the limb whose best grid pose
         lowers the cost most (so a limb takes its own points before another can)
-    prune : afterwards, a moved limb whose move no longer lowers the cost by more
-        than ``min_gain`` (another limb's move explained its points) is put back
+    prune : afterwards, each moved limb is put back and the other limbs searched
+        again from there; when they explain the points as well, or within ``min_gain``
+        of it while moving less, that stands (the limb's move was not needed)
 
     Returns
     -------
@@ -272,31 +273,46 @@ def search_limbs(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarra
     names = tuple(LIMBS) if limbs is None else tuple(limbs)
     before = float(explain_cost(xyz, skel, balls, s, radii, theta[None], root[None],
                                 tau, sigma)[0])
-    moved: list[str] = []
     if len(xyz) == 0:
-        return SearchResult(theta, before, before, moved)
-    for _ in range(rounds * len(names)):  # greedy: the limb that gains most moves first
-        best_gain, best_theta, best_name = min_gain, None, None
-        for name in names:
-            gain, th = _limb_move(xyz, skel, balls, s, radii, theta, root, LIMBS[name],
-                                  tau, sigma, sigma_prior, explained_m)
-            if gain > best_gain:
-                best_gain, best_theta, best_name = gain, th, name
-        if best_theta is None:
-            break
-        theta = best_theta
-        if best_name not in moved:
-            moved.append(best_name)
-    after = float(explain_cost(xyz, skel, balls, s, radii, theta[None], root[None],
-                               tau, sigma)[0])
+        return SearchResult(theta, before, before, [])
+
+    def greedy(theta, allowed):
+        """Move the limbs of ``allowed``, the largest gain first: (theta, moved, cost)."""
+        moved: list[str] = []
+        for _ in range(rounds * len(allowed)):
+            best_gain, best_theta, best_name = min_gain, None, None
+            for name in allowed:
+                gain, th = _limb_move(xyz, skel, balls, s, radii, theta, root, LIMBS[name],
+                                      tau, sigma, sigma_prior, explained_m)
+                if gain > best_gain:
+                    best_gain, best_theta, best_name = gain, th, name
+            if best_theta is None:
+                break
+            theta = best_theta
+            if best_name not in moved:
+                moved.append(best_name)
+        cost = float(explain_cost(xyz, skel, balls, s, radii, theta[None], root[None],
+                                  tau, sigma)[0])
+        return theta, moved, cost
+
+    grid_dofs = [skel.dof_index(d) for m in names for d, _ in LIMBS[m][3]]
+
+    def motion(th):  # how far the limbs moved from the start, rad²
+        return float(np.sum((th[grid_dofs] - theta0[grid_dofs]) ** 2))
+
+    theta, moved, after = greedy(theta, names)
     if prune:
-        for name in list(moved):  # a move the others' moves made needless is undone
+        # a move the others could do without — put back, they explain the same points
+        # within min_gain, moving less — is undone: a hidden leg does not keep the
+        # points of a hand that reappeared because the leg's grid happened to gain more
+        for name in list(moved):
             back = theta.copy()
             idx = [skel.dof_index(d) for d, _ in LIMBS[name][3]]
             back[idx] = theta0[idx]
-            cost = float(explain_cost(xyz, skel, balls, s, radii, back[None], root[None],
-                                      tau, sigma)[0])
-            if cost <= after + min_gain:
-                theta, after = back, cost
-                moved.remove(name)
+            alt, alt_moved, cost = greedy(back, tuple(m for m in names if m != name))
+            if cost <= after + min_gain and (cost <= after or motion(alt) < motion(theta)):
+                theta, after = alt, cost
+                moved = [m for m in moved if m != name]
+                moved += [m for m in alt_moved if m not in moved]
+                names = tuple(m for m in names if m != name)
     return SearchResult(theta, before, after, moved)

@@ -309,7 +309,14 @@ def search_limbs(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarra
             back = theta.copy()
             idx = [skel.dof_index(d) for d, _ in LIMBS[name][3]]
             back[idx] = theta0[idx]
-            alt, alt_moved, cost = greedy(back, tuple(m for m in names if m != name))
+            others = tuple(m for m in names if m != name)
+            cost_back = float(explain_cost(xyz, skel, balls, s, radii, back[None],
+                                           root[None], tau, sigma)[0])
+            if cost_back <= after + min_gain:  # the move no longer pays: put back
+                theta, after, names = back, cost_back, others
+                moved.remove(name)
+                continue
+            alt, alt_moved, cost = greedy(back, others)
             if cost <= after + min_gain and (cost <= after or motion(alt) < motion(theta)):
                 theta, after = alt, cost
                 moved = [m for m in moved if m != name]

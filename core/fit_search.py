@@ -260,9 +260,10 @@ def search_limbs(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarra
         limb do not move it)
     rounds : moves per limb at most; each move goes to the limb whose best grid pose
         lowers the cost most (so a limb takes its own points before another can)
-    prune : afterwards, each moved limb is put back and the other limbs searched
-        again from there; when they explain the points as well, or within ``min_gain``
-        of it while moving less, that stands (the limb's move was not needed)
+    prune : afterwards, each moved limb is put back when the cost then rises by no more
+        than ``min_gain``; otherwise the other limbs are searched again from there, and
+        their result stands when it explains the points as well, or within
+        ``min_gain`` while moving less (the limb's move was not needed)
 
     Returns
     -------
@@ -303,9 +304,9 @@ def search_limbs(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarra
 
     theta, moved, after = greedy(theta, names)
     if prune:
-        # a move the others could do without — put back, they explain the same points
-        # within min_gain, moving less — is undone: a hidden leg does not keep the
-        # points of a hand that reappeared because the leg's grid happened to gain more
+        # a move that no longer pays, or one the others can do without (they explain
+        # the same points within min_gain, moving less), is undone: a hidden leg does
+        # not keep the points of a hand that reappeared because its grid gained more
         for name in list(moved):
             back = theta.copy()
             idx = [skel.dof_index(d) for d, _ in LIMBS[name][3]]
@@ -322,5 +323,5 @@ def search_limbs(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarra
                 theta, after = alt, cost
                 moved = [m for m in moved if m != name]
                 moved += [m for m in alt_moved if m not in moved]
-                names = tuple(m for m in names if m != name)
+                names = others
     return SearchResult(theta, before, after, moved)

@@ -36,8 +36,10 @@ def observations_from_tracks(path, n_frames: int) -> list[FramePoints]:
     """Per-frame observations from a tracker's ``tracks.npz``.
 
     Reads ``xyz`` (F, P, 3) metres with NaN where a trajectory is not measured, and
-    optionally ``sigma`` (F, P) or ``sigma_xyz`` (F, P, 3) metres (default 3 mm); the
-    trajectory id is the index P.
+    optionally ``sigma`` (F, P) or ``sigma_xyz`` (F, P, 3) metres (default 3 mm), and
+    ``uv`` (F, P, C, 2) pixels, NaN where camera c did not measure the point (the
+    points' ``views``, whose lines of sight the fit keeps free of body); the trajectory
+    id is the index P.
     """
     from pathlib import Path
 
@@ -61,10 +63,15 @@ def observations_from_tracks(path, n_frames: int) -> list[FramePoints]:
     if sigma.shape != xyz.shape[:2]:
         sigma = np.full(xyz.shape[:2], 0.003)
     ids = np.arange(xyz.shape[1])
+    views = None  # which cameras measured each point: finite image points (F, P, C, 2)
+    uv = data.get("uv")
+    if uv is not None and uv.ndim == 4 and uv.shape[:2] == xyz.shape[:2] and uv.shape[3] == 2:
+        views = np.all(np.isfinite(uv), axis=3)
     out = []
     for f in range(n_frames):
         ok = np.all(np.isfinite(xyz[f]), axis=1) & np.isfinite(sigma[f]) & (sigma[f] > 0)
-        out.append(FramePoints(xyz=xyz[f, ok], sigma=sigma[f, ok], ids=ids[ok]))
+        out.append(FramePoints(xyz=xyz[f, ok], sigma=sigma[f, ok], ids=ids[ok],
+                               views=None if views is None else views[f, ok]))
     return out
 
 

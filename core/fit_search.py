@@ -28,6 +28,11 @@ can be compared and a limb placed near its points before the fit:
   body (frame 35), and was thrown up to chest height: MPJPE 62–67 mm, right knee
   208–290 mm; with the prune 23.35 mm, the leg kept through all 50 frames.
 
+With the points' lines of sight (``probes``, :mod:`core.free_space`) both costs add,
+per point, the body found between the point and the cameras that measured it: a limb
+placed in front of its own points (on the default scene the reappearing forearm, 9 cm
+in front of them, frames 25–34) then costs as much as one leaving them unexplained.
+
 Arrays: ``xyz`` (N, 3) world metres; ``theta`` (H, n) radians; ``root`` (H, 3) metres.
 """
 
@@ -38,6 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .attractor import LN_T
+from .free_space import DEPTHS, Probes, occlusion_cost
 from .metaballs import Metaballs, world_frames
 from .skeleton import Skeleton, forward, joint_positions
 
@@ -64,8 +70,8 @@ LIMBS = {
 
 
 def _limb_move(xyz, skel, balls, s, radii, theta, root, limb, tau, sigma, sigma_prior,
-               explained_m, min_points: int = 10,
-               max_points: int = 200) -> tuple[float, np.ndarray | None]:
+               explained_m, min_points: int = 10, max_points: int = 200,
+               probes: Probes | None = None) -> tuple[float, np.ndarray | None]:
     """Best grid pose of one limb: (cost decrease, theta (n,)) or (0, None)."""
     bones, root_joint, tail_joint, grid = limb
     on = np.isin(balls.bone, [skel.bone_index(b) for b in bones])
@@ -77,7 +83,24 @@ def _limb_move(xyz, skel, balls, s, radii, theta, root, limb, tau, sigma, sigma_
     jx = joint_positions(skel, theta, root, s)
     base = jx[skel.joint_index(root_joint)]
     reach = np.linalg.norm(jx[skel.joint_index(tail_joint)] - base) * 1.15 + 0.1
-    near = (d_rest < -explained_m) & (np.linalg.norm(xyz - base, axis=1) < reach)
+    in_reach = np.linalg.norm(xyz - base, axis=1) < reach
+    near = (d_rest < -explained_m) & in_reach
+    if probes is not None:
+        # free space: also the points the limb buries or hides from their cameras — a
+        # hidden limb that swung into the other leg is moved out of it
+        inside = _distance(*_combine(L_rest, g_rest, L_self, g_self))[0] > explained_m
+        # a probe reaches at most max(DEPTHS) from its point: farther from the limb's
+        # surface, the limb hides nothing of it
+        close = _distance(L_self, g_self)[0] > -(max(DEPTHS) + 0.02)
+        cand = np.flatnonzero(in_reach & close & ~near & ~inside)
+        if len(cand):
+            pc = probes.select(cand)
+            d_self = _distance(*_log_field(pc.xyz.reshape(-1, 3), Rw[:, on], cw[:, on],
+                                           radii[on]))[0]
+            hides = np.zeros(len(xyz), bool)
+            hides[cand] = occlusion_cost(d_self.reshape(pc.valid.shape), pc.valid) > 0
+            inside |= hides
+        near |= inside & in_reach
     if near.sum() < min_points:
         return 0.0, None
     sel = np.nonzero(near)[0]
@@ -87,14 +110,23 @@ def _limb_move(xyz, skel, balls, s, radii, theta, root, limb, tau, sigma, sigma_
     near[sel] = True
     x = xyz[near]
     Lr, gr = L_rest[:, near], g_rest[:, near]
-    d0 = _distance(*_combine(Lr, gr, L_self[:, near], g_self[:, near]))[0]
-    cost0 = float(_rho(d0, tau, sigma).sum())
+    if probes is not None:  # the near points' lines of sight, (N_near·K, 3)
+        pr = probes.select(near)
+        px = pr.xyz.reshape(-1, 3)
+        Lp, gp = _log_field(px, Rw[:, ~on], cw[:, ~on], radii[~on])
 
     def cost(th):
         pose = forward(skel, th, np.repeat(root[None], len(th), axis=0), s)
         Rw, cw = world_frames(skel, pose, balls, s)
         d = _distance(*_combine(Lr, gr, *_log_field(x, Rw[:, on], cw[:, on], radii[on])))
-        return _rho(d, tau, sigma).sum(axis=1)
+        c = _rho(d, tau, sigma).sum(axis=1)
+        if probes is not None:
+            dp = _distance(*_combine(Lp, gp, *_log_field(px, Rw[:, on], cw[:, on], radii[on])))
+            c = c + occlusion_cost(dp.reshape(len(th), *pr.valid.shape), pr.valid,
+                                   tau=tau, sigma=sigma).sum(axis=1)
+        return c
+
+    cost0 = float(cost(theta[None])[0])
 
     best, best_cost = grid_search(skel, theta, grid, cost, cost0, 1.0 / sigma_prior**2)
     if best is theta:
@@ -154,7 +186,8 @@ def _rho(d: np.ndarray, tau: float, sigma: float) -> np.ndarray:
 
 def explain_cost(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarray,
                  radii: np.ndarray, theta: np.ndarray, root: np.ndarray,
-                 tau: float = 0.05, sigma: float = 0.01, chunk: int = 16) -> np.ndarray:
+                 tau: float = 0.05, sigma: float = 0.01, chunk: int = 16,
+                 probes: Probes | None = None) -> np.ndarray:
     """Robust cost (H,) of H poses: how badly the body leaves the points unexplained.
 
     Parameters
@@ -164,23 +197,34 @@ def explain_cost(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarra
     tau : truncation of a point's distance, metres (an outlier or a point of another
         thing costs at most ``(tau / sigma)²``)
     sigma : distance scale, metres
+    probes : the points' lines of sight (:func:`core.free_space.probes`), optional:
+        adds :func:`core.free_space.occlusion_cost` per point
 
     Returns
     -------
     (H,) ``Σ_i min(|d_i|, tau)² / sigma²`` with ``d_i`` the first-order distance of
-    point i to the body surface (positive inside, counted by its magnitude).
+    point i to the body surface (positive inside, counted by its magnitude), plus the
+    occlusion cost of the probes.
     """
     xyz = np.asarray(xyz, float).reshape(-1, 3)
     theta = np.atleast_2d(np.asarray(theta, float))
     root = np.atleast_2d(np.asarray(root, float))
     out = np.zeros(len(theta))
-    if not len(xyz):
+    if not len(xyz) and (probes is None or not len(probes)):
         return out
     for a in range(0, len(theta), chunk):
         pose = forward(skel, theta[a:a + chunk], root[a:a + chunk], s)
         Rw, cw = world_frames(skel, pose, balls, s)
-        out[a:a + chunk] = _rho(_distance(*_log_field(xyz, Rw, cw, radii)), tau,
-                                sigma).sum(axis=1)
+        if len(xyz):
+            out[a:a + chunk] = _rho(_distance(*_log_field(xyz, Rw, cw, radii)), tau,
+                                    sigma).sum(axis=1)
+        if probes is None or not len(probes):
+            continue
+        for h in range(len(Rw)):  # K probes per point: one pose at a time bounds memory
+            dp = _distance(*_log_field(probes.xyz.reshape(-1, 3), Rw[h:h + 1], cw[h:h + 1],
+                                       radii))
+            out[a + h] += occlusion_cost(dp.reshape(probes.valid.shape), probes.valid,
+                                         tau=tau, sigma=sigma).sum()
     return out
 
 
@@ -244,7 +288,7 @@ def search_limbs(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarra
                  limbs: tuple | None = None, tau: float = 0.05, sigma: float = 0.01,
                  sigma_prior: float = 0.6, explained_m: float = 0.01,
                  rounds: int = 2, min_gain: float = 0.0,
-                 prune: bool = True) -> SearchResult:
+                 prune: bool = True, probes: Probes | None = None) -> SearchResult:
     """Place each limb at the grid pose that best explains the points near it.
 
     Parameters
@@ -264,6 +308,8 @@ def search_limbs(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarra
         than ``min_gain``; otherwise the other limbs are searched again from there, and
         their result stands when it explains the points as well, or within
         ``min_gain`` while moving less (the limb's move was not needed)
+    probes : the points' lines of sight (:func:`core.free_space.probes`), optional:
+        every cost then counts the body in front of a point as well
 
     Returns
     -------
@@ -274,7 +320,7 @@ def search_limbs(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarra
     root = np.asarray(root, float).reshape(3)
     names = tuple(LIMBS) if limbs is None else tuple(limbs)
     before = float(explain_cost(xyz, skel, balls, s, radii, theta[None], root[None],
-                                tau, sigma)[0])
+                                tau, sigma, probes=probes)[0])
     if len(xyz) == 0:
         return SearchResult(theta, before, before, [])
 
@@ -285,7 +331,7 @@ def search_limbs(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarra
             best_gain, best_theta, best_name = min_gain, None, None
             for name in allowed:
                 gain, th = _limb_move(xyz, skel, balls, s, radii, theta, root, LIMBS[name],
-                                      tau, sigma, sigma_prior, explained_m)
+                                      tau, sigma, sigma_prior, explained_m, probes=probes)
                 if gain > best_gain:
                     best_gain, best_theta, best_name = gain, th, name
             if best_theta is None:
@@ -294,7 +340,7 @@ def search_limbs(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarra
             if best_name not in moved:
                 moved.append(best_name)
         cost = float(explain_cost(xyz, skel, balls, s, radii, theta[None], root[None],
-                                  tau, sigma)[0])
+                                  tau, sigma, probes=probes)[0])
         return theta, moved, cost
 
     grid_dofs = [skel.dof_index(d) for m in names for d, _ in LIMBS[m][3]]
@@ -313,7 +359,7 @@ def search_limbs(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarra
             back[idx] = theta0[idx]
             others = tuple(m for m in names if m != name)
             cost_back = float(explain_cost(xyz, skel, balls, s, radii, back[None],
-                                           root[None], tau, sigma)[0])
+                                           root[None], tau, sigma, probes=probes)[0])
             if cost_back <= after + min_gain:  # the move no longer pays: put back
                 theta, after, names = back, cost_back, others
                 moved.remove(name)

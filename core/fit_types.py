@@ -26,11 +26,14 @@ class FramePoints:
     xyz : (N, 3) world points, metres
     sigma : (N,) a-priori σ of each point, metres
     ids : (N,) int trajectory ids, or None
+    views : (N, C) bool — which of the scene's C cameras measured each point, or None
+        (their lines of sight are free of body, :mod:`core.free_space`)
     """
 
     xyz: np.ndarray
     sigma: np.ndarray
     ids: np.ndarray | None = None
+    views: np.ndarray | None = None
 
     def __post_init__(self):
         self.xyz = np.asarray(self.xyz, float).reshape(-1, 3)
@@ -41,6 +44,8 @@ class FramePoints:
             self.xyz, self.sigma = self.xyz[good], self.sigma[good]
             if self.ids is not None:
                 self.ids = np.asarray(self.ids)[good]
+            if self.views is not None:
+                self.views = np.asarray(self.views, bool)[good]
 
 
 @dataclass
@@ -84,6 +89,10 @@ class SequenceSettings:
     search: bool = True  # annealed retry with the limb search (core.fit_search)
     search_tau: float = 0.05  # truncation of the search's point distances, metres
     search_min_gain: float = 100.0  # explain-cost decrease that moves a limb
+    #: the search and the frame's explain cost also count body in a point's line of sight
+    #: to the cameras that measured it (core.free_space; needs the points' views and the
+    #: cameras)
+    free_space: bool = True
     #: contours alone: limbs re-placed where they explain the foreground best, then the
     #: frame refitted; a failed frame refitted with the root re-centred on the foreground
     #: (core.silhouette_search)

@@ -24,7 +24,15 @@ Observation equations by type, each weighted by its a-priori σ (eq. 12,
   ``(θ − θ_pred) / σ_pred``;
 * **soft joint limits** (:func:`core.skeleton.limit_residuals`);
 * **shape prior** (weak, keeps unobserved radii and centres near their start):
-  ``(radii − radii0) / σ_radius``, ``(centres − centres0) / σ_center``.
+  ``(radii − radii0) / σ_radius``, ``(centres − centres0) / σ_center``;
+* **shape bounds** (hard, relative to a reference shape, by default the metaballs
+  passed in — the template): every semi-axis within ``FitSettings.radius_ratio`` of
+  the reference's and every centre within ``FitSettings.center_shift`` of the
+  reference ball's largest semi-axis of its reference place, per coordinate.  The
+  prior alone did not hold a ball whose part had taken another part's points: on the
+  default scene a hand ball grew from 3.4 to 35 cm and moved 18 cm to swallow the
+  thigh points next to it, then "explained" the reappearing forearm's points, so the
+  limb search never moved the arm (right wrist 190 mm off for 25 frames).
 
 Unknowns per frame: ``θ`` (n) and ``root_xyz`` (3) — the pose; ``s`` (G) and the
 metaball radii (3M) and, optionally, the metaball centres in their bones' frames (3M;
@@ -123,17 +131,24 @@ class FitSettings:
     irls_rounds: int = 3  # re-weighting rounds (distance scale and Huber weights)
     irls_tol: float = 1e-7  # stop re-weighting when no unknown moved more than this
     g_min: float = 2.0  # floor of |∇ ln F| (1/m) in the distance of deep points
+    #: (lowest, highest) ratio of a fitted semi-axis to the reference shape's
+    radius_ratio: tuple = (0.33, 2.0)
+    #: largest shift of a fitted centre (per coordinate, in its bone's frame), in units
+    #: of the reference ball's largest semi-axis
+    center_shift: float = 0.75
 
 
 class _Problem:
     """Residuals and Jacobian for any subset of the unknown blocks, one or more frames."""
 
     def __init__(self, skel: Skeleton, balls: Metaballs, obs: list[Observations],
-                 settings: FitSettings, radii0: np.ndarray, centers0: np.ndarray):
+                 settings: FitSettings, radii0: np.ndarray, centers0: np.ndarray,
+                 shape_ref: Metaballs | None = None):
         self.skel, self.balls, self.obs, self.cfg = skel, balls, obs, settings
         self.anc = skel.ancestors()
         self.radii0 = radii0
         self.centers0 = centers0
+        self.shape_ref = balls if shape_ref is None else shape_ref
         table, valid = member_table(skel, balls, settings.members)
         self.gathers = []
         for o in obs:
@@ -327,16 +342,18 @@ def _solve(prob: _Problem, theta, root, s, radii, centers, free: str, max_nfev: 
         cache[key] = out
         return out
 
-    lo = np.full(len(x0), -np.inf)
+    lo, hi = np.full(len(x0), -np.inf), np.full(len(x0), np.inf)
     if shape_free:
         lo[m_pose:m_pose + G] = 0.2
-        lo[m_pose + G:m_pose + G + M3] = 1e-3
-    x = np.maximum(x0, lo)
+        lo[m_pose + G:m_pose + G + M3], hi[m_pose + G:m_pose + G + M3] = _radius_bounds(prob)
+        if C3:
+            lo[m_pose + G + M3:], hi[m_pose + G + M3:] = _center_bounds(prob)
+    x = np.clip(x0, lo, hi)
     nfev = 0
     for _ in range(max(cfg.irls_rounds, 1)):  # weights frozen per round (IRLS)
         prob.freeze(*unpack(x))
         cache.clear()
-        sol = _levenberg_marquardt(system, x, lo, max_nfev, cfg.tol)
+        sol = _levenberg_marquardt(system, x, lo, max_nfev, cfg.tol, hi=hi)
         nfev += sol.nfev
         moved = float(np.abs(sol.x - x).max(initial=0.0))
         x = sol.x
@@ -348,11 +365,28 @@ def _solve(prob: _Problem, theta, root, s, radii, centers, free: str, max_nfev: 
     return th, rt, ss, rd, ce, sol
 
 
+def _radius_bounds(prob: _Problem) -> tuple[np.ndarray, np.ndarray]:
+    """Bounds (3M,) of the radii: ``FitSettings.radius_ratio`` times the reference's."""
+    r = np.asarray(prob.shape_ref.radii, float).ravel()
+    a, b = prob.cfg.radius_ratio
+    return np.maximum(a * r, 1e-3), b * r
+
+
+def _center_bounds(prob: _Problem) -> tuple[np.ndarray, np.ndarray]:
+    """Bounds (3M,) of the centres: the reference's ± ``center_shift`` × its ball's
+    largest semi-axis, per coordinate."""
+    ref = prob.shape_ref
+    reach = prob.cfg.center_shift * np.asarray(ref.radii, float).max(axis=1, keepdims=True)
+    c = np.asarray(ref.center0, float)
+    return (c - reach).ravel(), (c + reach).ravel()
+
+
 def fit(skel: Skeleton, balls: Metaballs, obs: Observations | list[Observations],
         theta0: np.ndarray, root0: np.ndarray, s0: np.ndarray,
         radii0: np.ndarray | None = None, solve: str = "alternate",
         settings: FitSettings | None = None,
-        centers0: np.ndarray | None = None) -> FitResult | list[FitResult]:
+        centers0: np.ndarray | None = None,
+        shape_ref: Metaballs | None = None) -> FitResult | list[FitResult]:
     """Fit pose and/or shape to one frame's (or several frames') observations.
 
     Parameters
@@ -365,6 +399,9 @@ def fit(skel: Skeleton, balls: Metaballs, obs: Observations | list[Observations]
     solve : ``"pose"`` (shape fixed), ``"shape"`` (pose fixed), ``"alternate"``
         (shape and pose in turn, ``settings.rounds`` times, then a joint polish when
         ``settings.polish``) or ``"all"`` (everything at once)
+    shape_ref : the shape the radius and centre bounds are relative to (default
+        ``balls``: its radii and centres); pass the template when ``balls`` carries an
+        earlier solve's centres
 
     Returns
     -------
@@ -379,7 +416,7 @@ def fit(skel: Skeleton, balls: Metaballs, obs: Observations | list[Observations]
     s = np.array(s0, float)
     radii = np.array(balls.radii if radii0 is None else radii0, float)
     centers = np.array(balls.center0 if centers0 is None else centers0, float)
-    prob = _Problem(skel, balls, obs_l, cfg, radii.copy(), centers.copy())
+    prob = _Problem(skel, balls, obs_l, cfg, radii.copy(), centers.copy(), shape_ref)
     steps = {"pose": ["pose"], "shape": ["shape"], "all": ["all"],
              "alternate": ["pose", "shape"] * cfg.rounds + (["all"] if cfg.polish else [])}
     if solve not in steps:
@@ -434,9 +471,11 @@ class _LMResult:
 
 
 def _levenberg_marquardt(system, x0: np.ndarray, lo: np.ndarray, max_nfev: int,
-                         tol: float, max_step: float = 0.2) -> _LMResult:
+                         tol: float, max_step: float = 0.2,
+                         hi: np.ndarray | None = None) -> _LMResult:
     """Levenberg–Marquardt on the normal equations (Marquardt's diagonal scaling),
-    with lower bounds by projection.  ``system(x) -> (r, J)``."""
+    with bounds (``lo``, optional ``hi``) by projection.  ``system(x) -> (r, J)``."""
+    hi = np.full(len(x0), np.inf) if hi is None else hi
     x = x0.copy()
     r, J = system(x)
     cost = float(r @ r)
@@ -454,7 +493,7 @@ def _levenberg_marquardt(system, x0: np.ndarray, lo: np.ndarray, max_nfev: int,
         big = np.abs(step).max(initial=0.0)
         if big > max_step:  # a trust region in parameter units (radians, metres)
             step *= max_step / big
-        xn = np.maximum(x + step, lo)
+        xn = np.clip(x + step, lo, hi)
         rn, Jn = system(xn)
         nfev += 1
         cn = float(rn @ rn)

@@ -68,3 +68,30 @@ def test_pose_only_with_outliers_and_joint_observations(truth, rng, robust):
     err = np.linalg.norm(sk.joint_positions(skel, res.theta, res.root_xyz, s) - x_j, axis=-1)
     assert err.max() < 0.01  # robust: outliers move no joint by a centimetre
     assert not res.diverged and np.all(np.isfinite(res.theta_sigma))
+
+
+def test_shape_bounds_hold_a_ball_that_took_another_parts_points(truth):
+    """A hand labelled with the thigh's points: unbounded, the shape solve inflates and
+    moves a hand ball onto them (as on the default scene, where a 3.4 cm hand ball grew
+    to 35 cm); the bounds keep every semi-axis within ``radius_ratio`` of the reference
+    and every centre within ``center_shift`` of its largest semi-axis."""
+    skel, balls, theta, root, s, obs = truth
+    hand, thigh = skel.bone_index("l_wrist"), skel.bone_index("l_hip")
+    part = obs.part.copy()
+    part[part == thigh] = hand
+    wrong = Observations(xyz=obs.xyz, part=part, sigma=0.001)
+    on = balls.bone == hand
+
+    def solve(**bounds):
+        cfg = FitSettings(free_centers=True, sigma_radius=0.05, sigma_center=0.03, **bounds)
+        r = fit(skel, balls, wrong, theta, root, s, solve="shape", settings=cfg)
+        ratio = r.radii[on] / balls.radii[on]
+        shift = np.abs(r.centers[on] - balls.center0[on]) / balls.radii[on].max(
+            axis=1, keepdims=True)
+        return ratio.max(), shift.max()
+
+    free_ratio, free_shift = solve(radius_ratio=(0.0, np.inf), center_shift=np.inf)
+    assert free_ratio > 3.0 or free_shift > 1.5  # the failure the bounds are for
+    ratio, shift = solve()
+    lo, hi = FitSettings().radius_ratio
+    assert ratio <= hi + 1e-9 and shift <= FitSettings().center_shift + 1e-9

@@ -68,8 +68,8 @@ count the body found in a point's lines of sight to the cameras that measured it
 a limb is also searched for the points it buries or hides.  On the default scene the
 reappearing right forearm had been placed 9 cm in front of its own points (frames
 25–34, wrist 91 mm) and the hidden right leg had swung into the left one (frames 37–39,
-ankle up to 324 mm); with it the wrist is 20 mm there and the ankle ≤ 67 mm.  The
-shape solves keep every metaball within bounds of the template
+ankle up to 324 mm); with it (and shape bounds of 2×) the wrist is 20 mm there and the
+ankle ≤ 67 mm.  The shape solves keep every metaball within bounds of the template
 (``FitSettings.radius_ratio``, ``center_shift``).
 
 **Contours** (``contours``, one :class:`core.fit_contours.ContourFrame` per frame, issue 7

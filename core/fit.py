@@ -60,7 +60,10 @@ clicked frame's initial posture (:mod:`core.fit_init`):
    pose is the prediction (finite), flagged, and not fed to the filter;
 5. **bridging** (``bridge_hidden``, :mod:`core.fit_bridge`) — once every frame is
    fitted, an angle whose every part was hidden is interpolated across each stretch
-   between two observed frames, instead of staying held at the first of them.
+   between two observed frames, instead of staying held at the first of them;
+   before that, a limb whose observed frames show it moving with the opposite thigh
+   (gait) follows that thigh across the stretch (``couple_hidden``,
+   :mod:`core.fit_coupling`).
 
 **Free space** (``free_space``, :mod:`core.free_space`; the points' ``views`` and the
 cameras): the limb search and the explain cost that picks among a frame's fits also
@@ -108,6 +111,7 @@ import numpy as np
 from .attractor import attractor, gather, member_table
 from .fit_bridge import bridge_hidden, unobserved
 from .fit_contours import containment_parts
+from .fit_coupling import couple_hidden
 from .fit_init import Initialisation
 from .fit_predict import PosePredictor
 from .fit_search import explain_cost, explain_distance, search_limbs
@@ -610,8 +614,17 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
             if progress is not None:
                 progress.update(done, nf + len(shape_range), f"frame {f}")
     unobs = unobserved(hid, skel.dof_parent)
+    left = unobs
+    if cfg.couple_hidden:
+        theta[:], coupled, couplings = couple_hidden(skel, theta, root, s, unobs, div,
+                                                     r2_min=cfg.couple_r2)
+        left = unobs & ~coupled
+        for c in couplings:
+            if c.frames:
+                msgs.append(f"{c.limb}: {c.frames} unobserved frames predicted from the "
+                            f"opposite thigh (R² {c.r2:.2f} on {c.n_train} observed frames)")
     if cfg.bridge_hidden:
-        theta[:], bridged = bridge_hidden(theta, unobs, div)
+        theta[:], bridged = bridge_hidden(theta, left, div)
         if bridged.any():
             msgs.append(f"{int(bridged.any(axis=1).sum())} frames with angles interpolated "
                         "across an unobserved stretch")

@@ -71,6 +71,11 @@ class SequenceSettings:
     #: afterwards, angles whose every part is hidden are interpolated across the gap
     #: between two observed frames (:mod:`core.fit_bridge`)
     bridge_hidden: bool = True
+    #: before that, a limb's unobserved angles predicted from the opposite thigh's swing
+    #: where that thigh explains ≥ ``couple_r2`` of an angle's variance over the frames
+    #: the limb was observed (:mod:`core.fit_coupling`); what it leaves is bridged
+    couple_hidden: bool = True
+    couple_r2: float = 0.5
     sigma_click: float = 0.003  # σ of a forward-intersected click, metres
     segment_max_dist: float = 0.04
     segment_margin: float = 0.015  # ambiguous points between non-adjacent parts dropped

@@ -42,7 +42,7 @@ from .skeleton import Skeleton, bone_frames, forward, joint_positions
 
 #: a limb's DOF-name prefixes (after ``l_``/``r_``)
 LIMB_PARTS = {"arm": ("clavicle", "shoulder", "elbow", "wrist"),
-              "leg": ("hip", "knee", "ankle")}
+              "leg": ("hip", "knee", "ankle"), "thigh": ("hip",)}
 
 
 @dataclass
@@ -176,7 +176,8 @@ def couple_hidden(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray, s: np
     coupled = np.zeros_like(unobs)
     report: list[Coupling] = []
     for side, other in (("l", "r"), ("r", "l")):
-        drv_ok = ~unobs[:, limb_dofs(skel, other, "leg")].any(axis=1) & ~div
+        # the driver needs only the thigh observed (a hidden foot does not move it)
+        drv_ok = ~unobs[:, limb_dofs(skel, other, "thigh")].any(axis=1) & ~div
         d = None
         for limb in ("arm", "leg"):
             dofs = limb_dofs(skel, side, limb)

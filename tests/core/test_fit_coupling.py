@@ -88,6 +88,10 @@ def test_a_diverged_frame_or_a_hidden_driver_stops_a_run(rng):
     unobs2[30, limb_dofs(skel, "l", "leg")] = True  # the driver itself unobserved once
     _, coupled, _ = couple_hidden(skel, held, root, s, unobs2)
     assert not coupled[:, limb_dofs(skel, "r", "arm")].any()
+    unobs3 = unobs.copy()
+    unobs3[30, limb_dofs(skel, "l", "leg")[-2:]] = True  # only the foot: the thigh drives
+    _, coupled, _ = couple_hidden(skel, held, root, s, unobs3)
+    assert coupled[18:34, skel.dof_index("r_shoulder_x")].all()
 
 
 def test_segment_swing_is_the_thighs_flexion(rng):

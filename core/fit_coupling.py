@@ -10,12 +10,15 @@ that coupling, and the opposite thigh, still observed, tells where the limb went
 (:func:`segment_swing`: the opposite thigh's direction in the pelvis frame, reduced
 to its first principal component).  An angle is coupled only when its line explains
 at least ``r2_min`` (half) of its variance over the observed frames.  Each unobserved
-run of a coupled angle with observed frames on both sides then gets the line's
-prediction, shifted to meet the fitted angle at both ends (the two end residuals
-interpolated across) and clipped to the joint limits.  Runs at the start or end of
-the sequence are left alone unless ``ends`` is set (on the jumps clip that made a
-3-frame end run worse).  What is not coupled (a jump, a dance step, an angle that
-does not follow the thigh) is left to
+run of a coupled angle gets the line's prediction, shifted to meet the fitted angle at
+both ends (the two end residuals interpolated across) and clipped to the joint
+limits, when the run has an observed frame on both sides and the coupling was seen on
+both sides of it (``min_side`` training frames before and after: the prediction
+interpolates in time).  Runs at the start or end of the sequence are left alone
+unless ``ends`` is set (on the jumps clip that made a 3-frame end run worse; counting
+the clicked frame as observed and coupling its arm from one frame before and 12 after
+a 34-frame run sent the elbow 320 mm off).  What is not coupled (a jump, a dance step,
+an angle that does not follow the thigh) is left to
 :func:`core.fit_bridge.bridge_hidden`.  A t test on the slope instead of the R² let an
 arm swinging at an unrelated frequency through: neighbouring frames of a smooth
 motion are not independent samples.
@@ -147,7 +150,8 @@ def fill_runs(y: np.ndarray, pred: np.ndarray, hidden: np.ndarray, ok: np.ndarra
 
 def couple_hidden(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray, s: np.ndarray,
                   unobserved: np.ndarray, diverged: np.ndarray | None = None,
-                  r2_min: float = 0.5, min_train: int = 8, ends: bool = False
+                  r2_min: float = 0.5, min_train: int = 8, min_side: int = 4,
+                  ends: bool = False
                   ) -> tuple[np.ndarray, np.ndarray, list[Coupling]]:
     """Predict unobserved limb angles from the opposite thigh (see the module text).
 
@@ -160,6 +164,7 @@ def couple_hidden(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray, s: np
     r2_min : the share of an angle's variance over the observed frames its line must
         explain
     min_train : fewest observed frames to fit on
+    min_side : fewest of them on each side of a run (else the run is left)
     ends : also couple runs at the start or end of the sequence (one observed end:
         its residual is held)
 
@@ -194,10 +199,18 @@ def couple_hidden(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray, s: np
                                   drv_ok)
             coef, keep, r2 = coupling_lines(d[train], theta[train][:, dofs], r2_min)
             replaced = np.zeros(nf, bool)
+            # a run needs the coupling seen on both sides of it (time interpolation, not
+            # extrapolation): at least min_side training frames before and after
+            before = np.cumsum(train)
             for j, c0, c1 in zip(dofs[keep], *coef[:, keep], strict=True):
                 y = theta[:, j].copy()
                 ok = ~unobs[:, j] & ~div  # a run through a frame without the driver
-                done = fill_runs(y, c0 + c1 * d, ~ok & ~div & drv_ok, ok, ends)  # stops
+                gap = ~ok & ~div & drv_ok  # stops
+                for a, b in hidden_runs(gap):
+                    n_before = before[a - 1] if a > 0 else 0
+                    if min(n_before, n_t - before[b - 1]) < min_side and not ends:
+                        gap[a:b] = False
+                done = fill_runs(y, c0 + c1 * d, gap, ok, ends)
                 theta[done, j] = np.clip(y[done], skel.dof_lo[j], skel.dof_hi[j])
                 coupled[done, j] = True
                 replaced |= done

@@ -68,6 +68,9 @@ def test_an_arm_that_does_not_follow_the_thigh_is_left_alone(rng):
 
 def test_runs_at_the_ends_are_left_unless_asked(rng):
     skel, s, truth, root = _gait(rng)
+    held, unobs = _hide_right_arm(skel, truth, 3, 20)  # seen in 3 frames before it only
+    _, coupled, _ = couple_hidden(skel, held, root, s, unobs)
+    assert not coupled.any()  # the coupling must be seen on both sides (4 frames each)
     held, unobs = _hide_right_arm(skel, truth, 45, NF)
     _, coupled, _ = couple_hidden(skel, held, root, s, unobs)
     assert not coupled.any()

@@ -109,9 +109,9 @@ import time
 import numpy as np
 
 from .attractor import attractor, gather, member_table
-from .fit_bridge import bridge_hidden, unobserved
+from .fit_bridge import unobserved
 from .fit_contours import containment_parts
-from .fit_coupling import couple_hidden
+from .fit_coupling import fill_unobserved
 from .fit_init import Initialisation
 from .fit_predict import PosePredictor
 from .fit_search import explain_cost, explain_distance, search_limbs
@@ -119,7 +119,7 @@ from .fit_trajectory import TrajectoryAnchors
 from .fit_types import FramePoints, SequenceResult, SequenceSettings
 from .fit_whole_shape import whole_body_shape
 from .fitting import FitSettings, Observations, fit
-from .free_space import probes as free_space_probes
+from .free_space import FrameProbes
 from .metaballs import Metaballs, world_frames
 from .progress import Progress
 from .segment import carry_labels, no_labels, segment_points
@@ -226,19 +226,7 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
     def cframe(f):
         return None if contours is None else contours[f]
 
-    centres = None if cameras is None else np.array([c.center for c in cameras])
-    probe_cache: dict = {}
-
-    def frame_probes(f):
-        """Lines of sight of frame f's points (:mod:`core.free_space`), or None."""
-        pts = frames[f]
-        if (not cfg.free_space or centres is None or pts.views is None or not len(pts.xyz)
-                or pts.views.shape[1] != len(centres)):
-            return None
-        if f not in probe_cache:
-            probe_cache.clear()  # one frame at a time
-            probe_cache[f] = free_space_probes(pts.xyz, pts.views, centres)
-        return probe_cache[f]
+    frame_probes = FrameProbes(frames, cameras, cfg.free_space)
 
     def hidden_dofs(xyz, q, max_dist, cf=None):
         """(n,) bool: DOFs of parts with fewer than ``min_part_points`` points within
@@ -614,20 +602,9 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
             if progress is not None:
                 progress.update(done, nf + len(shape_range), f"frame {f}")
     unobs = unobserved(hid, skel.dof_parent)
-    left = unobs
-    if cfg.couple_hidden:
-        theta[:], coupled, couplings = couple_hidden(skel, theta, root, s, unobs, div,
-                                                     r2_min=cfg.couple_r2)
-        left = unobs & ~coupled
-        for c in couplings:
-            if c.frames:
-                msgs.append(f"{c.limb}: {c.frames} unobserved frames predicted from the "
-                            f"opposite thigh (R² {c.r2:.2f} on {c.n_train} observed frames)")
-    if cfg.bridge_hidden:
-        theta[:], bridged = bridge_hidden(theta, left, div)
-        if bridged.any():
-            msgs.append(f"{int(bridged.any(axis=1).sum())} frames with angles interpolated "
-                        "across an unobserved stretch")
+    theta[:], fill_msgs = fill_unobserved(skel, theta, root, s, unobs, div, cfg.couple_hidden,
+                                          cfg.bridge_hidden, cfg.couple_r2)
+    msgs += fill_msgs
     balls_out = balls.copy(radii=radii) if fitted_balls is None else fitted_balls.copy()
     q = Quality(rmse_m=rmse, theta_sigma=q_sig, converged=conv & ~div, diverged=div,
                 cameras=cams_used, unobserved=unobs)

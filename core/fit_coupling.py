@@ -40,7 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .fit_bridge import hidden_runs
+from .fit_bridge import bridge_hidden, hidden_runs
 from .skeleton import Skeleton, bone_frames, forward, joint_positions
 
 #: a limb's DOF-name prefixes (after ``l_``/``r_``)
@@ -216,3 +216,36 @@ def couple_hidden(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray, s: np
                 replaced |= done
             report.append(Coupling(name, r2, n_t, int(replaced.sum())))
     return theta, coupled, report
+
+
+def fill_unobserved(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray, s: np.ndarray,
+                    unobserved: np.ndarray, diverged: np.ndarray, couple: bool = True,
+                    bridge: bool = True, r2_min: float = 0.5) -> tuple[np.ndarray, list[str]]:
+    """The sequence fit's last step: unobserved angles coupled, then the rest bridged.
+
+    Parameters
+    ----------
+    theta : (F, n) fitted angles, radians (the unobserved ones held)
+    root_xyz, s, unobserved, diverged : as :func:`couple_hidden`
+    couple, bridge : run :func:`couple_hidden`, :func:`core.fit_bridge.bridge_hidden`
+    r2_min : :func:`couple_hidden`'s gate
+
+    Returns
+    -------
+    theta : (F, n) a copy; messages : what was done, for the fit's report
+    """
+    theta = np.array(theta, float)
+    unobs = np.asarray(unobserved, bool)
+    left, msgs = unobs, []
+    if couple:
+        theta, coupled, report = couple_hidden(skel, theta, root_xyz, s, unobs, diverged,
+                                               r2_min=r2_min)
+        left = unobs & ~coupled
+        msgs += [f"{c.limb}: {c.frames} unobserved frames predicted from the opposite thigh "
+                 f"(R² {c.r2:.2f} on {c.n_train} observed frames)" for c in report if c.frames]
+    if bridge:
+        theta, bridged = bridge_hidden(theta, left, diverged)
+        if bridged.any():
+            msgs.append(f"{int(bridged.any(axis=1).sum())} frames with angles interpolated "
+                        "across an unobserved stretch")
+    return theta, msgs

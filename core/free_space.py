@@ -99,3 +99,33 @@ def occlusion_cost(d_probe: np.ndarray, valid: np.ndarray, margin: float = 0.01,
     """
     d = np.where(valid, np.asarray(d_probe, float), -np.inf).max(axis=-1)
     return np.minimum(np.maximum(d - margin, 0.0), tau) ** 2 / sigma**2
+
+
+class FrameProbes:
+    """Per-frame lines of sight for a sequence fit, the last frame's cached.
+
+    Parameters
+    ----------
+    frames : sequence of objects with ``xyz`` (N, 3) and ``views`` ((N, C) bool or None)
+    cameras : the C cameras (their ``center``), or None
+    enabled : False gives None for every frame
+
+    Calling it with a frame index gives that frame's :class:`Probes`, or None where the
+    frame has no points, no views, or views for another number of cameras.
+    """
+
+    def __init__(self, frames, cameras, enabled: bool = True):
+        self.frames = frames
+        self.centres = None if cameras is None else np.array([c.center for c in cameras])
+        self.enabled = enabled
+        self._cache: dict = {}
+
+    def __call__(self, f: int) -> Probes | None:
+        pts = self.frames[f]
+        if (not self.enabled or self.centres is None or pts.views is None
+                or not len(pts.xyz) or pts.views.shape[1] != len(self.centres)):
+            return None
+        if f not in self._cache:
+            self._cache.clear()  # one frame at a time
+            self._cache[f] = probes(pts.xyz, pts.views, self.centres)
+        return self._cache[f]

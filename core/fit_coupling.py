@@ -204,8 +204,8 @@ def couple_hidden(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray, s: np
             before = np.cumsum(train)
             for j, c0, c1 in zip(dofs[keep], *coef[:, keep], strict=True):
                 y = theta[:, j].copy()
-                ok = ~unobs[:, j] & ~div  # a run through a frame without the driver
-                gap = ~ok & ~div & drv_ok  # stops
+                ok = ~unobs[:, j] & ~div
+                gap = ~ok & ~div & drv_ok  # a frame without the driver ends a run
                 for a, b in hidden_runs(gap):
                     n_before = before[a - 1] if a > 0 else 0
                     if min(n_before, n_t - before[b - 1]) < min_side and not ends:

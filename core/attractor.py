@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import attractor_kernel, field_kernel
 from .metaballs import THRESHOLD, Metaballs
 from .skeleton import Pose, Skeleton, bone_frames
 
@@ -114,6 +115,18 @@ def attractor(x: np.ndarray, idx: np.ndarray, valid: np.ndarray, Rw: np.ndarray,
     g_min : floor of ``|∇L|`` (1/metre) in the distance (deep inside, ``∇L → 0``)
     """
     x = np.asarray(x, float)
+    if field_kernel.enabled():
+        N, K = idx.shape
+        out = Attractor(L=np.empty(N), grad=np.empty((N, 3)), p=np.empty((N, K)),
+                        y=np.empty((N, K, 3)), q=np.empty((N, K, 3)), gx=np.empty((N, K, 3)),
+                        dist=np.empty(N), inv_g=np.empty(N))
+        attractor_kernel.attractor_terms(
+            np.ascontiguousarray(x), np.ascontiguousarray(idx, dtype=np.int64),
+            np.ascontiguousarray(valid, dtype=np.bool_), np.ascontiguousarray(Rw, dtype=float),
+            np.ascontiguousarray(cw, dtype=float), np.ascontiguousarray(radii, dtype=float),
+            float(g_min), LN_T, out.L, out.grad, out.p, out.y, out.q, out.gx, out.dist,
+            out.inv_g)
+        return out
     R = Rw[idx]  # (N, K, 3, 3)
     y = np.matmul((x[:, None, :] - cw[idx])[..., None, :], R)[..., 0, :]  # Rᵀ (x − c)
     q = y / radii[idx] ** 2
@@ -155,22 +168,14 @@ def attractor_jacobians(skel: Skeleton, pose: Pose, balls: Metaballs, s: np.ndar
     J_theta (N, n), J_root (N, 3), J_s (N, G), and when ``shape``: J_radii (N, K, 3)
     (w.r.t. ``radii[idx]``) and J_centres (N, K, 3) (w.r.t. ``center0[idx]``).
     """
-    pg = att.p[..., None] * att.gx  # (N, K, 3): p_m ∇(−2 d_m)
-    ball_anc = anc[skel.bone_dof[balls.bone]].astype(float)  # (M, n)
-    G = np.matmul(np.swapaxes(ball_anc[idx], 1, 2), pg)  # (N, n, 3): Σ_{m below k}
-    w = pose.axes[frame]  # (n, 3)
-    d = np.asarray(x, float)[:, None, :] - pose.p[frame][None]  # (N, n, 3)
-    wxd = np.stack([w[None, :, 1] * d[..., 2] - w[None, :, 2] * d[..., 1],
-                    w[None, :, 2] * d[..., 0] - w[None, :, 0] * d[..., 2],
-                    w[None, :, 0] * d[..., 1] - w[None, :, 1] * d[..., 0]], axis=-1)
-    J_theta = -np.sum(G * wxd, axis=-1)
+    ball_anc = anc[skel.bone_dof[balls.bone]]  # (M, n) bool
     J_root = -att.grad
     # scales: centre c_m moves by Σ_{k anc, group g} R_par(k) o_k + [g_m = g] R_b c0_m
     off_world = np.einsum("kij,kj->ki", pose.R_parent[frame], skel.dof_offset)
     onehot = np.zeros((skel.n_dof, skel.n_groups))
     has = skel.dof_group >= 0
     onehot[np.nonzero(has)[0], skel.dof_group[has]] = 1.0
-    dc = np.einsum("mk,ki,kg->mig", ball_anc, off_world, onehot)  # (M, 3, G)
+    dc = np.einsum("mk,ki,kg->mig", ball_anc.astype(float), off_world, onehot)  # (M, 3, G)
     Rb, _ = bone_frames(skel, Pose(pose.R[frame:frame + 1], pose.p[frame:frame + 1],
                                    pose.R_parent[frame:frame + 1]))
     Rb = Rb[0]
@@ -178,13 +183,36 @@ def attractor_jacobians(skel: Skeleton, pose: Pose, balls: Metaballs, s: np.ndar
     sel = np.nonzero(balls.group >= 0)[0]
     dc[sel, :, balls.group[sel]] += own[sel]
     N, K = idx.shape
-    J_s = -np.matmul(pg.reshape(N, 1, 3 * K), dc[idx].reshape(N, 3 * K, -1))[:, 0]
+    if field_kernel.enabled():
+        J_theta, J_s = np.empty((N, skel.n_dof)), np.empty((N, skel.n_groups))
+        attractor_kernel.pose_jacobians(
+            np.ascontiguousarray(x, dtype=float), np.ascontiguousarray(idx, dtype=np.int64),
+            att.p, att.gx, np.ascontiguousarray(ball_anc),
+            np.ascontiguousarray(pose.axes[frame]),
+            np.ascontiguousarray(pose.p[frame]), dc, J_theta, J_s)
+    else:
+        pg = att.p[..., None] * att.gx  # (N, K, 3): p_m ∇(−2 d_m)
+        G = np.matmul(np.swapaxes(ball_anc[idx].astype(float), 1, 2), pg)  # (N, n, 3)
+        w = pose.axes[frame]  # (n, 3)
+        d = np.asarray(x, float)[:, None, :] - pose.p[frame][None]  # (N, n, 3)
+        wxd = np.stack([w[None, :, 1] * d[..., 2] - w[None, :, 2] * d[..., 1],
+                        w[None, :, 2] * d[..., 0] - w[None, :, 0] * d[..., 2],
+                        w[None, :, 0] * d[..., 1] - w[None, :, 1] * d[..., 0]], axis=-1)
+        J_theta = -np.sum(G * wxd, axis=-1)  # Σ_{m below k} p_m ∇(−2 d_m) · ω_k × (x − p_k)
+        J_s = -np.matmul(pg.reshape(N, 1, 3 * K), dc[idx].reshape(N, 3 * K, -1))[:, 0]
     if not shape:
         return J_theta, J_root, J_s
-    J_radii = 4.0 * att.p[..., None] * att.y ** 2 / radii[idx] ** 3
     scale = np.where(balls.group >= 0, np.asarray(s, float)[np.maximum(balls.group, 0)], 1.0)
-    J_centres = 4.0 * (att.p * scale[idx])[..., None] * np.einsum(
-        "nkij,nkj->nki", balls.rot[idx], att.q)
+    if field_kernel.enabled():
+        J_radii, J_centres = np.empty((N, K, 3)), np.empty((N, K, 3))
+        attractor_kernel.shape_jacobians(
+            np.ascontiguousarray(idx, dtype=np.int64), att.p, att.y, att.q,
+            np.ascontiguousarray(balls.rot, dtype=float),
+            np.ascontiguousarray(radii, dtype=float), scale, J_radii, J_centres)
+        return J_theta, J_root, J_s, J_radii, J_centres
+    J_radii = 4.0 * att.p[..., None] * att.y ** 2 / radii[idx] ** 3
+    J_centres = 4.0 * (att.p * scale[idx])[..., None] * np.matmul(
+        balls.rot[idx], att.q[..., None])[..., 0]
     return J_theta, J_root, J_s, J_radii, J_centres
 
 

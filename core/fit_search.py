@@ -43,6 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .attractor import LN_T
+from .field_kernel import log_field
 from .free_space import DEPTHS, Probes, occlusion_cost
 from .metaballs import Metaballs, world_frames
 from .skeleton import Skeleton, forward, joint_positions
@@ -77,8 +78,8 @@ def _limb_move(xyz, skel, balls, s, radii, theta, root, limb, tau, sigma, sigma_
     on = np.isin(balls.bone, [skel.bone_index(b) for b in bones])
     pose = forward(skel, theta[None], root[None], s)
     Rw, cw = world_frames(skel, pose, balls, s)
-    L_rest, g_rest = _log_field(xyz, Rw[:, ~on], cw[:, ~on], radii[~on])
-    L_self, g_self = _log_field(xyz, Rw[:, on], cw[:, on], radii[on])
+    L_rest, g_rest = log_field(xyz, Rw[:, ~on], cw[:, ~on], radii[~on])
+    L_self, g_self = log_field(xyz, Rw[:, on], cw[:, on], radii[on])
     d_rest = _distance(L_rest, g_rest)[0]
     jx = joint_positions(skel, theta, root, s)
     base = jx[skel.joint_index(root_joint)]
@@ -95,7 +96,7 @@ def _limb_move(xyz, skel, balls, s, radii, theta, root, limb, tau, sigma, sigma_
         cand = np.flatnonzero(in_reach & close & ~near & ~inside)
         if len(cand):
             pc = probes.select(cand)
-            d_self = _distance(*_log_field(pc.xyz.reshape(-1, 3), Rw[:, on], cw[:, on],
+            d_self = _distance(*log_field(pc.xyz.reshape(-1, 3), Rw[:, on], cw[:, on],
                                            radii[on]))[0]
             hides = np.zeros(len(xyz), bool)
             hides[cand] = occlusion_cost(d_self.reshape(pc.valid.shape), pc.valid) > 0
@@ -113,15 +114,15 @@ def _limb_move(xyz, skel, balls, s, radii, theta, root, limb, tau, sigma, sigma_
     if probes is not None:  # the near points' lines of sight, (N_near·K, 3)
         pr = probes.select(near)
         px = pr.xyz.reshape(-1, 3)
-        Lp, gp = _log_field(px, Rw[:, ~on], cw[:, ~on], radii[~on])
+        Lp, gp = log_field(px, Rw[:, ~on], cw[:, ~on], radii[~on])
 
     def cost(th):
         pose = forward(skel, th, np.repeat(root[None], len(th), axis=0), s)
         Rw, cw = world_frames(skel, pose, balls, s)
-        d = _distance(*_combine(Lr, gr, *_log_field(x, Rw[:, on], cw[:, on], radii[on])))
+        d = _distance(*_combine(Lr, gr, *log_field(x, Rw[:, on], cw[:, on], radii[on])))
         c = _rho(d, tau, sigma).sum(axis=1)
         if probes is not None:
-            dp = _distance(*_combine(Lp, gp, *_log_field(px, Rw[:, on], cw[:, on], radii[on])))
+            dp = _distance(*_combine(Lp, gp, *log_field(px, Rw[:, on], cw[:, on], radii[on])))
             c = c + occlusion_cost(dp.reshape(len(th), *pr.valid.shape), pr.valid,
                                    tau=tau, sigma=sigma).sum(axis=1)
         return c
@@ -149,21 +150,6 @@ class SearchResult:
     cost_before: float
     cost_after: float
     moved: list
-
-
-def _log_field(xyz: np.ndarray, Rw: np.ndarray, cw: np.ndarray,
-               radii: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Log field ``L = ln Σ_m exp(−2 d_m)`` (H, N) of metaballs (H, M) at points (N, 3)
-    and its world gradient ``∇L`` (H, N, 3), 1/metre (eq. 7–8, as a log-sum-exp)."""
-    y = (xyz[None, None] - cw[:, :, None]) @ Rw  # (H, M, N, 3) in the metaballs' frames
-    q = y / radii[None, :, None] ** 2
-    e = -2.0 * np.sum(y * q, axis=-1)  # (H, M, N)
-    top = e.max(axis=1, keepdims=True)
-    w = np.exp(e - top)
-    tot = w.sum(axis=1)
-    L = top[:, 0] + np.log(tot)
-    g = -4.0 * np.einsum("hmn,hmnk->hnk", w, q @ np.swapaxes(Rw, -1, -2)) / tot[..., None]
-    return L, g
 
 
 def _combine(La, ga, Lb, gb) -> tuple[np.ndarray, np.ndarray]:
@@ -216,12 +202,12 @@ def explain_cost(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarra
         pose = forward(skel, theta[a:a + chunk], root[a:a + chunk], s)
         Rw, cw = world_frames(skel, pose, balls, s)
         if len(xyz):
-            out[a:a + chunk] = _rho(_distance(*_log_field(xyz, Rw, cw, radii)), tau,
+            out[a:a + chunk] = _rho(_distance(*log_field(xyz, Rw, cw, radii)), tau,
                                     sigma).sum(axis=1)
         if probes is None or not len(probes):
             continue
         for h in range(len(Rw)):  # K probes per point: one pose at a time bounds memory
-            dp = _distance(*_log_field(probes.xyz.reshape(-1, 3), Rw[h:h + 1], cw[h:h + 1],
+            dp = _distance(*log_field(probes.xyz.reshape(-1, 3), Rw[h:h + 1], cw[h:h + 1],
                                        radii))
             out[a + h] += occlusion_cost(dp.reshape(probes.valid.shape), probes.valid,
                                          tau=tau, sigma=sigma).sum()
@@ -235,7 +221,7 @@ def explain_distance(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.nd
     xyz = np.asarray(xyz, float).reshape(-1, 3)
     pose = forward(skel, np.asarray(theta, float)[None], np.asarray(root, float)[None], s)
     Rw, cw = world_frames(skel, pose, balls, s)
-    return _distance(*_log_field(xyz, Rw, cw, radii))[0]
+    return _distance(*log_field(xyz, Rw, cw, radii))[0]
 
 
 def _grid(skel: Skeleton, theta0: np.ndarray, grid) -> tuple[np.ndarray, np.ndarray]:

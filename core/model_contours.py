@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import field_kernel
 from .camera import Camera
 from .model_render import PartRender
 
@@ -62,12 +63,8 @@ def inside_any(xyz: np.ndarray, centers: np.ndarray, axes: np.ndarray, radii: np
     ``exclude`` (M,) gives, per point, one ellipsoid index not to test (its own).
     """
     A = np.transpose(axes, (0, 2, 1)) / radii[:, :, None]  # (E, 3, 3) world -> unit
-    q = np.einsum("eij,emj->emi", A, xyz[None, :, :] - centers[:, None, :])  # (E, M, 3)
-    d2 = np.einsum("emi,emi->em", q, q)
-    inside = d2 < shrink**2
-    if exclude is not None:
-        inside[exclude, np.arange(len(xyz))] = False
-    return inside.any(axis=0)
+    exclude = np.full(len(xyz), -1) if exclude is None else np.asarray(exclude)
+    return field_kernel.inside_any(xyz, A, centers, exclude, shrink**2)
 
 
 def rim_points(camera: Camera, centers: np.ndarray, axes: np.ndarray, radii: np.ndarray,

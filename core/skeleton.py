@@ -465,7 +465,9 @@ def point_jacobians(skel: Skeleton, pose: Pose, bone: np.ndarray, q0: np.ndarray
     onehot = np.zeros((skel.n_dof, G))
     has = skel.dof_group >= 0
     onehot[np.nonzero(has)[0], skel.dof_group[has]] = 1.0
-    J_s = np.einsum("nk,fki,kg->fnig", mask.astype(float), off_world, onehot)
+    F, N = x.shape[:2]
+    per_dof = (off_world[..., None] * onehot[None, :, None, :]).reshape(F, skel.n_dof, 3 * G)
+    J_s = (mask.astype(float)[None] @ per_dof).reshape(F, N, 3, G)
     Rb, _ = bone_frames(skel, pose)
     own = np.einsum("fnij,nj->fni", Rb[:, bone], np.asarray(q0, dtype=float))
     sel = np.nonzero(group >= 0)[0]

@@ -23,8 +23,10 @@ def test_distance_of_a_lone_sphere_is_metric_inside_and_outside():
     assert np.isfinite(far.dist[0]) and far.dist[0] < -0.5
 
 
+@pytest.mark.parametrize("no_numba", ["0", "1"])  # compiled, numpy
 @pytest.mark.parametrize("members", ["part", "neighbours"])
-def test_jacobians_match_finite_differences(rng, members):
+def test_jacobians_match_finite_differences(rng, members, no_numba, monkeypatch):
+    monkeypatch.setenv("SOMACAP_NO_NUMBA", no_numba)
     skel = sk.make_skeleton()
     balls = mb.make_metaballs(skel, "simplified")
     balls.radii *= 1 + 0.2 * rng.random(balls.radii.shape)
@@ -64,3 +66,33 @@ def test_jacobians_match_finite_differences(rng, members):
                  (Jrad, num(lambda v: L(radii=v), balls.radii)),
                  (Jc, num(lambda v: L(c0=v), balls.center0))):
         assert np.abs(J - n).max() <= 1e-6 * max(np.abs(n).max(), 1.0)
+
+
+def test_compiled_and_numpy_paths_agree(rng, monkeypatch):
+    from core import field_kernel
+    if not field_kernel.enabled():
+        pytest.skip("numba not available: only the numpy path runs")
+    skel = sk.make_skeleton()
+    balls = mb.make_metaballs(skel, "complete")
+    th, rt = rng.normal(0, 0.3, skel.n_dof), np.array([0.1, 0.0, 1.0])
+    s = 1 + 0.05 * rng.normal(size=skel.n_groups)
+    pose = sk.forward(skel, th[None], rt[None], s)
+    Rw, cw = mb.world_frames(skel, pose, balls, s)
+    pick = rng.integers(0, len(balls), 300)
+    x = cw[0, pick] + rng.normal(0, 0.05, (300, 3))
+    table, valid = at.member_table(skel, balls, "neighbours")
+    idx, ok = at.gather(table, valid, balls.bone[pick])
+    ok[::7] = False  # points without members
+    out = {}
+    for flag in ("0", "1"):
+        monkeypatch.setenv("SOMACAP_NO_NUMBA", flag)
+        att = at.attractor(x, idx, ok, Rw[0], cw[0], balls.radii)
+        out[flag] = (att, at.attractor_jacobians(skel, pose, balls, s, x, idx, att, balls.radii,
+                                                 skel.ancestors(), shape=True))
+    (a0, J0), (a1, J1) = out["0"], out["1"]
+    assert np.isneginf(a0.L[::7]).all()
+    for name in ("L", "grad", "p", "y", "q", "gx", "dist", "inv_g"):
+        np.testing.assert_allclose(getattr(a0, name), getattr(a1, name), rtol=1e-12, atol=1e-12,
+                                   err_msg=name)
+    for u, v in zip(J0, J1, strict=True):
+        np.testing.assert_allclose(u, v, rtol=1e-11, atol=1e-11 * np.abs(v).max())

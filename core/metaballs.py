@@ -170,6 +170,13 @@ def world_frames(skel: Skeleton, pose: Pose, balls: Metaballs, s: np.ndarray):
     return Rw, cw
 
 
+def local_coords(x: np.ndarray, Rw: np.ndarray, cw: np.ndarray) -> np.ndarray:
+    """Points (N, 3) in every metaball's frame, ``Rwᵀ (x − c)``: (N, M, 3) metres, for
+    one frame's ``Rw`` (M, 3, 3) and ``cw`` (M, 3) (one matrix product per metaball)."""
+    d = np.asarray(x, float)[None, :, :] - np.asarray(cw, float)[:, None, :]  # (M, N, 3)
+    return np.swapaxes(d @ Rw, 0, 1)
+
+
 def field(x: np.ndarray, Rw: np.ndarray, cw: np.ndarray, radii: np.ndarray,
           member: np.ndarray | None = None):
     """Field value and gradient at points of one frame.
@@ -189,7 +196,7 @@ def field(x: np.ndarray, Rw: np.ndarray, cw: np.ndarray, radii: np.ndarray,
     f : (N, M) the individual terms (zero where not a member)
     y : (N, M, 3) the point in each metaball's frame
     """
-    y = np.einsum("mji,nmj->nmi", Rw, x[:, None, :] - cw[None])
+    y = local_coords(x, Rw, cw)
     q = y / radii[None] ** 2  # (N, M, 3)
     d = np.sum(y * q, axis=-1)
     f = np.exp(-2.0 * np.minimum(d, 700.0))

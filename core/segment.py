@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .metaballs import VISIBLE, Metaballs, world_frames
+from .metaballs import VISIBLE, Metaballs, local_coords, world_frames
 from .skeleton import Skeleton, forward
 
 
@@ -36,7 +36,11 @@ def surface_distance(xyz: np.ndarray, Rw: np.ndarray, cw: np.ndarray,
     -------
     (N, M) metres, negative inside the ellipsoid.
     """
-    y = np.einsum("mji,nmj->nmi", Rw, np.asarray(xyz, float)[:, None, :] - cw[None])
+    return _local_surface_distance(local_coords(xyz, Rw, cw), radii)
+
+
+def _local_surface_distance(y: np.ndarray, radii: np.ndarray) -> np.ndarray:
+    """:func:`surface_distance` from the points in the metaballs' frames, y (N, M, 3)."""
     r = np.sqrt(np.sum((y / radii[None]) ** 2, axis=-1))
     norm = np.linalg.norm(y, axis=-1)
     return norm * (1.0 - VISIBLE / np.maximum(r, 1e-12))
@@ -70,8 +74,8 @@ def segment_points(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, theta: np.
     pose = forward(skel, np.asarray(theta, float)[None], np.asarray(root_xyz, float)[None], s)
     Rw, cw = world_frames(skel, pose, balls, s)
     Rw, cw = Rw[0], cw[0]
-    dist = surface_distance(xyz, Rw, cw, radii)
-    y = np.einsum("mji,nmj->nmi", Rw, xyz[:, None, :] - cw[None])
+    y = local_coords(xyz, Rw, cw)
+    dist = _local_surface_distance(y, radii)
     logf = -2.0 * np.sum((y / radii[None]) ** 2, axis=-1)  # (N, M)
     bones = np.unique(balls.bone)
     score = np.full((len(xyz), len(bones)), -np.inf)

@@ -57,7 +57,7 @@ from scipy.spatial import cKDTree
 from .attractor import LN_T, attractor, attractor_jacobians, scatter
 from .camera import Camera
 from .fitting import _levenberg_marquardt
-from .metaballs import VISIBLE, Metaballs, sample_surface, world_frames
+from .metaballs import VISIBLE, Metaballs, local_coords, sample_surface, world_frames
 from .model_render import render_parts
 from .skeleton import Skeleton, bone_frames, forward, joint_positions
 
@@ -131,7 +131,7 @@ def nearest_members(xyz: np.ndarray, Rw: np.ndarray, cw: np.ndarray, radii: np.n
     -------
     idx : (N, K) int metaball indices, K = min(k, M); valid : (N, K) bool (all True)
     """
-    y = np.einsum("mji,nmj->nmi", Rw, np.asarray(xyz, float)[:, None, :] - cw[None])
+    y = local_coords(xyz, Rw, cw)
     d = np.sum((y / radii[None]) ** 2, axis=-1)  # (N, M)
     k = min(int(k), len(radii))
     idx = np.argpartition(d, k - 1, axis=1)[:, :k] if k < len(radii) else \

@@ -237,7 +237,8 @@ def rodrigues_batch(rvec: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return R, dR
 
 
-def project_params(params: np.ndarray, xyz: np.ndarray, jacobian: bool = True):
+def project_params(params: np.ndarray, xyz: np.ndarray, jacobian: bool = True,
+                   camera_jacobian: bool = True):
     """Project points with per-point camera parameter vectors, with Jacobians.
 
     Parameters
@@ -248,23 +249,32 @@ def project_params(params: np.ndarray, xyz: np.ndarray, jacobian: bool = True):
         World points, metres.
     jacobian : bool
         Also return the analytic Jacobians.
+    camera_jacobian : bool
+        With ``jacobian``: also ``J_cam`` (else None in its place).
 
     Returns
     -------
     uv : ndarray, shape (M, 2)
         Image points, pixels (NaN behind the camera).
     J_cam : ndarray, shape (M, 2, 15)
-        d uv / d params (only when ``jacobian``).
+        d uv / d params (only when ``jacobian``; None unless ``camera_jacobian``).
     J_xyz : ndarray, shape (M, 2, 3)
         d uv / d xyz (only when ``jacobian``).
     """
     xyz = np.asarray(xyz, dtype=float).reshape(-1, 3)
-    params = np.broadcast_to(np.asarray(params, dtype=float), (xyz.shape[0], N_PARAMS))
-    R, dR = rodrigues_batch(params[:, :3])
-    t = params[:, 3:6]
-    f, a, cx, cy, k1, k2, k3, p1, p2 = params[:, 6:].T
+    params = np.asarray(params, dtype=float)
+    if params.ndim == 1:  # one camera for all points: one rotation, broadcast
+        R, dR = rodrigues_batch(params[None, :3])
+        t = params[None, 3:6]
+        f, a, cx, cy, k1, k2, k3, p1, p2 = params[6:]
+        pc = xyz @ R[0].T + t
+    else:
+        params = np.broadcast_to(params, (xyz.shape[0], N_PARAMS))
+        R, dR = rodrigues_batch(params[:, :3])
+        t = params[:, 3:6]
+        f, a, cx, cy, k1, k2, k3, p1, p2 = params[:, 6:].T
+        pc = np.einsum("mij,mj->mi", R, xyz) + t
     fy = f / a
-    pc = np.einsum("mij,mj->mi", R, xyz) + t
     z = pc[:, 2]
     front = z > 1e-9
     zs = np.where(front, z, np.nan)
@@ -289,7 +299,12 @@ def project_params(params: np.ndarray, xyz: np.ndarray, jacobian: bool = True):
                     np.stack([zero, 1.0 / zs, -y / zs], -1)], -2)         # (M, 2, 3)
     J_pc = J_d @ J_n                                                      # d uv / d pc
     J_xyz = J_pc @ R
-    dpc_dr = np.einsum("mkij,mj->mik", dR, xyz)                            # (M, 3, 3)
+    if not camera_jacobian:
+        return uv, None, J_xyz
+    if len(dR) == 1:
+        dpc_dr = np.einsum("kij,mj->mik", dR[0], xyz)                      # (M, 3, 3)
+    else:
+        dpc_dr = np.einsum("mkij,mj->mik", dR, xyz)
     J_cam = np.zeros((xyz.shape[0], 2, N_PARAMS))
     J_cam[:, :, 0:3] = J_pc @ dpc_dr
     J_cam[:, :, 3:6] = J_pc
@@ -306,9 +321,11 @@ def project_params(params: np.ndarray, xyz: np.ndarray, jacobian: bool = True):
     return uv, J_cam, J_xyz
 
 
-def camera_project_jacobians(cam: Camera, xyz: np.ndarray):
-    """``cam.project`` of points (M, 3) with d uv / d params (M, 2, 15) and d uv / d xyz.
+def camera_project_jacobians(cam: Camera, xyz: np.ndarray, camera_jacobian: bool = False):
+    """``cam.project`` of points (M, 3) with d uv / d xyz (M, 2, 3): ``(uv, J_cam,
+    J_xyz)``, ``J_cam`` d uv / d params (M, 2, 15) only when ``camera_jacobian`` (else
+    None).
 
     See :func:`project_params`; ``cam.K[0, 1]`` (skew) must be zero.
     """
-    return project_params(pack_camera(cam), xyz)
+    return project_params(pack_camera(cam), xyz, camera_jacobian=camera_jacobian)

@@ -19,7 +19,7 @@ observation types by ``p_i / p_j = σ_j² / σ_i²``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -218,9 +218,13 @@ class SilhouetteField:
 
     dist: np.ndarray
     grad: np.ndarray
+    _stack: np.ndarray | None = field(default=None, init=False, repr=False, compare=False)
 
     def sample(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Bilinear distance (M,) and gradient (M, 2) at ``uv`` (M, 2); NaN outside."""
+        if self._stack is None:  # (H, W, 3): distance and gradient, built on first use
+            self._stack = np.concatenate([self.dist[..., None], self.grad], axis=2)
+        stack = self._stack
         h, w = self.dist.shape
         u, v = uv[:, 0], uv[:, 1]
         ok = np.isfinite(u) & np.isfinite(v) & (u >= 0) & (v >= 0) & (u <= w - 1) & (v <= h - 1)
@@ -228,7 +232,6 @@ class SilhouetteField:
         v0 = np.clip(np.floor(np.where(ok, v, 0)).astype(int), 0, h - 2)
         a = (np.where(ok, u, 0) - u0)[:, None]
         b = (np.where(ok, v, 0) - v0)[:, None]
-        stack = np.concatenate([self.dist[..., None], self.grad], axis=2)
         val = ((1 - a) * (1 - b) * stack[v0, u0] + a * (1 - b) * stack[v0, u0 + 1]
                + (1 - a) * b * stack[v0 + 1, u0] + a * b * stack[v0 + 1, u0 + 1])
         val[~ok] = np.nan

@@ -105,3 +105,20 @@ def test_projection_jacobians_match_finite_differences(rng):
         d[k] = 1e-6
         num = (project_params(p, xyz + d, False) - project_params(p, xyz - d, False)) / 2e-6
         np.testing.assert_allclose(J_xyz[:, :, k], num, rtol=1e-5, atol=1e-4)
+
+
+def test_one_camera_for_all_points_equals_per_point_parameters(rng):
+    """A single parameter vector takes the one-rotation path; per-point copies the
+    batched one: both give the same projection and Jacobians."""
+    from core.camera import camera_project_jacobians
+    cam = _aspect_camera(rng)
+    p = pack_camera(cam)
+    xyz = rng.normal(size=(40, 3)) * 0.5
+    one = project_params(p, xyz)
+    each = project_params(np.tile(p, (40, 1)), xyz)
+    for a, b in zip(one, each, strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-9)
+    uv, J_cam, J_xyz = camera_project_jacobians(cam, xyz)
+    assert J_cam is None
+    np.testing.assert_allclose(uv, one[0], rtol=1e-12)
+    np.testing.assert_allclose(J_xyz, one[2], rtol=1e-12)

@@ -217,9 +217,11 @@ def attractor_jacobians(skel: Skeleton, pose: Pose, balls: Metaballs, s: np.ndar
 
 
 def scatter(J_k: np.ndarray, idx: np.ndarray, valid: np.ndarray, M: int) -> np.ndarray:
-    """Dense (N, 3M) Jacobian from per-member blocks ``J_k`` (N, K, 3)."""
+    """Dense (N, 3M) Jacobian from per-member blocks ``J_k`` (N, K, 3); a row's valid
+    entries of ``idx`` must be distinct metaballs (as :func:`gather` gives them)."""
     N = len(idx)
     out = np.zeros((N, M, 3))
-    rows = np.repeat(np.arange(N), idx.shape[1])
-    np.add.at(out, (rows, idx.ravel()), (J_k * valid[..., None]).reshape(-1, 3))
+    rows = np.broadcast_to(np.arange(N)[:, None], idx.shape)
+    ok = np.asarray(valid, bool)
+    out[rows[ok], idx[ok]] = J_k[ok]  # a point's valid members are distinct metaballs
     return out.reshape(N, 3 * M)

@@ -96,3 +96,15 @@ def test_compiled_and_numpy_paths_agree(rng, monkeypatch):
                                    err_msg=name)
     for u, v in zip(J0, J1, strict=True):
         np.testing.assert_allclose(u, v, rtol=1e-11, atol=1e-11 * np.abs(v).max())
+
+
+def test_scatter_places_valid_members_and_drops_padding(rng):
+    skel = sk.make_skeleton()
+    balls = mb.make_metaballs(skel, "complete")
+    table, valid = at.member_table(skel, balls, "part")
+    idx, ok = at.gather(table, valid, rng.integers(-1, len(skel.bone_names), 50))
+    J_k = rng.normal(size=idx.shape + (3,))
+    want = np.zeros((50, len(balls), 3))
+    np.add.at(want, (np.repeat(np.arange(50), idx.shape[1]), idx.ravel()),
+              (J_k * ok[..., None]).reshape(-1, 3))
+    np.testing.assert_array_equal(at.scatter(J_k, idx, ok, len(balls)), want.reshape(50, -1))

@@ -97,7 +97,7 @@ def _limb_move(xyz, skel, balls, s, radii, theta, root, limb, tau, sigma, sigma_
         if len(cand):
             pc = probes.select(cand)
             d_self = _distance(*log_field(pc.xyz.reshape(-1, 3), Rw[:, on], cw[:, on],
-                                           radii[on]))[0]
+                                          radii[on]))[0]
             hides = np.zeros(len(xyz), bool)
             hides[cand] = occlusion_cost(d_self.reshape(pc.valid.shape), pc.valid) > 0
             inside |= hides
@@ -208,7 +208,7 @@ def explain_cost(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarra
             continue
         for h in range(len(Rw)):  # K probes per point: one pose at a time bounds memory
             dp = _distance(*log_field(probes.xyz.reshape(-1, 3), Rw[h:h + 1], cw[h:h + 1],
-                                       radii))
+                                      radii))
             out[a + h] += occlusion_cost(dp.reshape(probes.valid.shape), probes.valid,
                                          tau=tau, sigma=sigma).sum()
     return out

@@ -9,7 +9,8 @@ it went in.  On the walk with the ``skin`` look (line3) the wrists ended 225–2
 off, the rest of the body 17–54 mm.
 
 Here every limb is placed, as :func:`core.fit_search.search_limbs` does with points,
-at the grid pose that best explains the frame's foreground:
+at the grid pose that best explains the frame's foreground (the arms' grids with the
+upper arm's twist as well, :data:`SILHOUETTE_LIMBS`):
 
 * each metaball's visible ellipsoid (:func:`core.contour_obs.body_ellipsoids`) is
   projected to an image ellipse by the camera's Jacobian at its centre (weak
@@ -42,6 +43,30 @@ from .contour_obs import body_ellipsoids
 from .fit_search import LIMBS, grid_search
 from .metaballs import Metaballs, world_frames
 from .skeleton import Skeleton, forward, joint_positions
+
+#: Upper-arm twist offsets (degrees) the silhouette search adds to the arm grids of
+#: :data:`core.fit_search.LIMBS`.  With points the per-frame fit sets the twist; with
+#: contours alone a bent arm's forearm swings about the upper arm unseen by the
+#: contour pairing once it has left its reach, and only the twist puts it back (see
+#: :data:`SILHOUETTE_LIMBS`).
+ARM_TWIST_DEG = (-60, -30, 0, 30, 60)
+
+#: The limbs the silhouette search moves: :data:`core.fit_search.LIMBS`, the arms with
+#: the upper arm's twist (``shoulder_z``, :data:`ARM_TWIST_DEG`) as a fourth grid DOF.
+#: On walk_ortho3 the left forearm, bent, had swung forward about the upper arm (the
+#: truth's arm is 54° further in twist) where the three-DOF grid could not follow.
+#: Contours alone, 50 frames: walk_ortho3 (the tracker finds no points on that rig)
+#: 34.1 -> 25.9 mm, the left wrist in frames 10-19 9-14 mm (was 130-344 mm);
+#: walk_skin_line3 35.5 -> 28.7 mm; but jumps_line3 41.4 -> 49.6 mm (both legs lost
+#: in frames 21-29 of the jump).  The fit with contours alone is sensitive to the
+#: search's details: twist offsets of ±50 gave walk_ortho3 38.8 mm, seven offsets of
+#: 25° 29.1 mm and walk_skin_line3 59.4 mm (legs lost from frame 37).  The search
+#: takes about twice as long.
+SILHOUETTE_LIMBS = {
+    name: (bones, root_joint, tail_joint,
+           grid + ((name[:2] + "shoulder_z", ARM_TWIST_DEG),) if name.endswith("arm") else grid)
+    for name, (bones, root_joint, tail_joint, grid) in LIMBS.items()
+}
 
 
 @dataclass
@@ -303,7 +328,7 @@ def search_limbs_silhouette(skel: Skeleton, balls: Metaballs, s: np.ndarray,
     theta0 : (n,) start pose, radians; root : (3,) metres
     cameras, masks : the frame's cameras and their foreground masks (H, W) bool (None
         leaves a camera out)
-    limbs : names of :data:`core.fit_search.LIMBS` (default all four)
+    limbs : names of :data:`SILHOUETTE_LIMBS` (default all four)
     sigma_prior, prior_px : the prior towards the start, ``prior_px · Σ (Δθ/σ)²`` pixels
     w_background : weight of background pixels a limb covers, against 1 for the
         unexplained foreground it covers
@@ -323,8 +348,8 @@ def search_limbs_silhouette(skel: Skeleton, balls: Metaballs, s: np.ndarray,
     for _ in range(rounds * len(names)):
         best_gain, best_theta, best_name = min_gain_px, None, None
         for name in names:
-            gain, th = _limb_gain(skel, balls, s, theta, root, LIMBS[name], cameras, masks,
-                                  sigma_prior, prior_px, w_background, step)
+            gain, th = _limb_gain(skel, balls, s, theta, root, SILHOUETTE_LIMBS[name], cameras,
+                                  masks, sigma_prior, prior_px, w_background, step)
             if gain > best_gain:
                 best_gain, best_theta, best_name = gain, th, name
         if best_theta is None:

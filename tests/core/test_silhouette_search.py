@@ -113,3 +113,25 @@ def test_recentre_root_finds_a_body_that_moved_beyond_the_contours_reach(body):
     one = [grids[0]] + [mask_grid(np.zeros((384, 512), bool))] * 2
     start = np.array([0.0, 0.0, 1.0])
     assert np.array_equal(recentre_root(skel, balls, theta, start, s, cams, one), start)
+
+
+def test_a_bent_arm_twisted_out_of_place_is_turned_back(body):
+    """The forearm of a bent arm swings about the upper arm with its twist; the
+    silhouette search has the twist in the arm's grid and puts the wrist back."""
+    skel, s, balls = body
+    cams = cameras()
+    root = np.array([0.0, 0.0, 1.0])
+    true = np.zeros(skel.n_dof)
+    true[skel.dof_index("l_shoulder_x")] = -0.3
+    true[skel.dof_index("l_elbow_x")] = -1.3  # bent (flexion is negative)
+    true[skel.dof_index("l_shoulder_z")] = 0.9
+    masks = _masks(skel, balls, true, root, s, cams)
+    start = true.copy()
+    start[skel.dof_index("l_shoulder_z")] = 0.0
+    res = search_limbs_silhouette(skel, balls, s, start, root, cams, masks)
+    wrist = skel.joint_index("l_wrist")
+    want = sk.joint_positions(skel, true, root, s)[wrist]
+    before = np.linalg.norm(sk.joint_positions(skel, start, root, s)[wrist] - want)
+    after = np.linalg.norm(sk.joint_positions(skel, res.theta, root, s)[wrist] - want)
+    assert before > 0.15 and after < 0.05, (before, after)
+    assert res.moved == ["l_arm"]

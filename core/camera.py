@@ -261,9 +261,17 @@ def project_params(params: np.ndarray, xyz: np.ndarray, jacobian: bool = True,
     J_xyz : ndarray, shape (M, 2, 3)
         d uv / d xyz (only when ``jacobian``).
     """
+    return _project(params, xyz, jacobian, camera_jacobian, one_camera=False)
+
+
+def _project(params, xyz, jacobian, camera_jacobian, one_camera):
+    """:func:`project_params`; ``one_camera`` (params (15,)): the rotation computed
+    once for all points — equal to the per-point path to rounding (the calibration and
+    the intersection keep the per-point path, whose last bits the tracker's results
+    follow)."""
     xyz = np.asarray(xyz, dtype=float).reshape(-1, 3)
     params = np.asarray(params, dtype=float)
-    if params.ndim == 1:  # one camera for all points: one rotation, broadcast
+    if one_camera:
         R, dR = rodrigues_batch(params[None, :3])
         t = params[None, 3:6]
         f, a, cx, cy, k1, k2, k3, p1, p2 = params[6:]
@@ -301,7 +309,7 @@ def project_params(params: np.ndarray, xyz: np.ndarray, jacobian: bool = True,
     J_xyz = J_pc @ R
     if not camera_jacobian:
         return uv, None, J_xyz
-    if len(dR) == 1:
+    if one_camera:
         dpc_dr = np.einsum("kij,mj->mik", dR[0], xyz)                      # (M, 3, 3)
     else:
         dpc_dr = np.einsum("mkij,mj->mik", dR, xyz)
@@ -328,4 +336,4 @@ def camera_project_jacobians(cam: Camera, xyz: np.ndarray, camera_jacobian: bool
 
     See :func:`project_params`; ``cam.K[0, 1]`` (skew) must be zero.
     """
-    return project_params(pack_camera(cam), xyz, camera_jacobian=camera_jacobian)
+    return _project(pack_camera(cam), xyz, True, camera_jacobian, one_camera=True)

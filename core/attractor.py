@@ -120,13 +120,14 @@ def attractor(x: np.ndarray, idx: np.ndarray, valid: np.ndarray, Rw: np.ndarray,
         out = Attractor(L=np.empty(N), grad=np.empty((N, 3)), p=np.empty((N, K)),
                         y=np.empty((N, K, 3)), q=np.empty((N, K, 3)), gx=np.empty((N, K, 3)),
                         dist=np.empty(N), inv_g=np.empty(N))
-        attractor_kernel.attractor_terms(
-            np.ascontiguousarray(x), np.ascontiguousarray(idx, dtype=np.int64),
-            np.ascontiguousarray(valid, dtype=np.bool_), np.ascontiguousarray(Rw, dtype=float),
-            np.ascontiguousarray(cw, dtype=float), np.ascontiguousarray(radii, dtype=float),
-            float(g_min), LN_T, out.L, out.grad, out.p, out.y, out.q, out.gx, out.dist,
-            out.inv_g)
-        return out
+        if field_kernel.run(
+                attractor_kernel.attractor_terms,
+                np.ascontiguousarray(x), np.ascontiguousarray(idx, dtype=np.int64),
+                np.ascontiguousarray(valid, dtype=np.bool_),
+                np.ascontiguousarray(Rw, dtype=float), np.ascontiguousarray(cw, dtype=float),
+                np.ascontiguousarray(radii, dtype=float), float(g_min), LN_T, out.L,
+                out.grad, out.p, out.y, out.q, out.gx, out.dist, out.inv_g):
+            return out
     R = Rw[idx]  # (N, K, 3, 3)
     y = np.matmul((x[:, None, :] - cw[idx])[..., None, :], R)[..., 0, :]  # Rᵀ (x − c)
     q = y / radii[idx] ** 2
@@ -183,14 +184,13 @@ def attractor_jacobians(skel: Skeleton, pose: Pose, balls: Metaballs, s: np.ndar
     sel = np.nonzero(balls.group >= 0)[0]
     dc[sel, :, balls.group[sel]] += own[sel]
     N, K = idx.shape
-    if field_kernel.enabled():
-        J_theta, J_s = np.empty((N, skel.n_dof)), np.empty((N, skel.n_groups))
-        attractor_kernel.pose_jacobians(
+    J_theta, J_s = np.empty((N, skel.n_dof)), np.empty((N, skel.n_groups))
+    if not (field_kernel.enabled() and field_kernel.run(
+            attractor_kernel.pose_jacobians,
             np.ascontiguousarray(x, dtype=float), np.ascontiguousarray(idx, dtype=np.int64),
             att.p, att.gx, np.ascontiguousarray(ball_anc),
-            np.ascontiguousarray(pose.axes[frame]),
-            np.ascontiguousarray(pose.p[frame]), dc, J_theta, J_s)
-    else:
+            np.ascontiguousarray(pose.axes[frame]), np.ascontiguousarray(pose.p[frame]), dc,
+            J_theta, J_s)):
         pg = att.p[..., None] * att.gx  # (N, K, 3): p_m ∇(−2 d_m)
         G = np.matmul(np.swapaxes(ball_anc[idx].astype(float), 1, 2), pg)  # (N, n, 3)
         w = pose.axes[frame]  # (n, 3)
@@ -203,12 +203,12 @@ def attractor_jacobians(skel: Skeleton, pose: Pose, balls: Metaballs, s: np.ndar
     if not shape:
         return J_theta, J_root, J_s
     scale = np.where(balls.group >= 0, np.asarray(s, float)[np.maximum(balls.group, 0)], 1.0)
-    if field_kernel.enabled():
-        J_radii, J_centres = np.empty((N, K, 3)), np.empty((N, K, 3))
-        attractor_kernel.shape_jacobians(
+    J_radii, J_centres = np.empty((N, K, 3)), np.empty((N, K, 3))
+    if field_kernel.enabled() and field_kernel.run(
+            attractor_kernel.shape_jacobians,
             np.ascontiguousarray(idx, dtype=np.int64), att.p, att.y, att.q,
             np.ascontiguousarray(balls.rot, dtype=float),
-            np.ascontiguousarray(radii, dtype=float), scale, J_radii, J_centres)
+            np.ascontiguousarray(radii, dtype=float), scale, J_radii, J_centres):
         return J_theta, J_root, J_s, J_radii, J_centres
     J_radii = 4.0 * att.p[..., None] * att.y ** 2 / radii[idx] ** 3
     J_centres = 4.0 * (att.p * scale[idx])[..., None] * np.matmul(

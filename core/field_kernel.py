@@ -34,6 +34,21 @@ def enabled() -> bool:
     return numba is not None and _FAILED["error"] is None and not env_off()
 
 
+def run(kernel, *args) -> bool:
+    """Call a compiled kernel of the fit (this module's or :mod:`core.attractor_kernel`'s)
+    with numba's warnings silenced.  Returns False — and switches the compiled paths off
+    for the process (:func:`enabled`) — when it raises (a compile that fails on this
+    machine); the caller then runs its numpy path."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            kernel(*args)
+        return True
+    except Exception as err:                 # pragma: no cover - a broken numba
+        _FAILED["error"] = f"{type(err).__name__}: {err}"
+        return False
+
+
 def log_field(xyz: np.ndarray, Rw: np.ndarray, cw: np.ndarray,
               radii: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Log field ``L = ln Σ_m exp(−2 d_m)`` of H poses' metaballs at N points, and its
@@ -58,13 +73,8 @@ def log_field(xyz: np.ndarray, Rw: np.ndarray, cw: np.ndarray,
     if enabled() and M:
         L = np.empty((H, len(xyz)))
         g = np.empty((H, len(xyz), 3))
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                _log_field_loops(xyz, Rw, cw, inv_r2, L, g)
+        if run(_log_field_loops, xyz, Rw, cw, inv_r2, L, g):
             return L, g
-        except Exception as err:             # pragma: no cover - a broken numba
-            _FAILED["error"] = f"{type(err).__name__}: {err}"
     return log_field_numpy(xyz, Rw, cw, radii)
 
 
@@ -140,13 +150,8 @@ def inside_any(xyz: np.ndarray, A: np.ndarray, centers: np.ndarray, exclude: np.
     exclude = np.ascontiguousarray(exclude, dtype=np.int64)
     if enabled():
         out = np.zeros(len(xyz), dtype=np.bool_)
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                _inside_any_loops(xyz, A, centers, exclude, float(limit), out)
+        if run(_inside_any_loops, xyz, A, centers, exclude, float(limit), out):
             return out
-        except Exception as err:             # pragma: no cover - a broken numba
-            _FAILED["error"] = f"{type(err).__name__}: {err}"
     q = (xyz[None, :, :] - centers[:, None, :]) @ np.swapaxes(A, 1, 2)  # (E, N, 3)
     inside = np.sum(q * q, axis=-1) < limit
     own = exclude >= 0

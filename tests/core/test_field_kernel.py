@@ -78,3 +78,22 @@ def test_inside_any_compiled_and_numpy_agree(monkeypatch):
     np.testing.assert_array_equal(inside_any(xyz, centers, axes, radii, exclude=own), want)
     monkeypatch.setenv("SOMACAP_NO_NUMBA", "1")
     np.testing.assert_array_equal(inside_any(xyz, centers, axes, radii, exclude=own), want)
+
+
+def test_a_kernel_that_fails_switches_to_numpy(monkeypatch):
+    """A compiled kernel that raises (a compile failing on this machine) turns the
+    compiled paths off for the process; the call still answers, from numpy."""
+    if not field_kernel.enabled():
+        pytest.skip("numba not available: only the numpy path runs")
+    monkeypatch.setitem(field_kernel._FAILED, "error", None)
+
+    def broken(*args):
+        raise RuntimeError("no compiler")
+
+    monkeypatch.setattr(field_kernel, "_log_field_loops", broken)
+    xyz, Rw, cw, radii = _random_body(np.random.default_rng(9), H=2, N=10)
+    L, g = log_field(xyz, Rw, cw, radii)
+    assert not field_kernel.enabled() and "no compiler" in field_kernel._FAILED["error"]
+    L0, g0 = log_field_numpy(xyz, Rw, cw, radii)
+    np.testing.assert_array_equal(L, L0)
+    np.testing.assert_array_equal(g, g0)

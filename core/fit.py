@@ -108,28 +108,26 @@ import time
 
 import numpy as np
 
-from .attractor import attractor, gather, member_table
+from .fit_assess import assess_frame
 from .fit_bridge import unobserved
 from .fit_contours import containment_parts
 from .fit_coupling import fill_unobserved
 from .fit_init import Initialisation
 from .fit_predict import PosePredictor
-from .fit_search import explain_cost, explain_distance, search_limbs
+from .fit_search import explain_cost, search_limbs
 from .fit_trajectory import TrajectoryAnchors
 from .fit_types import FramePoints, SequenceResult, SequenceSettings
 from .fit_whole_shape import whole_body_shape
 from .fitting import FitSettings, Observations, fit
 from .free_space import FrameProbes
-from .metaballs import Metaballs, world_frames
 from .progress import Progress
 from .segment import carry_labels, no_labels, segment_points
 from .silhouette_search import (
     recentre_root,
     search_limbs_silhouette,
     silhouette_disagreement,
-    silhouette_iou,
 )
-from .skeleton import Skeleton, anchor_sigma, forward, stiff_sigma
+from .skeleton import anchor_sigma, stiff_sigma
 from .state import FitState, Quality
 
 
@@ -137,16 +135,6 @@ def _point_sigma(sigma_m: np.ndarray, model_m: float) -> np.ndarray:
     """A-priori σ (N,) of a point's distance to the model surface: the point's own σ and
     the metaball model's misfit to a real body, added in quadrature (metres)."""
     return np.sqrt(np.asarray(sigma_m, float) ** 2 + model_m**2)
-
-
-def surface_residuals(skel: Skeleton, balls: Metaballs, theta, root, s, radii,
-                      xyz: np.ndarray, part: np.ndarray, members: str = "part") -> np.ndarray:
-    """Signed distance (N,) metres of each point to its part's surface (positive inside;
-    membership as in :func:`core.attractor.member_table`)."""
-    pose = forward(skel, np.asarray(theta)[None], np.asarray(root)[None], s)
-    Rw, cw = world_frames(skel, pose, balls, s)
-    idx, ok = gather(*member_table(skel, balls, members), part)
-    return attractor(xyz, idx, ok, Rw[0], cw[0], radii).dist
 
 
 def _observations(pts: FramePoints, part: np.ndarray, q_pred, sig_pred, n, joints=None,
@@ -328,54 +316,8 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
 
     def assess(f, res):
         """Quality of a fitted frame, without side effects: ``(ok, reasons, stats)``."""
-        if not res[2]:
-            return False, str(res[3]), None
-        q, r, _, part, _ = res
-        use = part >= 0
-        cf = cframe(f)
-        cst = None if cf is None else cf.stats(skel, balls.copy(radii=radii), q[:n], q[n:], s)
-        if use.sum() < cfg.min_points and cst is not None:  # judged by its contours alone
-            stats = {"n": 0, "inl": cst["inl"], "rmse": np.nan, "sig": r.theta_sigma,
-                     "conv": bool(r.converged), "unexplained": 1.0 - cst["inl"],
-                     "cost": cst["cost"], "contour": cst}
-            bad = []
-            if not np.all(np.isfinite(q)):
-                bad.append("non-finite solution")
-            if cst["n"] < cf.cfg.min_matches:
-                bad.append(f"only {cst['n']} contour pairs")
-            elif cst["rms_px"] > cf.cfg.max_rms_px:
-                bad.append(f"contour RMS {cst['rms_px']:.1f} px")
-            iou = silhouette_iou(skel, balls.copy(radii=radii), q[:n], q[n:], s, cf.cameras,
-                                 cf.grids())
-            if np.isfinite(iou).any() and np.nanmean(iou) < cfg.min_silhouette_iou:
-                bad.append(f"silhouette IoU {np.nanmean(iou):.2f}")
-            return not bad, ", ".join(bad), stats
-        d = surface_residuals(skel, balls, q[:n], q[n:], s, radii, frames[f].xyz[use],
-                              part[use], cfg.fit.members)
-        inlier = np.abs(d) < cfg.inlier_m
-        share = float(inlier.mean()) if len(d) else 0.0
-        rm = float(np.sqrt(np.mean(d[inlier] ** 2))) if inlier.any() else np.inf
-        d_all = explain_distance(frames[f].xyz, skel, balls, s, radii, q[:n], q[n:])
-        cost = float(np.sum(np.minimum(np.abs(d_all), cfg.search_tau) ** 2))
-        pr = frame_probes(f)
-        if pr is not None:  # body in the points' lines of sight, in the same units (m²)
-            cost += float(explain_cost(np.zeros((0, 3)), skel, balls, s, radii, q[None, :n],
-                                       q[None, n:], cfg.search_tau, sigma=1.0,
-                                       probes=pr)[0])
-        stats = {"n": int(use.sum()), "inl": share, "rmse": rm, "sig": r.theta_sigma,
-                 "conv": bool(r.converged),
-                 "unexplained": float(np.mean(np.abs(d_all) > cfg.inlier_m)),
-                 "cost": cost, "contour": cst}
-        bad = []
-        if not np.all(np.isfinite(q)):
-            bad.append("non-finite solution")
-        if rm > cfg.max_rmse_m:
-            bad.append(f"surface RMS {rm * 1000:.1f} mm")
-        if share < cfg.min_inliers:
-            bad.append(f"only {100 * share:.0f} % inlier points")
-        if stats["unexplained"] > cfg.max_unexplained:
-            bad.append(f"{100 * stats['unexplained']:.0f} % of the points far from the body")
-        return not bad, ", ".join(bad), stats
+        return assess_frame(res, skel, balls, radii, s, frames[f].xyz, cframe(f),
+                            lambda: frame_probes(f), cfg)
 
     def record(f, res, ok, why, stats):
         """Write the quality of frame f (and the message of a diverged one); commit the

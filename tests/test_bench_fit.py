@@ -39,3 +39,50 @@ def test_default_dance_windows_start_upright(shared_data):
         bvh = read_bvh(shared_data / "mocap" / bvh_name)
         _, xyz = bvh.sample(np.array([start * bvh.frame_time]), CMU_SCALE)
         assert xyz[0, bvh.index("Head"), 2] - xyz[0, bvh.index("Hips"), 2] > 0.3
+
+
+
+def _uv_sphere(center, radius, n_lat=48, n_lon=64, crowd=3.0):
+    """Vertices (V, 3) and triangles (T, 3) of a UV sphere whose rings crowd towards
+    the north pole (latitude spacing ∝ t**crowd): most vertices on a small cap."""
+    t = np.linspace(0.0, 1.0, n_lat + 1)[1:-1]
+    polar = np.pi * t**crowd
+    lon = np.linspace(0.0, 2 * np.pi, n_lon, endpoint=False)
+    P, L = np.meshgrid(polar, lon, indexing="ij")
+    ring = np.stack([np.sin(P) * np.cos(L), np.sin(P) * np.sin(L), np.cos(P)], -1).reshape(-1, 3)
+    v = np.vstack([[0, 0, 1.0], ring, [0, 0, -1.0]]) * radius + center
+    idx = 1 + np.arange(len(polar) * n_lon).reshape(len(polar), n_lon)
+    tri = [[0, idx[0, j], idx[0, (j + 1) % n_lon]] for j in range(n_lon)]
+    for i in range(len(polar) - 1):
+        for j in range(n_lon):
+            a, b = idx[i, j], idx[i, (j + 1) % n_lon]
+            c, d = idx[i + 1, j], idx[i + 1, (j + 1) % n_lon]
+            tri += [[a, c, b], [b, c, d]]
+    south = len(v) - 1
+    tri += [[idx[-1, j], south, idx[-1, (j + 1) % n_lon]] for j in range(n_lon)]
+    return v, np.array(tri)
+
+
+def test_surface_distance_samples_the_mesh_by_area():
+    """One spherical metaball against a sphere mesh whose vertices crowd on a cap: the
+    distance by area is ~0 for the same radius and 10 mm for a sphere 1 cm larger
+    (a vertex mean would not see the crowding; the area sampling does not care)."""
+    from bench.fit import surface_distance_mm
+    from core import metaballs as mb
+    from core import skeleton as sk
+    from core.state import FitState, Quality
+
+    skel = sk.make_skeleton()
+    s = np.ones(skel.n_groups)
+    r = 0.1
+    balls = mb.Metaballs(np.array([skel.bone_index("pelvis")]), np.zeros((1, 3)),
+                         np.array([-1]), np.eye(3)[None], np.full((1, 3), r / mb.VISIBLE))
+    theta, root = np.zeros((1, skel.n_dof)), np.array([[0.0, 0.0, 1.0]])
+    state = FitState(skeleton=skel, s=s, metaballs=balls, root_xyz=root, theta=theta,
+                     quality=Quality.empty(1, skel.n_dof))
+    _, cw = mb.world_frames(skel, sk.forward(skel, theta, root, s), balls, s)
+    for radius, want in ((r, 0.0), (r + 0.01, 10.0)):
+        v, tri = _uv_sphere(cw[0, 0], radius)
+        assert (np.linalg.norm(v[:, :2] - cw[0, 0, :2], axis=1) < 0.5 * radius).mean() > 0.5
+        d = surface_distance_mm(state, v[None], tri, [0])
+        assert abs(d - want) < 0.3, (radius, d)

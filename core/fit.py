@@ -52,11 +52,11 @@ clicked frame's initial posture (:mod:`core.fit_init`):
    body, is retried *annealed* (wide segmentation and a soft robust knee first,
    narrowing; limb search after the first stage) from the better of the prediction
    and the previous frame (zero velocity);
-4. **quality** — per frame the RMS point-to-surface distance of the inlier points
-   (metres), σ of every joint angle (normal matrix; hidden parts: the filter's),
-   converged and diverged flags.  A frame with fewer than ``min_points`` assigned
-   points, a non-finite solution, an RMS above ``max_rmse_m``, too few inliers or
-   more than ``max_unexplained`` of its points far from the body is *diverged*: its
+4. **quality** (:mod:`core.fit_assess`) — per frame the RMS point-to-surface distance of
+   the inlier points (metres), σ of every joint angle (normal matrix; hidden parts: the
+   filter's), converged and diverged flags.  A frame with fewer than ``min_points``
+   assigned points, a non-finite solution, an RMS above ``max_rmse_m``, too few inliers
+   or more than ``max_unexplained`` of its points far from the body is *diverged*: its
    pose is the prediction (finite), flagged, and not fed to the filter;
 5. **bridging** (``bridge_hidden``, :mod:`core.fit_bridge`) — once every frame is
    fitted, an angle whose every part was hidden is interpolated across each stretch

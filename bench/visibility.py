@@ -76,7 +76,7 @@ def body_render(state, frame: int, surface: str = "lone"):
     (:func:`core.metaballs.render_radii`); ``"lone"`` — each metaball's lone visible
     ellipsoid (what :func:`core.contour_obs.body_ellipsoids` renders).
     """
-    from core.metaballs import VISIBLE, render_radii
+    from core.metaballs import render_radii
     from core.skeleton import forward
 
     if surface not in ("blend", "lone"):
@@ -88,7 +88,7 @@ def body_render(state, frame: int, surface: str = "lone"):
         pose = forward(skel, state.theta[frame][None], state.root_xyz[frame][None], state.s)
         radii = render_radii(skel, pose, balls, state.s)
     else:
-        radii = balls.radii * VISIBLE
+        radii = balls.visible
     return centers, axes, radii, bone
 
 
@@ -96,10 +96,9 @@ def model_vertex_parts(vertices: np.ndarray, centers, axes, radii, bone) -> np.n
     """Part (bone index) of each vertex (V,) by the model's own part boundaries: the
     part of the rendered ellipsoid (:func:`body_render`) whose surface is nearest
     (:func:`core.segment.surface_distance`)."""
-    from core.metaballs import VISIBLE
     from core.segment import surface_distance
 
-    d = surface_distance(np.asarray(vertices, float), axes, centers, radii / VISIBLE)
+    d = surface_distance(np.asarray(vertices, float), axes, centers, radii)
     return bone[np.argmin(d, axis=1)]
 
 

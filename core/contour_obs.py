@@ -27,7 +27,7 @@ from .camera import Camera, camera_project_jacobians
 from .camera_selection import Selection, select_cameras
 from .contour_match import match_contours
 from .contours import Contour
-from .metaballs import VISIBLE, Metaballs, world_frames
+from .metaballs import Metaballs, world_frames
 from .model_contours import rim_points
 from .model_render import PartRender, render_parts
 from .skeleton import Skeleton, bone_frames, forward, point_jacobians
@@ -49,7 +49,7 @@ class ContourObservations:
         Metaball whose rim gave each observation.
     J_radii : ndarray, shape (M, 3)
         d residual / d (lx, ly, lz) of that metaball, pixels per metre (the rim point moves
-        with the visible radii ``VISIBLE · l`` at fixed unit-sphere coordinates).
+        with the visible radii ``visible_scale · l`` at fixed unit-sphere coordinates).
     camera : ndarray, shape (M,), int
     part : ndarray, shape (M,), int
         Bone index (the body part) of the model point.
@@ -85,11 +85,12 @@ def body_ellipsoids(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray, s: 
     """The visible ellipsoid of every metaball at one pose.
 
     Returns centres (M, 3), axes (M, 3, 3) (columns in world), radii (M, 3) scaled to the
-    iso-surface of a lone metaball (``VISIBLE``), and the part (bone) of each (M,).
+    rendered ellipsoids (:attr:`core.metaballs.Metaballs.visible`), and the part (bone)
+    of each (M,).
     """
     pose = forward(skel, theta[None], np.asarray(root_xyz)[None], s)
     Rw, cw = world_frames(skel, pose, balls, s)
-    return cw[0], Rw[0], balls.radii * VISIBLE, balls.bone.copy()
+    return cw[0], Rw[0], balls.visible, balls.bone.copy()
 
 
 def contour_observations(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray,
@@ -164,7 +165,7 @@ def contour_observations(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray
         e = sub.ellipsoid
         # unit-sphere coordinates of the rim points: x = c + axes (r ∘ p)
         p_unit = np.einsum("mji,mj->mi", axes[e], sub.xyz - centers[e]) / radii[e]
-        Jrad.append(-np.einsum("mj,mjk->mk", nJ, axes[e]) * p_unit * VISIBLE)
+        Jrad.append(-np.einsum("mj,mjk->mk", nJ, axes[e]) * p_unit * balls.vscale[e])
         ells.append(e)
     n = skel.n_dof
     if not res:

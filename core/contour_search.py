@@ -33,7 +33,7 @@ from scipy.spatial import cKDTree
 from .camera import Camera
 from .contour_obs import SilhouetteField
 from .contours import Contour
-from .metaballs import VISIBLE, Metaballs, world_frames
+from .metaballs import Metaballs, world_frames
 from .model_render import render_parts
 from .skeleton import Skeleton, forward
 
@@ -109,7 +109,7 @@ def _limb_scores(skel, thetas, roots, s, balls, sel, cameras, fields, unexplaine
     pose = forward(skel, thetas, roots, s)
     Rw, cw = world_frames(skel, pose, balls, s)  # (K, M, 3, 3), (K, M, 3)
     Rw, cw = Rw[:, sel], cw[:, sel]
-    r = balls.radii[sel] * VISIBLE  # (E, 3)
+    r = balls.visible[sel]  # (E, 3)
     pts = cw[:, :, None] + np.einsum("keij,epj->kepi", Rw, _POINTS[None] * r[:, None])
     E, S = len(sel), len(_POINTS)
     score = np.zeros(K)
@@ -173,7 +173,7 @@ def search_limbs(skel: Skeleton, theta: np.ndarray, root: np.ndarray, s: np.ndar
             if len(contour_uv[c]) == 0 or len(rest) == 0:
                 unexplained.append(contour_uv[c])
                 continue
-            rnd = render_parts(cam, cw[0, rest], Rw[0, rest], balls.radii[rest] * VISIBLE,
+            rnd = render_parts(cam, cw[0, rest], Rw[0, rest], balls.visible[rest],
                                balls.bone[rest], n_parts,
                                rays=None if rays is None else rays[c])
             dt = cv2.distanceTransform((~rnd.mask).astype(np.uint8), cv2.DIST_L2, 5)

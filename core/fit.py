@@ -12,14 +12,17 @@ clicked frame's initial posture (:mod:`core.fit_init`):
    the next ``shape_frames − 1`` frames are pose-fitted and join the shape solve; the
    shape is fixed afterwards and every shape frame's pose refitted (the clicked frame
    with the clicks as joint observations, σ ``sigma_click``).  With
-   ``settings.shape = "fit"`` (an option; the default ``"template"`` is the above
-   alone) the *whole-body* shape is fitted afterwards: at least ``shape_fit_frames``
-   shape frames, their poses held as just refitted, go to
-   :func:`core.shape_fit.fit_shape` (metaball radii and centres from the template
-   start, the anti-bulge term with the scene's ``cameras``), whose metaballs replace
-   the shape, and those frames' poses are refitted once more (with
-   ``shape_fit_track = False`` the tracking keeps the per-part shape and the fitted
-   one is only written to the state); its convergence,
+   ``settings.shape = "fit"`` (the default; ``"template"`` is the above alone) the
+   *whole-body* shape is fitted as well (:func:`core.shape_fit.fit_shape`: metaball
+   radii and centres, the anti-bulge term with the scene's ``cameras``), from the
+   template deflated so that its blended surface follows the ellipsoids the contours
+   render (``shape_fit_deflate``, :func:`core.metaballs.deflate`).  By default
+   (``shape_fit_track = False``) the tracking keeps the per-part shape and the
+   whole-body shape is fitted after the motion, at the poses of the
+   ``shape_fit_frames`` fitted frames nearest the clicked one, and only written to
+   the state; with ``shape_fit_track`` it is fitted right after at least
+   ``shape_fit_frames`` shape frames, replaces the shape, and those frames' poses are
+   refitted once more.  Its convergence,
    message and per-frame flags are recorded (:class:`ShapeRecord`).  (Skipping the
    per-part solve and fitting those poses with the template instead left walk_line3's
    frame 0 with 34 % of its points far from the body and the shape fit at 12.6 mm
@@ -120,6 +123,7 @@ from .fit_types import FramePoints, SequenceResult, SequenceSettings
 from .fit_whole_shape import whole_body_shape
 from .fitting import FitSettings, Observations, fit
 from .free_space import FrameProbes
+from .metaballs import deflate
 from .progress import Progress
 from .segment import carry_labels, no_labels, segment_points
 from .silhouette_search import (
@@ -455,7 +459,8 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
                                "free_centers": cfg.shape_centers,
                                "sigma_radius": cfg.shape_sigma_radius,
                                "sigma_center": cfg.shape_sigma_center})
-    n_shape = max(cfg.shape_frames, 1, cfg.shape_fit_frames if cfg.shape == "fit" else 1)
+    shape_first = cfg.shape == "fit" and cfg.shape_fit_track
+    n_shape = max(cfg.shape_frames, 1, cfg.shape_fit_frames if shape_first else 1)
     shape_range = list(range(f0, min(nf, f0 + n_shape)))
     store(f0, np.concatenate([init.theta, init.root_xyz]), True)
     shaped = []
@@ -502,13 +507,15 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
     refit_shape_frames()
     shape_rec = None
     fitted_balls = None
-    if cfg.shape == "fit":
+    start = init.metaballs  # the whole-body shape fit's start and prior
+    if cfg.shape == "fit" and cfg.shape_fit_deflate:
+        start = deflate(skel, init.metaballs, s)
+    if shape_first:
         fitted_balls, _, shape_rec = whole_body_shape(
-            skel, init.metaballs, s, theta, root, frames,
-            [f for f in shape_range if not div[f]], cameras, cfg.shape_fit, msgs)
-        if cfg.shape_fit_track:
-            balls, radii = fitted_balls, fitted_balls.radii.copy()
-            refit_shape_frames()
+            skel, start, s, theta, root, frames, [f for f in shape_range if not div[f]],
+            cameras, cfg.shape_fit, msgs)
+        balls, radii = fitted_balls, fitted_balls.radii.copy()
+        refit_shape_frames()
     # 2) motion forwards and backwards from the clicked frame ----------------------
     done = len(shape_range)
     for direction, order in ((1, range(shape_range[-1] + 1, nf)), (-1, range(f0 - 1, -1, -1))):
@@ -547,6 +554,16 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
     theta[:], fill_msgs = fill_unobserved(skel, theta, root, s, unobs, div, cfg.couple_hidden,
                                           cfg.bridge_hidden, cfg.couple_r2)
     msgs += fill_msgs
+    if cfg.shape == "fit" and not shape_first:  # at the fitted poses, for the state only
+        good = np.flatnonzero(~div & conv & (n_pts >= cfg.min_points))
+        use = np.sort(good[np.argsort(np.abs(good - f0), kind="stable")][:cfg.shape_fit_frames])
+        if len(use):
+            fitted_balls, _, shape_rec = whole_body_shape(skel, start, s, theta, root, frames,
+                                                          use.tolist(), cameras, cfg.shape_fit,
+                                                          msgs, progress)
+        else:  # e.g. contours alone: the shape they fitted is kept
+            msgs.append("whole-body shape fit: no fitted frame with points, the shape "
+                        "tracked with is kept")
     balls_out = balls.copy(radii=radii) if fitted_balls is None else fitted_balls.copy()
     q = Quality(rmse_m=rmse, theta_sigma=q_sig, converged=conv & ~div, diverged=div,
                 cameras=cams_used, unobserved=unobs)

@@ -11,8 +11,12 @@ ones), ``contours`` (the silhouettes' occluding contours from every camera's
 foreground, σ in pixels; no tracker; the metaball shape is fitted to the clicked
 frame's silhouettes) or ``both``; with contours the cameras each part used are written
 per frame in the state's quality (SPEC: ``quality.cameras``).
-``--fit-shape`` adds the whole-body shape fit (``SequenceSettings.shape = "fit"``, see
-:mod:`core.fit`) after the shape frames; its result is printed as a note.  Prints the
+``--shape`` chooses the body shape written: ``written`` (default) fits the whole-body
+metaball shape after the motion at the poses of the frames nearest the clicked one, from
+the deflated template (:func:`core.metaballs.deflate`), for the state only; ``tracked``
+fits it right after the shape frames and tracks with it (``--fit-shape`` is the same);
+``template`` keeps the per-part shape of the shape frames (see :mod:`core.fit`).  The
+shape fit's result is printed as a note.  Prints the
 per-frame quality summary, the messages (dropped clicks, diverged frames) and the
 timings; diverged frames are flagged in the file, never written as garbage.
 """
@@ -50,9 +54,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--contour-sigma", type=float, default=None, metavar="PX",
                         help="a-priori sigma of one contour observation, pixels "
                              "(default 3)")
+    parser.add_argument("--shape", choices=("written", "tracked", "template"),
+                        default="written",
+                        help="body shape: 'written' (default) fits the whole-body metaball "
+                             "shape after the motion, for the state only; 'tracked' fits it "
+                             "after the shape frames and tracks with it; 'template' keeps "
+                             "the per-part shape of the shape frames")
     parser.add_argument("--fit-shape", action="store_true",
-                        help="after the shape frames' poses, fit the whole-body metaball "
-                             "shape to their points (core.shape_fit) and refit those poses")
+                        help="the same as --shape tracked")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -62,6 +71,9 @@ def run(args: argparse.Namespace) -> int:
     from .progress import Progress
     from .scene import load_scene
     from .state import write_state
+
+    choice = "tracked" if args.fit_shape else args.shape
+    shape, track = ("template", False) if choice == "template" else ("fit", choice == "tracked")
 
     if args.frames is not None and args.frames < 1:
         raise InputError("--frames must be at least 1")
@@ -77,8 +89,8 @@ def run(args: argparse.Namespace) -> int:
         csettings = ContourSettings(sigma_px=args.contour_sigma)
     out = args.output if args.output is not None else scene.root / "fit.json"
     res = run_scene(scene, observations=args.observations, model=args.model,
-                    settings=SequenceSettings(predictor=args.predictor,
-                                              shape="fit" if args.fit_shape else "template"),
+                    settings=SequenceSettings(predictor=args.predictor, shape=shape,
+                                              shape_fit_track=track),
                     progress=Progress(), n_points=args.points, seed=args.seed,
                     frames=args.frames, cues=args.cues, contour_settings=csettings,
                     tracks=args.tracks)

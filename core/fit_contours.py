@@ -17,7 +17,8 @@ attractor points' re-weighting (IRLS):
       r_i = n_i · (z_i − proj_c(x_i(θ, root, s, radii, centres))),
 
   ``z_i`` the image contour point, ``n_i`` its outward image normal, and ``x_i`` the rim
-  point held fixed in its metaball's unit-sphere frame (``x = c_e + R_e (VISIBLE l_e ∘ p)``),
+  point held fixed in its metaball's unit-sphere frame
+  (``x = c_e + R_e (v_e ∘ l_e ∘ p)``, ``v_e`` its ``visible_scale``),
   so that the residual is a smooth function of every unknown and its analytic Jacobian
   (:func:`contour_block`) is exact;
 * each row is divided by the a-priori σ (``ContourSettings.sigma_px``, pixels), which
@@ -41,7 +42,7 @@ from .camera_selection import Selection, select_cameras
 from .contour_match import match_contours
 from .contour_obs import containment_observations, contour_mask, silhouette_field
 from .contours import Contour, occluding_contours
-from .metaballs import VISIBLE, Metaballs, world_frames
+from .metaballs import Metaballs, world_frames
 from .model_contours import rim_points
 from .model_render import camera_rays, render_parts
 from .skeleton import Skeleton, bone_frames, forward, point_jacobians
@@ -154,7 +155,7 @@ def match_frame(skel: Skeleton, balls: Metaballs, theta: np.ndarray, root: np.nd
     """
     pose = forward(skel, np.asarray(theta, float)[None], np.asarray(root, float)[None], s)
     Rw, cw = world_frames(skel, pose, balls, s)
-    centers, axes, radii = cw[0], Rw[0], balls.radii * VISIBLE
+    centers, axes, radii = cw[0], Rw[0], balls.visible
     n_parts = len(skel.bone_names)
     renders, rims = [], []
     for c, cam in enumerate(cameras):
@@ -270,7 +271,7 @@ def contour_block(skel: Skeleton, balls: Metaballs, theta: np.ndarray, root: np.
     Rw, cw = world_frames(skel, pose, balls, s)
     Rb, _ = bone_frames(skel, pose)
     e, bone = pairs.ellipsoid, pairs.bone
-    local = VISIBLE * balls.radii[e] * pairs.p_unit  # (K, 3) in the metaball's axes
+    local = balls.visible[e] * pairs.p_unit  # (K, 3) in the metaball's axes
     xyz = cw[0, e] + (Rw[0, e] @ local[:, :, None])[:, :, 0]
     _, J_th = _rim_point_jacobian(skel, pose, bone, xyz, s, anc)
     nJ = np.zeros((K, 3))  # n^T d proj / d x
@@ -295,8 +296,8 @@ def contour_block(skel: Skeleton, balls: Metaballs, theta: np.ndarray, root: np.
         Js[has, :, g[has]] += own[has]
         J_s[:] = -np.einsum("kj,kjg->kg", nJ, Js)
         cols = 3 * e[:, None] + np.arange(3)[None]
-        # radii: d x / d l_e = R_e diag(VISIBLE p)
-        d_rad = -np.einsum("kj,kji->ki", nJ, Rw[0, e]) * VISIBLE * pairs.p_unit
+        # radii: d x / d l_e = R_e diag(visible_scale p)
+        d_rad = -np.einsum("kj,kji->ki", nJ, Rw[0, e]) * balls.vscale[e] * pairs.p_unit
         np.put_along_axis(J_rad, cols, d_rad, axis=1)
         scale = np.where(g >= 0, np.asarray(s, float)[np.maximum(g, 0)], 1.0)
         d_cen = -np.einsum("kj,kji->ki", nJ, Rb[0, bone]) * scale[:, None]

@@ -112,13 +112,20 @@ class SequenceSettings:
     anneal: tuple = ((0.12, 12.0), (0.07, 6.0), (0.04, 3.0), (0.04, 3.0))
     max_nfev: int = 20
     max_nfev_shape: int = 40
-    #: "template": the per-part shape solve of the shape frames only (default);
-    #: "fit": then the whole-body shape fit (:func:`core.shape_fit.fit_shape`)
-    shape: str = "template"
-    shape_fit_frames: int = 3  # shape frames at least, with shape = "fit"
-    #: with shape = "fit": track with the fitted shape (True), or track with the per-part
-    #: shape and write the fitted one to the state only (False)
-    shape_fit_track: bool = True
+    #: "template": the per-part shape solve of the shape frames only;
+    #: "fit" (default): then the whole-body shape fit (:func:`core.shape_fit.fit_shape`)
+    shape: str = "fit"
+    #: with shape = "fit": its frames — the first ones (shape frames at least) when the
+    #: tracking uses it, else the fitted frames nearest the clicked frame
+    shape_fit_frames: int = 3
+    #: with shape = "fit": track with the fitted shape (True: fitted right after the
+    #: shape frames), or track with the per-part shape and fit the whole-body shape
+    #: after the motion, at the fitted poses, for the state only (False)
+    shape_fit_track: bool = False
+    #: with shape = "fit": start the whole-body shape fit (and its prior) from the
+    #: deflated template (:func:`core.metaballs.deflate`), whose blended surface follows
+    #: the ellipsoids the contours render instead of swelling where metaballs overlap
+    shape_fit_deflate: bool = True
     shape_fit: ShapeSettings | None = None  # its settings (None: its defaults)
     fit: FitSettings = field(default_factory=lambda: FitSettings(members="neighbours",
                                                                  irls_rounds=2,

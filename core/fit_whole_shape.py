@@ -20,14 +20,15 @@ from .skeleton import Skeleton
 def whole_body_shape(skel: Skeleton, template: Metaballs, s: np.ndarray, theta: np.ndarray,
                      root: np.ndarray, frames: list[FramePoints], use: list[int],
                      cameras: list | None, settings: ShapeSettings | None,
-                     msgs: list) -> tuple[Metaballs, np.ndarray, ShapeRecord]:
+                     msgs: list, progress=None) -> tuple[Metaballs, np.ndarray, ShapeRecord]:
     """The whole-body shape of ``frames[use]`` at their held poses.
 
     Runs :func:`core.shape_fit.fit_shape` from the ``template`` metaballs (its prior)
     with the bone scales ``s`` (G,), the poses ``theta[use]`` (K, n) radians and
     ``root[use]`` (K, 3) metres, every point's σ the larger of its own and the shape
     fit's ``sigma_point`` (metres).  Appends its message to ``msgs``; with no usable
-    frame the template is kept.
+    frame the template is kept.  ``progress`` (a :class:`core.progress.Progress`,
+    optional) is updated every round of the shape fit, and cancels it.
 
     Returns
     -------
@@ -43,7 +44,9 @@ def whole_body_shape(skel: Skeleton, template: Metaballs, s: np.ndarray, theta: 
         return template.copy(), template.radii.copy(), rec
     sf = fit_shape(skel, template, s, theta[use], root[use], [frames[f].xyz for f in use],
                    cameras, sigma=[np.maximum(frames[f].sigma, sc.sigma_point) for f in use],
-                   settings=sc)
+                   settings=sc,
+                   progress=None if progress is None else
+                   (lambda k, n: progress.update(k, n, "whole-body shape")))
     rec = ShapeRecord(use, sf.frame_ok.copy(), sf.rms_m.copy(), bool(sf.converged), sf.message,
                       time.perf_counter() - t0)
     rms = sf.rms_m[sf.frame_ok]

@@ -169,8 +169,7 @@ class _Problem:
         for f in range(len(self.obs)):
             if self.obs[f].contours is not None:  # contour pairs and weights, this state
                 b0 = self.balls
-                self.obs[f].contours.freeze(self.skel, Metaballs(b0.bone, centers, b0.group,
-                                                                 b0.rot, radii),
+                self.obs[f].contours.freeze(self.skel, b0.with_parts(centers, radii),
                                             theta[f], root[f], s)
             if self.obs[f].trajectory is not None:  # rigid-motion weights, this state
                 self.obs[f].trajectory.freeze(self.skel, theta[f], root[f], s)
@@ -190,7 +189,7 @@ class _Problem:
     def attractors(self, f, theta, root, s, radii, centers):
         """Pose of frame f, its metaballs and the attractor terms of its points."""
         b0 = self.balls
-        balls = Metaballs(b0.bone, centers, b0.group, b0.rot, radii)
+        balls = b0.with_parts(centers, radii)
         pose = forward(self.skel, theta[f][None], root[f][None], s)
         Rw, cw = world_frames(self.skel, pose, balls, s)
         x, idx, ok, _ = self.gathers[f]
@@ -227,12 +226,11 @@ class _Problem:
                 parts.append(("point", (att.L - LN_T) * w, *Jr_))
             if o.contours is not None:
                 b0 = self.balls
-                cb = o.contours.block(skel, Metaballs(b0.bone, centers, b0.group, b0.rot, radii),
+                cb = o.contours.block(skel, b0.with_parts(centers, radii),
                                       theta[f], root[f], s, self.anc, shape=shape)
                 if len(cb[0]):
                     parts.append(("contour", *cb))
-                hb = o.contours.containment_block(skel, Metaballs(b0.bone, centers, b0.group,
-                                                                  b0.rot, radii),
+                hb = o.contours.containment_block(skel, b0.with_parts(centers, radii),
                                                   theta[f], root[f], s)
                 if hb is not None and len(hb[0]):
                     z = zeros(len(hb[0]))

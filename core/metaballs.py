@@ -57,6 +57,11 @@ class Metaballs:
     group : (M,) int — scale group multiplying ``center0`` (−1: none)
     rot : (M, 3, 3) — orientation of the metaball's axes in the bone's anatomical frame
     radii : (M, 3) — ``(lx, ly, lz)``, metres (> 0)
+    visible_scale : (M, 3) or None — the rendered ellipsoid of each metaball (contours,
+        camera selection, segmentation) has semi-axes ``radii · visible_scale``; None:
+        ``VISIBLE``, a lone metaball's iso-surface.  A deflated template
+        (:func:`deflate`) keeps its rendered ellipsoids where the body's flesh is while
+        its blended surface ``Σ f = 0.5`` follows them (one surface for all terms).
     """
 
     bone: np.ndarray
@@ -64,21 +69,44 @@ class Metaballs:
     group: np.ndarray
     rot: np.ndarray
     radii: np.ndarray
+    visible_scale: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.bone)
 
+    @property
+    def vscale(self) -> np.ndarray:
+        """(M, 3) rendered semi-axes over radii (``VISIBLE`` unless deflated)."""
+        if self.visible_scale is None:
+            return np.full(self.radii.shape, VISIBLE)
+        return self.visible_scale
+
+    @property
+    def visible(self) -> np.ndarray:
+        """(M, 3) semi-axes of the rendered ellipsoids, metres."""
+        return self.radii * self.vscale
+
+    def with_parts(self, center0: np.ndarray, radii: np.ndarray) -> Metaballs:
+        """The same metaballs with other centres (M, 3) and radii (M, 3)."""
+        return Metaballs(self.bone, np.asarray(center0, float), self.group, self.rot,
+                         np.asarray(radii, float).reshape(-1, 3), self.visible_scale)
+
     def copy(self, radii: np.ndarray | None = None) -> Metaballs:
+        vs = None if self.visible_scale is None else self.visible_scale.copy()
         return Metaballs(self.bone.copy(), self.center0.copy(), self.group.copy(),
                          self.rot.copy(), self.radii.copy() if radii is None else
-                         np.asarray(radii, dtype=float).reshape(-1, 3).copy())
+                         np.asarray(radii, dtype=float).reshape(-1, 3).copy(), vs)
 
     def to_dict(self, skel: Skeleton) -> list[dict]:
         """JSON-able list (bones by name), see :mod:`core.state`."""
-        return [{"bone": skel.bone_names[int(self.bone[m])],
-                 "center": self.center0[m].tolist(), "scale_group": int(self.group[m]),
-                 "rotation": self.rot[m].round(15).tolist(), "radii": self.radii[m].tolist()}
-                for m in range(len(self))]
+        out = [{"bone": skel.bone_names[int(self.bone[m])],
+                "center": self.center0[m].tolist(), "scale_group": int(self.group[m]),
+                "rotation": self.rot[m].round(15).tolist(), "radii": self.radii[m].tolist()}
+               for m in range(len(self))]
+        if self.visible_scale is not None:
+            for m, item in enumerate(out):
+                item["visible_scale"] = self.visible_scale[m].tolist()
+        return out
 
     @classmethod
     def from_dict(cls, items: list[dict], skel: Skeleton) -> Metaballs:
@@ -89,6 +117,8 @@ class Metaballs:
             group=np.array([int(v["scale_group"]) for v in items], dtype=int),
             rot=np.array([v["rotation"] for v in items], dtype=float).reshape(-1, 3, 3),
             radii=np.array([v["radii"] for v in items], dtype=float).reshape(-1, 3),
+            visible_scale=(np.array([v["visible_scale"] for v in items], dtype=float)
+                           .reshape(-1, 3) if items and "visible_scale" in items[0] else None),
         )
 
 
@@ -371,3 +401,80 @@ def render_radii(skel: Skeleton, pose: Pose, balls: Metaballs, s: np.ndarray,
     good = np.all(inv2 > 0, axis=1) & (w.sum(axis=1) > 1e-6)
     a = np.where(good[:, None], 1.0 / np.sqrt(np.where(inv2 > 0, inv2, 1.0)), lone)
     return np.clip(a, lone, lone * max_scale)
+
+
+
+def deflate(skel: Skeleton, balls: Metaballs, s: np.ndarray, per_ball: int = 48,
+            iterations: int = 12, prior: float = 1.0, per_part: bool = True) -> Metaballs:
+    """Shrink metaballs until their blended surface follows their rendered ellipsoids.
+
+    A template sized so that each lone metaball's iso-surface is the flesh around its
+    bone (:func:`make_metaballs`) swells where metaballs overlap: their fields add up
+    and ``Σ f = 0.5`` lies outside the lone ellipsoids (the template's whole-body
+    surface is ~4 cm off the body).  Here, at the rest pose (θ = 0), points are spread
+    over the union of the rendered ellipsoids ``v`` (the input's
+    :attr:`Metaballs.visible`; points inside another ellipsoid are left out) and the
+    log-radii are fitted by Gauss–Newton so that ``ln Σ f = ln 0.5`` there — with
+    ``per_part`` (default), the sums and the unions over the metaballs of the point's own
+    body part — (a weak
+    prior, σ = ``prior`` in log-radius, towards ``ln(v / VISIBLE)`` keeps buried
+    metaballs defined).  ``visible_scale`` is then set to ``v / l``, so the contours,
+    the camera selection and the segmentation render the same ellipsoids as before
+    while the attractor's blended surface runs along them: one surface for every
+    observation type.
+
+    Parameters
+    ----------
+    skel, balls, s : the skeleton, its metaballs and the scale coefficients (G,)
+    per_ball : sample points per rendered ellipsoid (a Fibonacci sphere)
+    iterations : Gauss–Newton steps
+    prior : σ of the prior on the log-radii
+    per_part : each body part deflated on its own (default; the blend still adds up
+        across joints), else the whole body at once.  As the start of the whole-body
+        shape fit after make demo's motion (in-process, 5 frames, surface against the
+        true mesh): per part 25.3 / 22.1 mm on walk_line3 / jumps_line3, whole body
+        23.0 / 29.1 mm (not converged on the walk); the template 34.9 / 46.8 mm
+
+    Returns
+    -------
+    Metaballs with smaller ``radii`` and ``visible_scale`` = ``v / radii``.
+    """
+    from .skeleton import forward
+
+    s = np.asarray(s, float)
+    pose = forward(skel, np.zeros((1, skel.n_dof)), np.zeros((1, 3)), s)
+    Rw, cw = world_frames(skel, pose, balls, s)
+    Rw, cw = Rw[0], cw[0]
+    v = balls.visible
+    M = len(balls)
+    k = np.arange(per_ball) + 0.5
+    z = 1.0 - 2.0 * k / per_ball
+    phi = np.pi * (1.0 + 5.0 ** 0.5) * k
+    u = np.stack([np.sqrt(1 - z**2) * np.cos(phi), np.sqrt(1 - z**2) * np.sin(phi), z], 1)
+    x = (cw[:, None]
+         + np.einsum("mij,mpj->mpi", Rw, u[None] * v[:, None])).reshape(-1, 3)
+    y = local_coords(x, Rw, cw)                                           # (N, M, 3)
+    own = np.repeat(np.arange(M), per_ball)
+    inside = np.sum((y / v[None]) ** 2, axis=-1) < 1.0 - 1e-9
+    inside[np.arange(len(x)), own] = False
+    if per_part:  # only the metaballs of the point's own part count
+        member = balls.bone[own][:, None] == balls.bone[None, :]
+        inside &= member
+    keep = ~inside.any(axis=1)
+    y = y[keep]
+    member = member[keep] if per_part else np.ones((len(y), M), bool)
+    n = len(y)
+    logr0 = np.log(v / VISIBLE)
+    logr = logr0.copy()
+    for _ in range(iterations):
+        q = (y / np.exp(logr)[None]) ** 2                                  # (n, M, 3)
+        f = np.exp(-2.0 * q.sum(axis=-1)) * member                         # (n, M)
+        F = np.maximum(f.sum(axis=1), 1e-300)
+        r = np.concatenate([np.log(F) - np.log(THRESHOLD), (logr - logr0).ravel() / prior])
+        J = np.concatenate([(4.0 * f[..., None] * q / F[:, None, None]).reshape(n, 3 * M),
+                            np.eye(3 * M) / prior])
+        step = np.linalg.lstsq(J, -r, rcond=None)[0].reshape(M, 3)
+        logr = logr + np.clip(step, -0.5, 0.5)
+    out = balls.copy(radii=np.exp(logr))
+    out.visible_scale = v / out.radii
+    return out

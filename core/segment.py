@@ -18,32 +18,33 @@ from __future__ import annotations
 
 import numpy as np
 
-from .metaballs import VISIBLE, Metaballs, local_coords, world_frames
+from .metaballs import Metaballs, local_coords, world_frames
 from .skeleton import Skeleton, forward
 
 
 def surface_distance(xyz: np.ndarray, Rw: np.ndarray, cw: np.ndarray,
-                     radii: np.ndarray) -> np.ndarray:
-    """Approximate distance (N, M) of points to each lone metaball's visible surface.
+                     visible: np.ndarray) -> np.ndarray:
+    """Approximate distance (N, M) of points to each metaball's rendered ellipsoid.
 
     Parameters
     ----------
     xyz : (N, 3) world points, metres
     Rw, cw : (M, 3, 3), (M, 3) metaball world frames
-    radii : (M, 3) metaball radii, metres
+    visible : (M, 3) semi-axes of the rendered ellipsoids
+        (:attr:`core.metaballs.Metaballs.visible`), metres
 
     Returns
     -------
     (N, M) metres, negative inside the ellipsoid.
     """
-    return _local_surface_distance(local_coords(xyz, Rw, cw), radii)
+    return _local_surface_distance(local_coords(xyz, Rw, cw), visible)
 
 
-def _local_surface_distance(y: np.ndarray, radii: np.ndarray) -> np.ndarray:
+def _local_surface_distance(y: np.ndarray, visible: np.ndarray) -> np.ndarray:
     """:func:`surface_distance` from the points in the metaballs' frames, y (N, M, 3)."""
-    r = np.sqrt(np.sum((y / radii[None]) ** 2, axis=-1))
+    r = np.sqrt(np.sum((y / visible[None]) ** 2, axis=-1))
     norm = np.linalg.norm(y, axis=-1)
-    return norm * (1.0 - VISIBLE / np.maximum(r, 1e-12))
+    return norm * (1.0 - 1.0 / np.maximum(r, 1e-12))
 
 
 def segment_points(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, theta: np.ndarray,
@@ -75,7 +76,7 @@ def segment_points(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, theta: np.
     Rw, cw = world_frames(skel, pose, balls, s)
     Rw, cw = Rw[0], cw[0]
     y = local_coords(xyz, Rw, cw)
-    dist = _local_surface_distance(y, radii)
+    dist = _local_surface_distance(y, radii * balls.vscale)
     logf = -2.0 * np.sum((y / radii[None]) ** 2, axis=-1)  # (N, M)
     bones = np.unique(balls.bone)
     score = np.full((len(xyz), len(bones)), -np.inf)

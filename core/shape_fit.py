@@ -57,7 +57,7 @@ from scipy.spatial import cKDTree
 from .attractor import LN_T, attractor, attractor_jacobians, scatter
 from .camera import Camera
 from .fitting import _levenberg_marquardt
-from .metaballs import VISIBLE, Metaballs, local_coords, sample_surface, world_frames
+from .metaballs import Metaballs, local_coords, sample_surface, world_frames
 from .model_render import render_parts
 from .skeleton import Skeleton, bone_frames, forward, joint_positions
 
@@ -140,17 +140,17 @@ def nearest_members(xyz: np.ndarray, Rw: np.ndarray, cw: np.ndarray, radii: np.n
 
 
 def seen_by(cameras: list[Camera], xyz: np.ndarray, Rw: np.ndarray, cw: np.ndarray,
-            radii: np.ndarray, bone: np.ndarray, depth_tol: float) -> np.ndarray:
+            visible: np.ndarray, bone: np.ndarray, depth_tol: float) -> np.ndarray:
     """How many cameras see each point of the model surface (N,) int.
 
     A point is seen when it projects into the image and lies no farther than
-    ``depth_tol`` metres behind the model's own rendering there (the lone visible
-    ellipsoids of :func:`core.model_render.render_parts`).
+    ``depth_tol`` metres behind the model's own rendering there (the rendered
+    ellipsoids, semi-axes ``visible`` (M, 3), of :func:`core.model_render.render_parts`).
     """
     views = np.zeros(len(xyz), int)
     for cam in cameras:
         w, h = cam.size
-        ren = render_parts(cam, cw, Rw, radii * VISIBLE, bone)
+        ren = render_parts(cam, cw, Rw, visible, bone)
         with np.errstate(all="ignore"):
             uv = cam.project(xyz)
         ok = np.all(np.isfinite(uv), axis=1)
@@ -342,7 +342,7 @@ class ShapeProblem:
         return radii, centers
 
     def geometry(self, fr: _Frame, radii, centers):
-        b = Metaballs(self.balls.bone, centers, self.balls.group, self.balls.rot, radii)
+        b = self.balls.with_parts(centers, radii)
         Rw, cw = world_frames(self.skel, fr.pose, b, self.s)
         return b, Rw[0], cw[0]
 
@@ -366,7 +366,7 @@ class ShapeProblem:
                                     per_ball=cfg.samples_per_ball,
                                     seed=self.seed + k)  # same directions every round
             xs = xs[ok]
-            seen = seen_by(self.cameras, xs, Rw, cw, radii, b.bone, cfg.depth_tol)
+            seen = seen_by(self.cameras, xs, Rw, cw, b.visible, b.bone, cfg.depth_tol)
             xs = xs[seen >= cfg.min_views]
             if not len(xs):
                 continue
@@ -454,7 +454,8 @@ def fit_shape(skel: Skeleton, balls: Metaballs, s: np.ndarray, theta: np.ndarray
               root_xyz: np.ndarray, points: list[np.ndarray],
               cameras: list[Camera] | None = None,
               sigma: list[np.ndarray] | None = None,
-              settings: ShapeSettings | None = None, seed: int = 0) -> ShapeFit:
+              settings: ShapeSettings | None = None, seed: int = 0,
+              progress=None) -> ShapeFit:
     """Fit the metaball radii (and centres) to surface points of F frames, pose held.
 
     Parameters
@@ -467,6 +468,9 @@ def fit_shape(skel: Skeleton, balls: Metaballs, s: np.ndarray, theta: np.ndarray
     sigma : list (F) of (N_f,) a-priori σ of the points, metres (default
         ``settings.sigma_point``)
     seed : seeds the model points' sampling
+    progress : callable ``(round, rounds)``, optional
+        Called before every re-weighting round (a :class:`core.progress.Progress`
+        wrapper raises there when the user cancels).
 
     Returns
     -------
@@ -505,7 +509,9 @@ def fit_shape(skel: Skeleton, balls: Metaballs, s: np.ndarray, theta: np.ndarray
     lo[:3 * prob.M] = cfg.min_radius
     x = np.maximum(x, lo)
     converged, moved, cost, change = False, np.inf, np.inf, np.inf
-    for _ in range(cfg.rounds):
+    for k in range(cfg.rounds):
+        if progress is not None:
+            progress(k, cfg.rounds)
         prob.freeze(x)
         sol = _levenberg_marquardt(prob.system, x, lo, cfg.max_nfev, cfg.tol, max_step=0.02)
         moved = float(np.abs(sol.x - x).max(initial=0.0))
@@ -518,8 +524,7 @@ def fit_shape(skel: Skeleton, balls: Metaballs, s: np.ndarray, theta: np.ndarray
         (f"not converged in {cfg.rounds} rounds (the last changed the cost by "
          f"{100 * change:.1f} %, moved an unknown by {1e3 * moved:.1f} mm)")
     radii, centers = prob.unpack(x)
-    out = Metaballs(balls.bone.copy(), np.array(centers, float), balls.group.copy(),
-                    balls.rot.copy(), np.array(radii, float))
+    out = balls.copy().with_parts(np.array(centers, float), np.array(radii, float))
     prob.freeze(x)
     rms, mrms = nan.copy(), nan.copy()
     n_pts, n_mod = np.zeros(nf, int), np.zeros(nf, int)

@@ -3,8 +3,8 @@
 With no ground truth for the joints (real video), the honest measure of a fit is how
 well the fitted body, projected into a held-out camera, covers the person's foreground
 there.  The body is rendered exactly (:func:`core.model_render.render_parts`: each
-metaball's visible ellipsoid, ``VISIBLE`` × its radii, ray-cast per pixel) and compared
-with the foreground mask of that camera (:mod:`core.background`).
+metaball's rendered ellipsoid, :attr:`core.metaballs.Metaballs.visible`, ray-cast per
+pixel) and compared with the foreground mask of that camera (:mod:`core.background`).
 
 Frames: world Z up, metres; cameras as in :mod:`core.camera` (pixels, OpenCV frame).
 """

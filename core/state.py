@@ -25,7 +25,9 @@ by the Blender add-on.  One JSON object, UTF-8::
       "metaballs": {"model": "simplified" | "complete" | "...",
                     "items": [{"bone" (name), "center" [3] (bone frame, metres before
                                scaling), "scale_group", "rotation" 3x3 (axes in the bone
-                               frame), "radii" [lx, ly, lz] (metres)}, ...]},
+                               frame), "radii" [lx, ly, lz] (metres), optional
+                               "visible_scale" [3] (rendered semi-axes / radii;
+                               absent: sqrt(ln 2 / 2), a lone metaball's)}, ...]},
       "motion": {"dof_names": [n names],
                  "root_xyz": F x [3]  (metres, world, Z up),
                  "theta": F x [n]     (radians)},
@@ -270,6 +272,11 @@ def state_from_dict(data: dict, path: str | Path = "<state>") -> FitState:
     if not (np.all(np.isfinite(balls.radii)) and np.all(balls.radii > 0)
             and np.all(np.isfinite(balls.center0))):
         raise InputError(f"{path}: metaball radii must be positive finite numbers")
+    vs = balls.visible_scale
+    if vs is not None and not (vs.shape == balls.radii.shape and np.all(np.isfinite(vs))
+                               and np.all(vs > 0)):
+        raise InputError(f"{path}: metaball visible_scale must be 3 positive finite numbers "
+                         "for every metaball")
 
     motion = _section(path, data, "motion")
     names = motion.get("dof_names")

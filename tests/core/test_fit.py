@@ -88,16 +88,18 @@ def _shape_sequence(rng, nf=3):
 @pytest.mark.slow
 def test_shape_fit_option_moves_the_surface_to_the_truth(rng):
     """shape="fit": three frames of points on a thicker/thinner 'true' body; the fitted
-    surface lies much closer to held-out true surface points than the default's, the
-    shape record is filled, and the default run has none."""
+    surface lies much closer to held-out true surface points than the per-part
+    template shape's, the shape record is filled, and the template run has none.  The
+    default (shape written after the motion, ``shape_fit_track=False``) leaves the
+    motion exactly as the template run's."""
     skel, s, template, truth, theta, root, frames, cams, init = _shape_sequence(rng)
     # the per-part shape solve held near the template (its radii blend into a surface
     # that bulges where metaballs overlap, far from these whole-body surface points)
     base = SequenceSettings(max_nfev=10, max_nfev_shape=10, search=False,
-                            shape_sigma_radius=0.005)
+                            shape_sigma_radius=0.005, shape="template")
     shape_cfg = ShapeSettings(rounds=3, max_nfev=10, samples_per_ball=10, free_centers=False)
-    res = fit_sequence(frames, init, replace(base, shape="fit", shape_fit=shape_cfg),
-                       cameras=cams)
+    res = fit_sequence(frames, init, replace(base, shape="fit", shape_fit_track=True,
+                                             shape_fit=shape_cfg), cameras=cams)
     rec = res.shape
     assert rec is not None and rec.frames.tolist() == [0, 1, 2] and rec.frame_ok.all()
     assert isinstance(rec.converged, bool) and rec.message
@@ -121,6 +123,13 @@ def test_shape_fit_option_moves_the_surface_to_the_truth(rng):
     # overlapping metaballs trade their widths); it moves to the truth
     assert dist(st) < 0.5 * dist(default.state) and dist(st) < 0.005, \
         (dist(st), dist(default.state))
+    written = fit_sequence(frames, init, replace(base, shape="fit", shape_fit=shape_cfg),
+                           cameras=cams)
+    assert SequenceSettings().shape == "fit" and not SequenceSettings().shape_fit_track
+    assert written.shape is not None and written.shape.frames.tolist() == [0, 1, 2]
+    np.testing.assert_array_equal(written.state.theta, default.state.theta)
+    assert dist(written.state) < 0.5 * dist(default.state), \
+        (dist(written.state), dist(default.state))
     with pytest.raises(ValueError, match="unknown shape option"):
         fit_sequence(frames, init, replace(base, shape="bogus"))
 

@@ -54,8 +54,11 @@ def body():
     return skel, balls, s, theta, root, cams, _silhouettes(skel, balls, theta, root, s, cams)
 
 
-def test_contour_jacobians_match_finite_differences(body):
+@pytest.mark.parametrize("deflated", [False, True])
+def test_contour_jacobians_match_finite_differences(body, deflated):
     skel, balls, s, theta, root, cams, observed = body
+    if deflated:  # rendered ellipsoids radii · visible_scale, not VISIBLE · radii
+        balls = mb.deflate(skel, balls, s)
     rng = np.random.default_rng(3)
     th = theta + rng.normal(0, 0.03, theta.shape)
     rt = root + np.array([0.01, -0.01, 0.005])

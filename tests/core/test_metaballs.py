@@ -93,3 +93,53 @@ def test_surface_sampler_lands_on_iso_surface(setup):
     Rw, cw = mb.world_frames(skel, pose, balls, s)
     F, _, _, _ = mb.field(xyz[ok], Rw[0], cw[0], balls.radii)
     np.testing.assert_allclose(F, 0.5, atol=1e-8)
+
+
+@pytest.mark.parametrize("model", ["simplified", "complete"])
+@pytest.mark.parametrize("per_part", [True, False])
+def test_deflated_blend_follows_the_rendered_ellipsoids(model, per_part):
+    skel = sk.make_skeleton()
+    s = np.ones(skel.n_groups)
+    tmpl = mb.make_metaballs(skel, model, s)
+    flat = mb.deflate(skel, tmpl, s, per_part=per_part)
+    # the rendered ellipsoids (contours, selection, segmentation) are unchanged
+    np.testing.assert_allclose(flat.visible, tmpl.visible, rtol=1e-12)
+    q = flat.radii / tmpl.radii
+    if per_part:  # within a part the metaballs only shrink
+        assert np.median(q) < 0.99 and q.max() < 1.01
+    else:
+        assert np.median(q) < 0.9 and q.max() < 1.3
+    # points on the union of the rendered ellipsoids, at a pose the fit did not see
+    theta = np.zeros((1, skel.n_dof))
+    theta[0, skel.dof_index("l_elbow_x")] = -0.8
+    pose = sk.forward(skel, theta, np.array([[0.0, 0.0, 1.0]]), s)
+    Rw, cw = mb.world_frames(skel, pose, tmpl, s)
+    Rw, cw = Rw[0], cw[0]
+    u = np.random.default_rng(0).normal(size=(len(tmpl), 40, 3))
+    u /= np.linalg.norm(u, axis=2, keepdims=True)
+    x = (cw[:, None] + np.einsum("mij,mpj->mpi", Rw, u * tmpl.visible[:, None])).reshape(-1, 3)
+    y = mb.local_coords(x, Rw, cw)
+    own = np.repeat(np.arange(len(tmpl)), 40)
+    inside = np.sum((y / tmpl.visible[None]) ** 2, axis=-1) < 1.0 - 1e-9
+    inside[np.arange(len(x)), own] = False
+    x = x[~inside.any(axis=1)]
+    gap = {}
+    for name, b in (("template", tmpl), ("deflated", flat)):
+        xs, ok = mb.project_to_surface(x, Rw, cw, b.radii, iterations=60, tol=1e-6)
+        gap[name] = np.median(np.linalg.norm(xs - x, axis=1)[ok])
+    # the template's blend swells a centimetre or more off its rendered ellipsoids;
+    # deflated part by part, the parts' blends still add up across the joints
+    assert gap["template"] > 0.01
+    assert gap["deflated"] < (0.6 if per_part else 0.3) * gap["template"]
+
+
+def test_visible_scale_survives_the_state_dict():
+    skel = sk.make_skeleton()
+    s = np.ones(skel.n_groups)
+    flat = mb.deflate(skel, mb.make_metaballs(skel, "simplified", s), s)
+    back = mb.Metaballs.from_dict(flat.to_dict(skel), skel)
+    np.testing.assert_allclose(back.visible_scale, flat.visible_scale)
+    np.testing.assert_allclose(back.visible, flat.visible)
+    plain = mb.make_metaballs(skel, "simplified", s)
+    assert mb.Metaballs.from_dict(plain.to_dict(skel), skel).visible_scale is None
+    np.testing.assert_allclose(plain.visible, plain.radii * mb.VISIBLE)

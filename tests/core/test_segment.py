@@ -57,7 +57,7 @@ def test_margin_drops_exactly_the_points_ambiguous_between_non_adjacent_parts(rn
     assert np.all(got[kept] == plain[kept])  # the margin only removes points
     dropped = (plain >= 0) & ~kept
     assert dropped.sum() > 10 and kept.sum() > 50
-    dist = surface_distance(xyz, Rw[0], cw[0], balls.radii)
+    dist = surface_distance(xyz, Rw[0], cw[0], balls.visible)
     for i in np.nonzero(plain >= 0)[0]:
         b = plain[i]
         adjacent = {b, skel.bone_parent[b], *np.nonzero(skel.bone_parent == b)[0]}

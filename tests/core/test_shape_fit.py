@@ -107,7 +107,7 @@ def test_seen_by_hides_the_far_side_of_the_body(rng):
     pose = sk.forward(skel, theta[None], root[None], s)
     Rw, cw = mb.world_frames(skel, pose, balls, s)
     x = _surface(skel, s, balls, theta, root, 20, 1)
-    n = seen_by(cameras(), x, Rw[0], cw[0], balls.radii, balls.bone, 0.02)
+    n = seen_by(cameras(), x, Rw[0], cw[0], balls.visible, balls.bone, 0.02)
     c = cw[0, np.flatnonzero(balls.bone == skel.bone_index("chest"))[0]]
     chest = (np.abs(x[:, 0] - c[0]) < 0.08) & (np.abs(x[:, 2] - c[2]) < 0.06)
     front = chest & (x[:, 1] < c[1] - 0.05)  # the cameras stand at y = −4

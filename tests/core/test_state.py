@@ -113,3 +113,20 @@ def test_writer_refuses_nan(state, tmp_path):
     state.theta[1, 3] = np.nan
     with pytest.raises(ValueError, match="non-finite theta"):
         write_state(tmp_path / "fit.json", state)
+
+
+def test_deflated_metaballs_round_trip_and_bad_scale(state, tmp_path):
+    from dataclasses import replace
+
+    skel = state.skeleton
+    flat = mb.deflate(skel, state.metaballs, state.s)
+    back = read_state(write_state(tmp_path / "fit.json", replace(state, metaballs=flat)))
+    np.testing.assert_array_equal(back.metaballs.visible_scale, flat.visible_scale)
+    np.testing.assert_allclose(back.metaballs.visible, state.metaballs.visible)
+    data = json.loads((tmp_path / "fit.json").read_text())
+    data["metaballs"]["items"][3]["visible_scale"] = [0.5, -1.0, 0.5]
+    with pytest.raises(InputError, match=r"fit\.json: metaball visible_scale must be"):
+        read_state(_write(tmp_path, data))
+    del data["metaballs"]["items"][4]["visible_scale"]
+    with pytest.raises(InputError, match=r"fit\.json: the metaballs are malformed"):
+        read_state(_write(tmp_path, data))

@@ -12,12 +12,12 @@ clicked frame's initial posture (:mod:`core.fit_init`):
    the next ``shape_frames − 1`` frames are pose-fitted and join the shape solve; the
    shape is fixed afterwards and every shape frame's pose refitted (the clicked frame
    with the clicks as joint observations, σ ``sigma_click``).  With
-   ``settings.shape = "fit"`` (the default; ``"template"`` is the above alone) the
-   *whole-body* shape is fitted as well (:func:`core.shape_fit.fit_shape`: metaball
+   ``settings.shape = "fit"`` (an option; the default ``"template"`` is the above
+   alone) the *whole-body* shape is fitted as well (:func:`core.shape_fit.fit_shape`: metaball
    radii and centres, the anti-bulge term with the scene's ``cameras``), from the
    template deflated so that its blended surface follows the ellipsoids the contours
-   render (``shape_fit_deflate``, :func:`core.metaballs.deflate`).  By default
-   (``shape_fit_track = False``) the tracking keeps the per-part shape and the
+   render (``shape_fit_deflate``, :func:`core.metaballs.deflate`).  With
+   ``shape_fit_track = False`` (its default) the tracking keeps the per-part shape and the
    whole-body shape is fitted after the motion, at the poses of the
    ``shape_fit_frames`` fitted frames nearest the clicked one, and only written to
    the state; with ``shape_fit_track`` it is fitted right after at least

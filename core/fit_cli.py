@@ -11,11 +11,12 @@ ones), ``contours`` (the silhouettes' occluding contours from every camera's
 foreground, σ in pixels; no tracker; the metaball shape is fitted to the clicked
 frame's silhouettes) or ``both``; with contours the cameras each part used are written
 per frame in the state's quality (SPEC: ``quality.cameras``).
-``--shape`` chooses the body shape written: ``written`` (default) fits the whole-body
-metaball shape after the motion at the poses of the frames nearest the clicked one, from
-the deflated template (:func:`core.metaballs.deflate`), for the state only; ``tracked``
-fits it right after the shape frames and tracks with it (``--fit-shape`` is the same);
-``template`` keeps the per-part shape of the shape frames (see :mod:`core.fit`).  The
+``--shape`` chooses the body shape written: ``template`` (default) keeps the per-part
+shape of the shape frames; ``written`` fits the whole-body metaball shape after the
+motion at the poses of the frames nearest the clicked one, from the deflated template
+(:func:`core.metaballs.deflate`), for the state only (the motion is the default's);
+``tracked`` fits it right after the shape frames and tracks with it (``--fit-shape`` is
+the same) (see :mod:`core.fit`).  The
 shape fit's result is printed as a note.  Prints the
 per-frame quality summary, the messages (dropped clicks, diverged frames) and the
 timings; diverged frames are flagged in the file, never written as garbage.
@@ -54,12 +55,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--contour-sigma", type=float, default=None, metavar="PX",
                         help="a-priori sigma of one contour observation, pixels "
                              "(default 3)")
-    parser.add_argument("--shape", choices=("written", "tracked", "template"),
-                        default="written",
-                        help="body shape: 'written' (default) fits the whole-body metaball "
+    parser.add_argument("--shape", choices=("template", "written", "tracked"),
+                        default="template",
+                        help="body shape: 'template' (default) keeps the per-part shape of "
+                             "the shape frames; 'written' fits the whole-body metaball "
                              "shape after the motion, for the state only; 'tracked' fits it "
-                             "after the shape frames and tracks with it; 'template' keeps "
-                             "the per-part shape of the shape frames")
+                             "after the shape frames and tracks with it")
     parser.add_argument("--fit-shape", action="store_true",
                         help="the same as --shape tracked")
 

@@ -112,9 +112,9 @@ class SequenceSettings:
     anneal: tuple = ((0.12, 12.0), (0.07, 6.0), (0.04, 3.0), (0.04, 3.0))
     max_nfev: int = 20
     max_nfev_shape: int = 40
-    #: "template": the per-part shape solve of the shape frames only;
-    #: "fit" (default): then the whole-body shape fit (:func:`core.shape_fit.fit_shape`)
-    shape: str = "fit"
+    #: "template" (default): the per-part shape solve of the shape frames only;
+    #: "fit": then the whole-body shape fit (:func:`core.shape_fit.fit_shape`)
+    shape: str = "template"
     #: with shape = "fit": its frames — the first ones (shape frames at least) when the
     #: tracking uses it, else the fitted frames nearest the clicked frame
     shape_fit_frames: int = 3

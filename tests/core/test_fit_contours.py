@@ -243,15 +243,18 @@ def test_contours_without_any_usable_background_is_a_clear_error(tmp_path, capsy
 @pytest.mark.slow
 def test_cli_contours_alone_with_one_unusable_camera(tmp_path, capsys):
     """``core fit --cues contours``: one camera shows only noise — it is named and left
-    out, the other two fit every frame; finite output, cameras recorded per part."""
+    out, the other two fit every frame; finite output, cameras recorded per part.  With
+    ``--shape written`` and no points the shape the contours fitted is kept, said so."""
     from core.cli import main
     from core.state import read_state
 
     _silhouette_scene(tmp_path, noise_cams=(1,))
-    assert main(["fit", str(tmp_path), "--cues", "contours", "--model", "simplified"]) == 0
+    assert main(["fit", str(tmp_path), "--cues", "contours", "--model", "simplified",
+                 "--shape", "written"]) == 0
     out = capsys.readouterr().out
     assert "camera cam02: no usable background" in out
     assert "silhouette contours alone" in out
+    assert "no fitted frame with points, the shape tracked with is kept" in out
     st = read_state(tmp_path / "fit.json")
     for arr in (st.theta, st.root_xyz, st.s, st.metaballs.radii):
         assert np.all(np.isfinite(arr))

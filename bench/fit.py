@@ -207,18 +207,19 @@ def hidden_split(state, truth: dict) -> dict:
 
 
 def run_one(scene: Path, frames: int | None, observations: str, model: str,
-            cues: str = "texture", tracks: Path | None = None) -> dict:
+            cues: str = "texture", tracks: Path | None = None, shape: str = "template") -> dict:
     """Fit and evaluate one scene folder; return the figures (or ``{"error": ...}``).
 
-    ``cues`` and ``tracks`` (a tracker output other than ``SCENE/tracks.npz``) go to
-    ``python -m core fit --cues --tracks``."""
+    ``cues``, ``tracks`` (a tracker output other than ``SCENE/tracks.npz``) and ``shape``
+    go to ``python -m core fit --cues --tracks --shape``."""
     from core.scene import load_scene
     from core.state import read_state
 
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "fit.json"
         cmd = [sys.executable, "-m", "core", "fit", str(scene), "-o", str(out),
-               "--observations", observations, "--model", model, "--cues", cues]
+               "--observations", observations, "--model", model, "--cues", cues,
+               "--shape", shape]
         if tracks is not None:
             cmd += ["--tracks", str(tracks)]
         if frames:
@@ -369,6 +370,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="with truth-derived observations: also fit walk_line3 through the "
                          "real pipeline (its tracker's tracks) with these cues, printed under "
                          "the truth-derived row (default both; none: skip)")
+    ap.add_argument("--shape", default="template", choices=("template", "written", "tracked"),
+                    help="body shape of the fits (python -m core fit --shape)")
     ap.add_argument("--fit-shape", action="store_true",
                     help="compare the template with the whole-body fitted shape on one scene "
                          "(default walk_line3), truth-derived observations, in-process")
@@ -382,7 +385,7 @@ def main(argv: list[str] | None = None) -> int:
     label = ("TRUTH-DERIVED OBSERVATIONS (points sampled on the true mesh, 1.5 mm noise, "
              "5 % outliers) — not the image pipeline's result"
              if args.observations == "truth" else f"observations: {args.observations}")
-    print(label)
+    print(f"{label}; body shape: {args.shape}")
     hdr = (f"{'scene':<14}{'rig':<12}{'frames':>7}{'MPJPE mm':>10}{'max %h':>8}{'<=1% fr':>9}"
            f"{'seg deg':>9}{'surf mm':>9}{'s/frame':>9}  fit timing / points / source")
     print(hdr, flush=True)
@@ -390,14 +393,16 @@ def main(argv: list[str] | None = None) -> int:
         tracks = args.tracks
         if args.observations == "tracks" and tracks is None and _is_default(scene):
             tracks = default_tracks()
-        r = run_one(scene, args.frames, args.observations, args.model, args.cues, tracks)
+        r = run_one(scene, args.frames, args.observations, args.model, args.cues, tracks,
+                    args.shape)
         print_row(r, scene, render_wall)
         if (args.observations == "truth" and args.real != "none" and _is_default(scene)):
             print(f"  the same scene through the REAL pipeline (tracks of python -m core "
                   f"track, {default_tracks().relative_to(ROOT)}; cues {args.real}):",
                   flush=True)
             print_row(run_one(scene, args.frames, "tracks", args.model, args.real,
-                              default_tracks()), scene, None, name="  real " + args.real)
+                              default_tracks(), args.shape), scene, None,
+                      name="  real " + args.real)
     return 0
 
 

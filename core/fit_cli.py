@@ -16,8 +16,7 @@ shape of the shape frames; ``written`` fits the whole-body metaball shape after 
 motion at the poses of the frames nearest the clicked one, from the deflated template
 (:func:`core.metaballs.deflate`), for the state only (the motion is the default's);
 ``tracked`` fits it right after the shape frames and tracks with it (``--fit-shape`` is
-the same) (see :mod:`core.fit`).  The
-shape fit's result is printed as a note.  Prints the
+the same; see :mod:`core.fit`); the shape fit's result is printed as a note.  Prints the
 per-frame quality summary, the messages (dropped clicks, diverged frames) and the
 timings; diverged frames are flagged in the file, never written as garbage.
 """

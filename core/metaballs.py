@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .skeleton import Pose, Skeleton, bone_frames
+from .skeleton import Pose, Skeleton, bone_frames, forward
 
 #: Field threshold of the surface ``Σ f = T``.
 THRESHOLD = 0.5
@@ -356,6 +356,14 @@ def sample_surface(skel: Skeleton, pose: Pose, balls: Metaballs, s: np.ndarray,
     return project_to_surface(x0.reshape(-1, 3), Rw, cw, balls.radii)
 
 
+def fibonacci_sphere(n: int) -> np.ndarray:
+    """``n`` unit vectors (n, 3) spread evenly over the sphere (a Fibonacci lattice)."""
+    k = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * k / n
+    phi = np.pi * (1.0 + 5.0 ** 0.5) * k
+    return np.stack([np.sqrt(1 - z**2) * np.cos(phi), np.sqrt(1 - z**2) * np.sin(phi), z], 1)
+
+
 def render_radii(skel: Skeleton, pose: Pose, balls: Metaballs, s: np.ndarray,
                  per_ball: int = 64, frame: int = 0, max_scale: float = 2.0) -> np.ndarray:
     """Semi-axes (M, 3) of ellipsoids whose union approximates the blended surface.
@@ -381,10 +389,7 @@ def render_radii(skel: Skeleton, pose: Pose, balls: Metaballs, s: np.ndarray,
     """
     Rw, cw = world_frames(skel, _one(pose, frame), balls, s)
     Rw, cw = Rw[0], cw[0]
-    k = np.arange(per_ball) + 0.5
-    z = 1.0 - 2.0 * k / per_ball
-    phi = np.pi * (1.0 + 5.0 ** 0.5) * k
-    u = np.stack([np.sqrt(1 - z**2) * np.cos(phi), np.sqrt(1 - z**2) * np.sin(phi), z], 1)
+    u = fibonacci_sphere(per_ball)
     lone = balls.radii * VISIBLE
     x0 = np.einsum("mij,mpj->mpi", Rw, u[None] * lone[:, None, :]) + cw[:, None, :]
     xs, ok = project_to_surface(x0.reshape(-1, 3), Rw, cw, balls.radii)
@@ -439,18 +444,13 @@ def deflate(skel: Skeleton, balls: Metaballs, s: np.ndarray, per_ball: int = 48,
     -------
     Metaballs with smaller ``radii`` and ``visible_scale`` = ``v / radii``.
     """
-    from .skeleton import forward
-
     s = np.asarray(s, float)
     pose = forward(skel, np.zeros((1, skel.n_dof)), np.zeros((1, 3)), s)
     Rw, cw = world_frames(skel, pose, balls, s)
     Rw, cw = Rw[0], cw[0]
     v = balls.visible
     M = len(balls)
-    k = np.arange(per_ball) + 0.5
-    z = 1.0 - 2.0 * k / per_ball
-    phi = np.pi * (1.0 + 5.0 ** 0.5) * k
-    u = np.stack([np.sqrt(1 - z**2) * np.cos(phi), np.sqrt(1 - z**2) * np.sin(phi), z], 1)
+    u = fibonacci_sphere(per_ball)
     x = (cw[:, None]
          + np.einsum("mij,mpj->mpi", Rw, u[None] * v[:, None])).reshape(-1, 3)
     y = local_coords(x, Rw, cw)                                           # (N, M, 3)

@@ -5,11 +5,18 @@ from pathlib import Path
 import bench.fit as bf
 
 
-def _record(monkeypatch):
-    calls = []
+class _Calls(list):
+    shapes: list
 
-    def fake_run_one(scene, frames, observations, model, cues="texture", tracks=None):
+
+def _record(monkeypatch):
+    calls = _Calls()
+    calls.shapes = []
+
+    def fake_run_one(scene, frames, observations, model, cues="texture", tracks=None,
+                     shape="template"):
         calls.append((Path(scene).name, observations, cues, tracks))
+        calls.shapes.append(shape)
         return {"scene": Path(scene).name, "error": ["not run in this test"]}
 
     monkeypatch.setattr(bf, "run_one", fake_run_one)
@@ -37,3 +44,10 @@ def test_tracks_observations_use_the_cached_tracks_of_the_default_scene(monkeypa
     calls = _record(monkeypatch)
     bf.main([str(bf.DEFAULT), "--observations", "tracks", "--cues", "both"])
     assert calls == [("walk_line3", "tracks", "both", bf.ROOT / "out" / "t.tracks.npz")]
+
+
+def test_the_body_shape_goes_to_every_fit(monkeypatch):
+    calls = _record(monkeypatch)
+    bf.main([str(bf.DEFAULT), "--real", "both"])
+    bf.main([str(bf.DEFAULT), "--real", "both", "--shape", "written"])
+    assert calls.shapes == ["template", "template", "written", "written"]

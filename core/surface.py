@@ -14,6 +14,7 @@ lies close in space to the neighbour it grew from.  Growth stops at weak texture
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -68,8 +69,10 @@ class Surface:
         return len(self.xyz)
 
 
-def seeds_from_clicks(clicks: dict, cameras: list[str], max_seeds: int = 5) -> np.ndarray:
-    """Seed image points ``(S, C, 2)`` from ``Scene.clicks()`` (NaN where not clicked)."""
+def seeds_from_clicks(clicks: dict, cameras: list[str], max_seeds: int = 5,
+                      path: str | Path = "clicks.json") -> np.ndarray:
+    """Seed image points ``(S, C, 2)`` from ``Scene.clicks()`` (NaN where not clicked);
+    ``path`` names the clicks file in the error."""
     joints = clicks["joints"]
     names = [j for j in SEED_JOINTS if j in joints] + [j for j in joints if j not in SEED_JOINTS]
     out = []
@@ -81,7 +84,7 @@ def seeds_from_clicks(clicks: dict, cameras: list[str], max_seeds: int = 5) -> n
         if len(out) == max_seeds:
             break
     if not out:
-        raise InputError("clicks.json: no joint is clicked in two or more cameras")
+        raise InputError(f"{path}: no joint is clicked in two or more cameras")
     return np.asarray(out, float)
 
 

@@ -63,7 +63,8 @@ def run(args) -> int:
     if n < 1:
         raise InputError(f"--frames must be positive, got {args.frames}")
     progress = Progress()
-    seeds = seeds_from_clicks(scene.clicks(), scene.cameras, args.seeds)
+    seeds = seeds_from_clicks(scene.clicks(), scene.cameras, args.seeds,
+                              path=scene.root / "clicks.json")
     t0 = time.perf_counter()
     first = [scene.image(c, 0) for c in scene.cameras]
     surf = measure_surface(first, cams, seeds, step=args.step, progress=progress,

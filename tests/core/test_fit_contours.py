@@ -437,3 +437,22 @@ def test_containment_holds_the_untextured_parts_in_frames_with_points_only():
     every = ContourSettings(containment_px=3.0, containment_textured=True)
     assert containment_parts(counts, True, 8, every).all()
     assert not containment_parts(counts, False, 8, every).any()
+
+
+def test_tracking_inside_fit_reports_bad_clicks_in_one_line(tmp_path, capsys):
+    """``core fit`` runs the tracker when there are no tracks; bad clicks it meets are
+    reported once, naming the file (not again as "tracking failed")."""
+    import json
+
+    from core.cli import main
+
+    _silhouette_scene(tmp_path)
+    clicks = json.loads((tmp_path / "clicks.json").read_text())
+    cam = sorted(next(iter(clicks["joints"].values())))[0]
+    clicks["joints"] = {j: {cam: v[cam]} for j, v in clicks["joints"].items() if cam in v}
+    (tmp_path / "clicks.json").write_text(json.dumps(clicks))
+    assert main(["fit", str(tmp_path), "--cues", "texture", "--model", "simplified"]) == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("somacap:")]
+    assert len(err) == 1, err
+    assert str(tmp_path / "clicks.json") in err[0]
+    assert not (tmp_path / "fit.json").exists() and not (tmp_path / "tracks.npz").exists()

@@ -31,6 +31,8 @@ def test_seeds_from_clicks_and_bad_clicks():
     assert s.shape == (1, 2, 2)
     with pytest.raises(InputError, match="two or more cameras"):
         seeds_from_clicks({"joints": {"head": {"a": [5, 6]}}}, ["a", "b"])
+    with pytest.raises(InputError, match="^take/clicks.json: no joint"):
+        seeds_from_clicks({"joints": {"head": {"a": [5, 6]}}}, ["a", "b"], path="take/clicks.json")
 
 
 def test_depth_outliers_and_sigma_limit_of_the_surface():

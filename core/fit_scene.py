@@ -296,12 +296,14 @@ def _run_tracker(scene, out, progress) -> None:
     Bad input the tracker meets (clicks, calibration, images) propagates as its own
     :class:`~core.errors.InputError`, so the user sees one line naming the file.
     """
+    from .blas_threads import single_blas_thread
     from .cli import build_parser
 
     args = build_parser().parse_args(["track", str(scene.root), "-o", str(out)])
     if getattr(args, "_missing", None):
         raise InputError(f"{scene.root / 'tracks.npz'}: not found and the tracker "
                          "(core.tracking) is not available")
-    rc = int(args._run(args) or 0)
+    with single_blas_thread():  # as `python -m core track` runs it
+        rc = int(args._run(args) or 0)
     if rc != 0 or not out.is_file():
         raise InputError(f"{scene.root}: tracking failed (exit status {rc})")

@@ -408,7 +408,6 @@ def render_radii(skel: Skeleton, pose: Pose, balls: Metaballs, s: np.ndarray,
     return np.clip(a, lone, lone * max_scale)
 
 
-
 def deflate(skel: Skeleton, balls: Metaballs, s: np.ndarray, per_ball: int = 48,
             iterations: int = 12, prior: float = 1.0, per_part: bool = True) -> Metaballs:
     """Shrink metaballs until their blended surface follows their rendered ellipsoids.

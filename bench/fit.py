@@ -1,7 +1,7 @@
 """Benchmark of ``core fit`` + ``core evaluate`` on studio scenes.
 
 ``python -m bench.fit [SCENE ...] [--frames N] [--observations truth|tracks] [--cues C]
-[--tracks NPZ] [--real texture|contours|both|none] [--renders DIR]``
+[--tracks NPZ] [--real texture|contours|both|none] [--renders DIR] [--compare-flow]``
 
 Without SCENE arguments it runs the default sample scene (``sample_scenes/walk_line3``)
 and the studio scenes of :data:`DEFAULT_SET` (walk, dance and jumps clips of
@@ -25,7 +25,8 @@ same scene through the **real pipeline** (``--real``, default ``both``): the tra
 ``out/bench_fit/looks``, tracked first when missing: minutes) fitted with those cues
 (``python -m core fit --observations tracks --tracks ... --cues ...``) — the product,
 printed beside the stand-in.  ``--observations tracks --cues C`` fits every listed scene
-from its tracks instead.
+from its tracks instead.  ``--compare-flow`` (with ``--cues both``) prints under each
+row the same fit without the single-camera texture flow (:mod:`core.fit_flow`).
 
 ``python -m bench.fit --fit-shape [SCENE] [--frames N]`` instead compares, on one scene
 (default ``walk_line3``) with truth-derived observations, the template shape with the
@@ -207,11 +208,13 @@ def hidden_split(state, truth: dict) -> dict:
 
 
 def run_one(scene: Path, frames: int | None, observations: str, model: str,
-            cues: str = "texture", tracks: Path | None = None, shape: str = "template") -> dict:
+            cues: str = "texture", tracks: Path | None = None, shape: str = "template",
+            flow: bool = True) -> dict:
     """Fit and evaluate one scene folder; return the figures (or ``{"error": ...}``).
 
     ``cues``, ``tracks`` (a tracker output other than ``SCENE/tracks.npz``) and ``shape``
-    go to ``python -m core fit --cues --tracks --shape``."""
+    go to ``python -m core fit --cues --tracks --shape``; ``flow=False`` adds
+    ``--no-flow``."""
     from core.scene import load_scene
     from core.state import read_state
 
@@ -222,6 +225,8 @@ def run_one(scene: Path, frames: int | None, observations: str, model: str,
                "--shape", shape]
         if tracks is not None:
             cmd += ["--tracks", str(tracks)]
+        if not flow:
+            cmd += ["--no-flow"]
         if frames:
             cmd += ["--frames", str(frames)]
         t0 = time.perf_counter()
@@ -375,6 +380,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--fit-shape", action="store_true",
                     help="compare the template with the whole-body fitted shape on one scene "
                          "(default walk_line3), truth-derived observations, in-process")
+    ap.add_argument("--compare-flow", action="store_true",
+                    help="with --cues both: each scene also without the single-camera "
+                         "texture flow (core fit --no-flow), the row printed under it")
     args = ap.parse_args(argv)
     if args.fit_shape:
         scene, _ = _resolve(args.scenes[0], args.renders) if args.scenes else (DEFAULT, None)
@@ -396,6 +404,10 @@ def main(argv: list[str] | None = None) -> int:
         r = run_one(scene, args.frames, args.observations, args.model, args.cues, tracks,
                     args.shape)
         print_row(r, scene, render_wall)
+        if args.compare_flow and args.cues == "both":
+            print_row(run_one(scene, args.frames, args.observations, args.model, args.cues,
+                              tracks, args.shape, flow=False), scene, None,
+                      name="  no flow")
         if (args.observations == "truth" and args.real != "none" and _is_default(scene)):
             print(f"  the same scene through the REAL pipeline (tracks of python -m core "
                   f"track, {default_tracks().relative_to(ROOT)}; cues {args.real}):",

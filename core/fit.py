@@ -157,7 +157,8 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
                  source_scene: str = "", metaball_model: str = "simplified",
                  progress: Progress | None = None,
                  cameras: list | None = None,
-                 contours: list | None = None) -> SequenceResult:
+                 contours: list | None = None,
+                 flow=None) -> SequenceResult:
     """Fit shape and motion to the observations of every frame.
 
     Parameters
@@ -171,6 +172,9 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
     contours : list (F) of :class:`core.fit_contours.ContourFrame` (or None per frame),
         optional — silhouette contours as a further observation type; frames may then
         have no points at all (contours alone)
+    flow : :class:`core.fit_flow.FlowAnchors` or None — image corners of every camera
+        lifted onto each fitted frame and followed into the next as a further
+        observation type (single-camera texture motion)
 
     Returns
     -------
@@ -310,6 +314,9 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
             o = _observations(pts, part, target, sig, n, joints)
             o.contours = cf
             o.trajectory = traj
+            if flow is not None and (len(pts.xyz) < cfg.min_points
+                                     or not flow.cfg.without_points_only):
+                o.flow = flow.observations(f)
             stage_cfg = pose_cfg if knee == pose_cfg.robust_scale else \
                 FitSettings(**{**pose_cfg.__dict__, "robust_scale": knee})
             if cf is not None and stage_cfg.irls_rounds < cf.cfg.rounds:
@@ -445,6 +452,15 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
         """Keep frame f's trajectories in their parts' frames (none after a diverged
         frame) for the next frame's rigid-motion observations."""
         pts = frames[f]
+        if flow is not None:
+            near = [g for g in (f - 1, f + 1) if 0 <= g < nf]
+            if div[f] or (flow.cfg.without_points_only
+                          and all(len(frames[g].xyz) >= cfg.min_points for g in near)):
+                flow.clear()  # (no neighbour will use the flow)
+            else:
+                cf = cframe(f)
+                flow.set(skel, balls.copy(radii=radii), theta[f], root[f], s, f,
+                         None if cf is None else cf.masks())
         if not cfg.trajectories or div[f] or pts.ids is None:
             anchors.clear()
             return

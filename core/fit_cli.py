@@ -54,6 +54,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--contour-sigma", type=float, default=None, metavar="PX",
                         help="a-priori sigma of one contour observation, pixels "
                              "(default 3)")
+    parser.add_argument("--no-flow", dest="flow", action="store_false",
+                        help="with --cues both: no single-camera texture flow in the "
+                             "frames that have too few 3-D points (on by default)")
     parser.add_argument("--shape", choices=("template", "written", "tracked"),
                         default="template",
                         help="body shape: 'template' (default) keeps the per-part shape of "
@@ -93,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
                                               shape_fit_track=track),
                     progress=Progress(), n_points=args.points, seed=args.seed,
                     frames=args.frames, cues=args.cues, contour_settings=csettings,
-                    tracks=args.tracks)
+                    tracks=args.tracks, flow="auto" if args.flow else False)
     st = res.state
     if st.n_frames < scene.n_frames:  # pad unfitted frames: hold the last pose, flagged
         st = _pad(st, scene.n_frames)

@@ -95,7 +95,8 @@ class SceneFit:
 def run_scene(scene, observations: str = "auto", model: str = "complete",
               settings: SequenceSettings | None = None, progress: Progress | None = None,
               n_points: int = 3000, seed: int = 0, frames: int | None = None,
-              cues: str = "texture", tracks=None, contour_settings=None) -> SceneFit:
+              cues: str = "texture", tracks=None, contour_settings=None,
+              flow="auto") -> SceneFit:
     """The whole pipeline on a loaded :class:`core.scene.Scene`.
 
     Parameters
@@ -111,6 +112,10 @@ def run_scene(scene, observations: str = "auto", model: str = "complete",
     tracks : path of the tracker's output to use (default ``SCENE/tracks.npz``; tracked
         there first when missing)
     contour_settings : :class:`core.fit_contours.ContourSettings` (None: its defaults)
+    flow : :class:`core.fit_flow.FlowSettings`, True (its defaults), False / None (off)
+        or ``"auto"`` (on with ``cues="both"``) — single-camera texture flow on the
+        fitted body (:mod:`core.fit_flow`) as a further observation type, by default in
+        the frames with too few 3-D points only
     """
     from .fit_init import initialise
 
@@ -175,9 +180,14 @@ def run_scene(scene, observations: str = "auto", model: str = "complete",
         init = _shape_from_silhouettes(init, cameras, cframes[init.frame], msgs)
         if settings is None:  # the shape is the silhouettes': no further shape frames
             settings = SequenceSettings(shape_frames=1)
+    anchors = None
+    if flow == "auto":
+        flow = cues == "both"
+    if flow:
+        anchors = _flow_anchors(scene, cameras, flow, cframes)
     res = fit_sequence(obs, init, settings, fps=scene.fps, source_scene=str(scene.root),
                        metaball_model=model, progress=progress, cameras=cameras,
-                       contours=cframes)
+                       contours=cframes, flow=anchors)
     timings["fit"] = time.perf_counter() - t2
     timings["total"] = time.perf_counter() - t0
     if res.shape is not None:
@@ -234,6 +244,22 @@ def _scene_contour_frames(scene, cameras, nf: int, cues: str, cfg, progress):
         msgs.append(f"{missing} camera views of usable cameras gave no plausible foreground "
                     "(no contours there)")
     return contour_frames(cameras, sc.contours, cfg), msgs
+
+
+def _flow_anchors(scene, cameras, flow, cframes):
+    """The :class:`core.fit_flow.FlowAnchors` of a scene: its grey images, read once."""
+    from .fit_flow import FlowAnchors, FlowSettings
+
+    cache: dict = {}
+
+    def image(c, f):
+        if (c, f) not in cache:
+            cache[c, f] = scene.image(c, f)
+        return cache[c, f]
+
+    cfg = flow if isinstance(flow, FlowSettings) else FlowSettings()
+    rays = None if not cframes else cframes[0].rays
+    return FlowAnchors(cameras, image, cfg, rays=rays)
 
 
 def _shape_from_silhouettes(init, cameras, cframe, msgs):

@@ -20,6 +20,9 @@ Observation equations by type, each weighted by its a-priori σ (eq. 12,
 * **tracked trajectories** (optional, :mod:`core.fit_trajectory`): a point tracked
   since the previous frame held in its bone's frame, ``x(θ, root, s) − z`` over σ in
   metres, Cauchy-weighted (observes a part's twist and slide, which the surface does not);
+* **texture flow** (optional, :mod:`core.fit_flow`): an image corner followed from the
+  previous frame in one camera, its lifted surface point held in its bone's frame,
+  ``π(x(θ, root, s)) − z`` over σ in pixels, Cauchy-weighted;
 * **pose prior** (e.g. the prediction from the previous frames):
   ``(θ − θ_pred) / σ_pred``;
 * **soft joint limits** (:func:`core.skeleton.limit_residuals`);
@@ -80,6 +83,8 @@ class Observations:
       contours as a further observation type (σ in pixels, its own settings)
     trajectory : optional :class:`core.fit_trajectory.TrajectoryObs` — tracked points
       held fixed in their bones' frames since the previous frame (rigid motion, metres)
+    flow : optional :class:`core.fit_flow.FlowObs` — image corners followed from the
+      previous frame in one camera, held fixed in their bones' frames (pixels)
     """
 
     xyz: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
@@ -92,6 +97,7 @@ class Observations:
     sigma_pred: float | np.ndarray = 0.2
     contours: object | None = None
     trajectory: object | None = None
+    flow: object | None = None
 
 
 @dataclass
@@ -173,6 +179,8 @@ class _Problem:
                                             theta[f], root[f], s)
             if self.obs[f].trajectory is not None:  # rigid-motion weights, this state
                 self.obs[f].trajectory.freeze(self.skel, theta[f], root[f], s)
+            if self.obs[f].flow is not None:  # image-motion weights, this state
+                self.obs[f].flow.freeze(self.skel, theta[f], root[f], s)
             x, _, _, sig = self.gathers[f]
             if not len(x):
                 out.append(np.zeros(0))
@@ -237,6 +245,9 @@ class _Problem:
                     parts.append(("containment", *hb, *z[2:]))
             if o.trajectory is not None and len(o.trajectory):
                 parts.append(("trajectory", *o.trajectory.block(
+                    skel, theta[f], root[f], s, self.anc, M3 if shape else None)))
+            if o.flow is not None and len(o.flow):
+                parts.append(("flow", *o.flow.block(
                     skel, theta[f], root[f], s, self.anc, M3 if shape else None)))
             if len(o.joint_idx):
                 xj, Jt, Js = joint_jacobians(skel, theta[f][None], root[f][None], s)

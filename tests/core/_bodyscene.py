@@ -7,6 +7,7 @@ import numpy as np
 from core import metaballs as mb
 from core import skeleton as sk
 from core.camera import Camera
+from core.model_render import render_parts
 
 
 def look_at(name: str, center, target=(0.0, 0.0, 1.0), f: float = 600.0) -> Camera:
@@ -51,3 +52,26 @@ def clicks_of(skel, theta, root, s, cams, joints) -> dict:
     for j in joints:
         out[j] = {c.name: c.project(x[skel.joint_index(j)][None])[0] for c in cams}
     return {"frame": 0, "joints": out}
+
+
+def textured_render(skel, balls, theta, root, s, cam, rays, seed=0):
+    """(H, W) uint8: the body at a pose with a texture fixed in each bone's frame
+    (wavelengths 4–7 cm), on a flat grey background."""
+    pose = sk.forward(skel, theta[None], root[None], s)
+    Rw, cw = mb.world_frames(skel, pose, balls, s)
+    ren = render_parts(cam, cw[0], Rw[0], balls.visible, balls.bone, len(skel.bone_names),
+                       rays=rays)
+    img = np.full(ren.part_id.shape, 90.0)
+    v, u = np.nonzero(ren.part_id >= 0)
+    b = ren.part_id[v, u]
+    x = cam.center + ren.depth[v, u, None] * rays[v, u]
+    Rb, pb = sk.bone_frames(skel, pose)
+    q = np.einsum("nji,nj->ni", Rb[0, b], x - pb[0, b])
+    rng = np.random.default_rng(seed)
+    val = np.full(len(b), 128.0)
+    for _ in range(4):
+        k = rng.normal(size=3)
+        k *= 2 * np.pi / rng.uniform(0.04, 0.07) / np.linalg.norm(k)
+        val += 25.0 * np.sin(q @ k + rng.uniform(0, 2 * np.pi) + b)
+    img[v, u] = val
+    return np.clip(img, 0, 255).astype(np.uint8)

@@ -154,7 +154,8 @@ def lift_corners(skel: Skeleton, balls: Metaballs, theta, root, s, camera: Camer
     skel, balls, theta (n,), root (3,), s (G,) : the fitted body and pose
     camera : Camera
     image : (H, W) uint8 grey image of the fitted frame
-    foreground : (H, W) bool, or None — corners only inside it (eroded)
+    foreground : (h, w) bool, or None — corners only inside it (eroded; resized to the
+        camera's image when the masks have another resolution)
     rays : (H, W, 3) the camera's unit viewing rays (:func:`core.model_render.camera_rays`)
     keep : (uv (M, 2), bone (M,), q0 (M, 3)) or None — corners followed into this frame
         that keep their surface points: those still on their part's visible region and
@@ -175,7 +176,10 @@ def lift_corners(skel: Skeleton, balls: Metaballs, theta, root, s, camera: Camer
     kernel = np.ones((2 * cfg.erode_px + 1,) * 2, np.uint8)
     fg = None
     if foreground is not None:
-        fg = cv2.erode(foreground.astype(np.uint8), kernel)
+        fg = foreground.astype(np.uint8)
+        if fg.shape != ren.part_id.shape:  # masks at another resolution than the images
+            fg = cv2.resize(fg, camera.size, interpolation=cv2.INTER_NEAREST)
+        fg = cv2.erode(fg, kernel)
     Rb, pb = bone_frames(skel, pose)
     k_uv, k_bone, k_q0 = np.zeros((0, 2)), np.zeros(0, int), np.zeros((0, 3))
     if keep is not None and len(keep[0]):

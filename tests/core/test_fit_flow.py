@@ -216,3 +216,20 @@ def test_sequence_without_points_follows_the_texture_where_the_outline_misleads(
     mean = {k: v[1:].mean() for k, v in err.items()}
     assert mean[True] < 0.85 * mean[False], mean
     assert mean[True] < 0.007, mean
+
+
+def test_foreground_at_another_resolution_is_resized():
+    """Masks at a quarter of the images' resolution (as the real-video bench makes them)
+    limit the corners like full-size masks do."""
+    skel, s, balls, theta, root = _body()
+    cam = cameras()[1]
+    rays = camera_rays(cam)
+    img = _textured(skel, balls, theta, root, s, cam, rays)
+    w, h = cam.size
+    left = np.zeros((h // 4, w // 4), bool)
+    left[:, : w // 8] = True  # the image's left half
+    uv, _, _ = lift_corners(skel, balls, theta, root, s, cam, img, left, FlowSettings(), rays)
+    every, _, _ = lift_corners(skel, balls, theta, root, s, cam, img, None, FlowSettings(),
+                               rays)
+    assert 0 < len(uv) < len(every)
+    assert uv[:, 0].max() < w / 2

@@ -247,13 +247,16 @@ def _scene_contour_frames(scene, cameras, nf: int, cues: str, cfg, progress):
 
 
 def _flow_anchors(scene, cameras, flow, cframes):
-    """The :class:`core.fit_flow.FlowAnchors` of a scene: its grey images, read once."""
+    """The :class:`core.fit_flow.FlowAnchors` of a scene: its grey images, read on demand
+    and kept for the last few frames only (the flow reads two neighbouring frames)."""
     from .fit_flow import FlowAnchors, FlowSettings
 
     cache: dict = {}
 
     def image(c, f):
         if (c, f) not in cache:
+            if len(cache) >= 4 * len(cameras):
+                del cache[next(iter(cache))]  # the oldest read
             cache[c, f] = scene.image(c, f)
         return cache[c, f]
 

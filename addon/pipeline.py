@@ -24,7 +24,8 @@ def read_state(path):
 FIT_CUES = {
     "texture": "3-D surface points from the tracker (needs textured clothing)",
     "contours": "silhouette contours of each camera's foreground (no tracker; bare skin)",
-    "both": "points and contours together (most accurate; about 2.7x the fit's CPU time)",
+    "both": "points and contours together, and each camera's texture flow in frames "
+            "without points (most accurate; about 2.7x the fit's CPU time)",
 }
 
 

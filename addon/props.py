@@ -51,7 +51,8 @@ class SOMACAP_PG_settings(bpy.types.PropertyGroup):
                                       "clothing)"),
                ("contours", "Contours", "Silhouette contours of each camera's foreground "
                                         "(no tracker; works on bare skin)"),
-               ("both", "Both", "Points and contours together: the most accurate, about "
+               ("both", "Both", "Points and contours together, and each camera's texture "
+                                "flow in frames without points: the most accurate, about "
                                 "2.7x the fit's CPU time")])
     export_format: EnumProperty(name="Format", items=[("BVH", "BVH", ""), ("FBX", "FBX", "")])
     progress: FloatProperty(name="Progress", subtype="PERCENTAGE", min=0, max=100)

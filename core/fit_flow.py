@@ -39,6 +39,7 @@ import cv2
 import numpy as np
 
 from .camera import Camera, camera_project_jacobians
+from .fit_trajectory import cauchy_row_weights
 from .metaballs import Metaballs, world_frames
 from .model_render import camera_rays, render_parts
 from .skeleton import Skeleton, bone_frames, forward, point_jacobians
@@ -122,10 +123,7 @@ class FlowObs:
     def freeze(self, skel: Skeleton, theta, root, s) -> None:
         """Fix the row weights at this state (IRLS)."""
         r = self.residuals(skel, theta, root, s, jacobians=False)[0]
-        u = np.linalg.norm(r, axis=1) / self.sigma
-        w = 1.0 / self.sigma
-        if self.robust_scale:
-            w = w / np.sqrt(1.0 + (u / self.robust_scale) ** 2)
+        w = cauchy_row_weights(r, self.sigma, self.robust_scale)
         self.weights = np.where(np.isfinite(w), w, 0.0)
 
     def block(self, skel: Skeleton, theta, root, s, anc=None, n_shape: int | None = None):

@@ -29,6 +29,17 @@ import numpy as np
 from .skeleton import Skeleton, bone_frames, forward, point_jacobians
 
 
+def cauchy_row_weights(r: np.ndarray, sigma: np.ndarray, robust_scale: float) -> np.ndarray:
+    """Row weights ``cauchy / σ`` (K,) of vector residuals ``r`` (K, d) with a-priori
+    σ (K,) in the same unit: the Cauchy weight of ``|r| / σ`` with knee ``robust_scale``
+    (0: none)."""
+    w = 1.0 / sigma
+    if robust_scale:
+        u = np.linalg.norm(r, axis=1) / sigma
+        w = w / np.sqrt(1.0 + (u / robust_scale) ** 2)
+    return w
+
+
 def bone_local(skel: Skeleton, theta: np.ndarray, root: np.ndarray, s: np.ndarray,
                xyz: np.ndarray, bone: np.ndarray) -> np.ndarray:
     """Coordinates (N, 3) metres of world points ``xyz`` (N, 3) in the anatomical frames
@@ -79,11 +90,7 @@ class TrajectoryObs:
     def freeze(self, skel: Skeleton, theta, root, s) -> None:
         """Fix the row weights at this state (IRLS)."""
         r, _, _ = self.residuals(skel, theta, root, s, jacobians=False)
-        u = np.linalg.norm(r, axis=1) / self.sigma
-        w = 1.0 / self.sigma
-        if self.robust_scale:
-            w = w / np.sqrt(1.0 + (u / self.robust_scale) ** 2)
-        self.weights = w
+        self.weights = cauchy_row_weights(r, self.sigma, self.robust_scale)
 
     def block(self, skel: Skeleton, theta, root, s, anc=None, n_shape: int | None = None):
         """Weighted rows ``(r (3K,), J_theta (3K, n), J_root (3K, 3), J_s (3K, G),

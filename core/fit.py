@@ -117,7 +117,7 @@ from .fit_contours import containment_parts
 from .fit_coupling import fill_unobserved
 from .fit_init import Initialisation
 from .fit_predict import PosePredictor
-from .fit_search import explain_cost, search_limbs
+from .fit_search import explain_cost, recentred_starts, search_limbs
 from .fit_trajectory import TrajectoryAnchors
 from .fit_types import FramePoints, SequenceResult, SequenceSettings
 from .fit_whole_shape import whole_body_shape
@@ -131,7 +131,7 @@ from .silhouette_search import (
     search_limbs_silhouette,
     silhouette_disagreement,
 )
-from .skeleton import anchor_sigma, stiff_sigma
+from .skeleton import anchor_sigma, joint_positions, stiff_sigma
 from .state import FitState, Quality
 
 
@@ -427,7 +427,13 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
                     res, ok, why, st = res2, ok2, why2, st2
                     retried[f] = True
         elif search:
-            q0 = search_start(f, np.stack([q_pred, *alternatives]))
+            # also the prediction moved onto the points: after frames that failed, the
+            # person may have walked on while the prediction stayed behind
+            cands = np.stack([q_pred, *alternatives])
+            if cfg.recentre and last_fitted >= 0:
+                cands = np.concatenate([cands, recentred_starts(
+                    frames[f].xyz, q_pred, frames[last_fitted].xyz, root[last_fitted], up)])
+            q0 = search_start(f, cands)
             res2 = one_frame(f, q0, sig_pred, joints, q_hold, anneal=True)
             ok2, why2, st2 = assess(f, res2)
             if ok2 and (not ok or st2["cost"] < st["cost"]):
@@ -444,9 +450,16 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
             hid[f] = hidden_dofs(frames[f].xyz, res[0], cfg.segment_max_dist, cframe(f))
         return ok, (res[0] if ok else q_pred)
 
+    last_fitted = -1  # the last frame stored as fitted with points (recentred_starts)
+    up = np.subtract(*joint_positions(skel, init.theta, init.root_xyz, init.s)[
+        [skel.joint_index("neck"), skel.joint_index("pelvis")]])  # the body upright
+
     def store(f, q, ok):
+        nonlocal last_fitted
         theta[f], root[f] = q[:n], q[n:]
         div[f] = not ok
+        if ok and len(frames[f].xyz) >= cfg.min_points:
+            last_fitted = f
 
     def keep_trajectories(f):
         """Keep frame f's trajectories in their parts' frames (none after a diverged

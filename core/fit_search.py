@@ -357,3 +357,59 @@ def search_limbs(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarra
                 moved += [m for m in alt_moved if m not in moved]
                 names = others
     return SearchResult(theta, before, after, moved)
+
+
+#: Offsets (metres) tried by :func:`recentred_starts` along two horizontal axes about
+#: the shift that carries the body along with its points' median.
+RECENTRE_OFFSETS = (-0.2, -0.1, 0.0, 0.1, 0.2)
+
+
+def recentred_starts(xyz: np.ndarray, q: np.ndarray, ref_xyz: np.ndarray,
+                     ref_root: np.ndarray, up: np.ndarray,
+                     offsets: tuple = RECENTRE_OFFSETS) -> np.ndarray:
+    """Starts for re-finding a body that the prediction has lost: ``q`` moved onto the
+    points, across the floor.
+
+    After frames that could not be fitted (the limbs moved faster than the prediction,
+    clutter, a gap in the points) the prediction stays where the body was last seen
+    while the person moves on; the per-frame fit then finds most points far from the
+    body and fails again, frame after frame.  These candidates keep ``q``'s angles and
+    its root's height (along ``up``), and move its root across the floor to where the
+    last fitted frame's root was, moved as far as the points' median moved since (the
+    points cover only the sides the cameras see, so their median is no estimate of the
+    body's centre, but its motion is one of the body's; its vertical motion is not,
+    as the parts in view change), plus every combination of ``offsets`` along two
+    horizontal axes; the caller keeps the one that explains the points best
+    (:func:`explain_cost`).
+
+    Parameters
+    ----------
+    xyz : (N, 3) world points of the frame, metres
+    q : (n + 3,) pose: angles (radians), then the root (world metres)
+    ref_xyz : (M, 3) points of the last fitted frame, metres
+    ref_root : (3,) its fitted root, metres
+    up : (3,) the body's upright direction in the world (e.g. pelvis to neck at the
+        clicked frame); normalised here
+    offsets : offsets along two axes perpendicular to ``up``, metres
+
+    Returns
+    -------
+    (len(offsets)², n + 3) candidate poses (none without points in either frame)
+    """
+    xyz = np.asarray(xyz, float).reshape(-1, 3)
+    ref_xyz = np.asarray(ref_xyz, float).reshape(-1, 3)
+    q = np.asarray(q, float)
+    n = len(q) - 3
+    if not len(xyz) or not len(ref_xyz):
+        return np.zeros((0, n + 3))
+    up = np.asarray(up, float) / np.linalg.norm(up)
+    a = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
+    a /= np.linalg.norm(a)
+    b = np.cross(up, a)
+    move = np.asarray(ref_root, float) + np.median(xyz, axis=0) - np.median(ref_xyz, axis=0)
+    move -= q[n:]
+    move -= (move @ up) * up  # across the floor only
+    oa, ob = np.meshgrid(offsets, offsets, indexing="ij")
+    out = np.repeat(q[None], oa.size, axis=0)
+    out[:, n:] = q[n:] + move + oa.reshape(-1, 1) * a + ob.reshape(-1, 1) * b
+    return out

@@ -94,6 +94,10 @@ class SequenceSettings:
     search: bool = True  # annealed retry with the limb search (core.fit_search)
     search_tau: float = 0.05  # truncation of the search's point distances, metres
     search_min_gain: float = 100.0  # explain-cost decrease that moves a limb
+    #: the annealed retry also starts from the prediction moved across the floor with
+    #: the points since the last fitted frame (core.fit_search.recentred_starts): a body
+    #: lost for some frames is found again where the person went meanwhile
+    recentre: bool = True
     #: the search and the frame's explain cost also count body in a point's line of sight
     #: to the cameras that measured it (core.free_space; needs the points' views and the
     #: cameras)

@@ -89,3 +89,31 @@ def test_a_frame_of_clutter_is_marked_not_fitted(rng):
     assert q.diverged.tolist() == [False, False, True, False], res.messages
     assert any(m.startswith("frame 2") for m in res.messages)
     assert np.all(np.isfinite(res.state.theta)) and np.all(np.isfinite(res.state.root_xyz))
+
+
+@pytest.mark.slow
+def test_a_body_that_walked_on_while_unobserved_is_found_again(rng):
+    skel = sk.make_skeleton()
+    s = np.ones(skel.n_groups)
+    balls = mb.make_metaballs(skel, "simplified", s)
+    nf = 8
+    theta = np.zeros((nf, skel.n_dof))
+    theta[:, skel.dof_index("l_elbow_x")] = -0.05 * np.arange(nf)
+    # frames 2-4 have no points; meanwhile the person walks 0.4 m sideways
+    root = np.array([[0.0, -0.01 * f, 1.0] for f in range(nf)])
+    root[5:, 0] += 0.4
+    frames = [FramePoints(xyz=_outer_points(skel, balls, theta[f], root[f], s, rng),
+                          sigma=0.001) for f in range(nf)]
+    for f in (2, 3, 4):
+        frames[f] = FramePoints(xyz=np.zeros((0, 3)), sigma=0.001)
+    cams = cameras()
+    init = initialise(clicks_of(skel, theta[0], root[0], s, cams, CLICK_JOINTS), cams,
+                      model="simplified")
+    res = fit_sequence(frames, init, SequenceSettings(max_nfev=15, max_nfev_shape=15,
+                                                      fit=FitSettings(members="part")))
+    q = res.state.quality
+    assert q.diverged.tolist() == [False, False, True, True, True, False, False, False], \
+        res.messages
+    err = np.linalg.norm(res.state.joints_xyz() - sk.joint_positions(skel, theta, root, s),
+                         axis=-1)
+    assert np.all(np.median(err[5:], axis=1) < 0.01), np.median(err, axis=1)

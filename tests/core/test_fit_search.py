@@ -6,7 +6,7 @@ import pytest
 from core import metaballs as mb
 from core import skeleton as sk
 from core.attractor import attractor, gather, member_table
-from core.fit_search import explain_cost, explain_distance, search_limbs
+from core.fit_search import explain_cost, explain_distance, recentred_starts, search_limbs
 from tests.core._bodyscene import model_points
 
 
@@ -105,3 +105,26 @@ def test_a_hidden_limb_does_not_keep_points_another_limb_then_took(body):
     assert np.linalg.norm(got[skel.joint_index("r_wrist")]
                           - want[skel.joint_index("r_wrist")]) < 0.02
     assert res.cost_after <= greedy.cost_after + 100.0
+
+
+def test_recentred_starts_carry_the_root_with_the_points_and_one_explains_them(body, rng):
+    skel, s, balls = body
+    theta = np.zeros(skel.n_dof)
+    root0, root1 = np.array([0.0, 0.0, 1.0]), np.array([0.45, -0.3, 1.02])
+    ref = _outer(skel, balls, theta, root0, s, rng)
+    now = _outer(skel, balls, theta, root1, s, rng)[::2]  # other samples, fewer
+    q = np.concatenate([theta, root0 + [0.05, 0.05, 0.0]])  # the stale prediction
+    up = np.array([0.0, 0.0, 1.0])
+    cands = recentred_starts(now, q, ref, root0, up)
+    assert cands.shape == (25, skel.n_dof + 3)
+    assert np.all(cands[:, :skel.n_dof] == theta)
+    assert np.allclose(cands[:, -1], q[-1])  # the height is the prediction's
+    centre = cands[12, skel.n_dof:]  # the zero offset: the points' median motion
+    assert np.linalg.norm(centre[:2] - root1[:2]) < 0.05, centre
+    cost = explain_cost(now, skel, balls, s, balls.radii, cands[:, :skel.n_dof],
+                        cands[:, skel.n_dof:])
+    stale = explain_cost(now, skel, balls, s, balls.radii, q[None, :skel.n_dof],
+                         q[None, skel.n_dof:])[0]
+    best = cands[int(np.argmin(cost)), skel.n_dof:]
+    assert np.linalg.norm(best - root1) < 0.08 and cost.min() < 0.2 * stale, (best, stale)
+    assert recentred_starts(np.zeros((0, 3)), q, ref, root0, up).shape == (0, skel.n_dof + 3)

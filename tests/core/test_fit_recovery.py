@@ -23,11 +23,23 @@ def _outer_points(skel, balls, theta, root, s, rng, drop_bones=()):
     return xyz + rng.normal(0, 0.001, xyz.shape)
 
 
-@pytest.mark.slow
-def test_a_kick_is_refound_and_a_hidden_arm_coasts_with_growing_sigma(rng):
+def _body():
+    """The template skeleton at unit scales and its simplified metaballs."""
     skel = sk.make_skeleton()
     s = np.ones(skel.n_groups)
-    balls = mb.make_metaballs(skel, "simplified", s)
+    return skel, s, mb.make_metaballs(skel, "simplified", s)
+
+
+def _clicked(skel, theta0, root0, s):
+    """The initialisation from exact clicks of the pose at frame 0."""
+    cams = cameras()
+    return initialise(clicks_of(skel, theta0, root0, s, cams, CLICK_JOINTS), cams,
+                      model="simplified")
+
+
+@pytest.mark.slow
+def test_a_kick_is_refound_and_a_hidden_arm_coasts_with_growing_sigma(rng):
+    skel, s, balls = _body()
     nf = 7
     theta = np.zeros((nf, skel.n_dof))
     theta[:, skel.dof_index("l_hip_x")] = [0.0, -0.1, -0.2, -0.9, -1.0, -1.0, -1.0]  # kick
@@ -38,9 +50,7 @@ def test_a_kick_is_refound_and_a_hidden_arm_coasts_with_growing_sigma(rng):
     frames = [FramePoints(xyz=_outer_points(skel, balls, theta[f], root[f], s, rng,
                                             hidden if f >= 4 else ()), sigma=0.001)
               for f in range(nf)]
-    cams = cameras()
-    init = initialise(clicks_of(skel, theta[0], root[0], s, cams, CLICK_JOINTS), cams,
-                      model="simplified")
+    init = _clicked(skel, theta[0], root[0], s)
     # hidden parts coast on the damped prediction here (the default holds them at the
     # previous frame's angles, which suits the swinging arms of a walk better)
     cfg = SequenceSettings(max_nfev=15, max_nfev_shape=15, fit=FitSettings(members="part"),
@@ -68,9 +78,7 @@ def test_a_kick_is_refound_and_a_hidden_arm_coasts_with_growing_sigma(rng):
 
 @pytest.mark.slow
 def test_a_frame_of_clutter_is_marked_not_fitted(rng):
-    skel = sk.make_skeleton()
-    s = np.ones(skel.n_groups)
-    balls = mb.make_metaballs(skel, "simplified", s)
+    skel, s, balls = _body()
     nf = 4
     theta = np.zeros((nf, skel.n_dof))
     theta[:, skel.dof_index("l_elbow_x")] = -0.1 * np.arange(nf)
@@ -80,9 +88,7 @@ def test_a_frame_of_clutter_is_marked_not_fitted(rng):
     # frame 2: as many points, but scattered through the body's box (nothing fits them)
     box = rng.uniform([-0.5, -0.4, 0.0], [0.5, 0.4, 1.8], (len(frames[2].xyz), 3))
     frames[2] = FramePoints(xyz=box, sigma=0.001)
-    cams = cameras()
-    init = initialise(clicks_of(skel, theta[0], root[0], s, cams, CLICK_JOINTS), cams,
-                      model="simplified")
+    init = _clicked(skel, theta[0], root[0], s)
     res = fit_sequence(frames, init, SequenceSettings(max_nfev=15, max_nfev_shape=15,
                                                       fit=FitSettings(members="part")))
     q = res.state.quality
@@ -93,9 +99,7 @@ def test_a_frame_of_clutter_is_marked_not_fitted(rng):
 
 @pytest.mark.slow
 def test_a_body_that_walked_on_while_unobserved_is_found_again(rng):
-    skel = sk.make_skeleton()
-    s = np.ones(skel.n_groups)
-    balls = mb.make_metaballs(skel, "simplified", s)
+    skel, s, balls = _body()
     nf = 8
     theta = np.zeros((nf, skel.n_dof))
     theta[:, skel.dof_index("l_elbow_x")] = -0.05 * np.arange(nf)
@@ -106,9 +110,7 @@ def test_a_body_that_walked_on_while_unobserved_is_found_again(rng):
                           sigma=0.001) for f in range(nf)]
     for f in (2, 3, 4):
         frames[f] = FramePoints(xyz=np.zeros((0, 3)), sigma=0.001)
-    cams = cameras()
-    init = initialise(clicks_of(skel, theta[0], root[0], s, cams, CLICK_JOINTS), cams,
-                      model="simplified")
+    init = _clicked(skel, theta[0], root[0], s)
     res = fit_sequence(frames, init, SequenceSettings(max_nfev=15, max_nfev_shape=15,
                                                       fit=FitSettings(members="part")))
     q = res.state.quality

@@ -66,7 +66,8 @@ clicked frame's initial posture (:mod:`core.fit_init`):
    between two observed frames, instead of staying held at the first of them;
    before that, a limb whose observed frames show it moving with the opposite thigh
    (gait) follows that thigh across the stretch (``couple_hidden``,
-   :mod:`core.fit_coupling`).
+   :mod:`core.fit_coupling`), and a hidden arm takes the other arm's angles, mirrored,
+   where the legs move mirrored (a jump; ``mirror_hidden``, :mod:`core.fit_mirror`).
 
 **Free space** (``free_space``, :mod:`core.free_space`; the points' ``views`` and the
 cameras): the limb search and the explain cost that picks among a frame's fits also
@@ -581,7 +582,8 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
                 progress.update(done, nf + len(shape_range), f"frame {f}")
     unobs = unobserved(hid, skel.dof_parent)
     theta[:], fill_msgs = fill_unobserved(skel, theta, root, s, unobs, div, cfg.couple_hidden,
-                                          cfg.bridge_hidden, cfg.couple_r2)
+                                          cfg.bridge_hidden, cfg.couple_r2, hid, (f0,),
+                                          cfg.mirror_hidden, cfg.mirror_r2)
     msgs += fill_msgs
     if cfg.shape == "fit" and not shape_first:  # at the fitted poses, for the state only
         good = np.flatnonzero(~div & conv & (n_pts >= cfg.min_points))

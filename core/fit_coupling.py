@@ -18,7 +18,8 @@ interpolates in time).  Runs at the start or end of the sequence are left alone
 unless ``ends`` is set (on the jumps clip that made a 3-frame end run worse; counting
 the clicked frame as observed and coupling its arm from one frame before and 12 after
 a 34-frame run sent the elbow 320 mm off).  What is not coupled (a jump, a dance step,
-an angle that does not follow the thigh) is left to
+an angle that does not follow the thigh) is left to :func:`core.fit_mirror.mirror_hidden`
+(an arm, where the legs move mirrored) and then to
 :func:`core.fit_bridge.bridge_hidden`.  A t test on the slope instead of the R² let an
 arm swinging at an unrelated frequency through: neighbouring frames of a smooth
 motion are not independent samples.
@@ -41,6 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .fit_bridge import bridge_hidden, hidden_runs
+from .fit_mirror import mirror_hidden
 from .skeleton import Skeleton, bone_frames, forward, joint_positions
 
 #: a limb's DOF-name prefixes (after ``l_``/``r_``)
@@ -220,8 +222,11 @@ def couple_hidden(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray, s: np
 
 def fill_unobserved(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray, s: np.ndarray,
                     unobserved: np.ndarray, diverged: np.ndarray, couple: bool = True,
-                    bridge: bool = True, r2_min: float = 0.5) -> tuple[np.ndarray, list[str]]:
-    """The sequence fit's last step: unobserved angles coupled, then the rest bridged.
+                    bridge: bool = True, r2_min: float = 0.5, hidden: np.ndarray | None = None,
+                    anchors: tuple = (), mirror: bool = True, mirror_r2: float = 0.8
+                    ) -> tuple[np.ndarray, list[str]]:
+    """The sequence fit's last step: unobserved angles coupled, hidden arms mirrored, the
+    rest bridged.
 
     Parameters
     ----------
@@ -229,6 +234,11 @@ def fill_unobserved(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray, s: 
     root_xyz, s, unobserved, diverged : as :func:`couple_hidden`
     couple, bridge : run :func:`couple_hidden`, :func:`core.fit_bridge.bridge_hidden`
     r2_min : :func:`couple_hidden`'s gate
+    hidden : (F, n) bool, angles of parts without observations of their own (defaults
+        to ``unobserved``)
+    anchors : frames whose pose is known however little was seen (the clicked frame)
+    mirror, mirror_r2 : run :func:`core.fit_mirror.mirror_hidden` with this gate on
+        what the coupling left
 
     Returns
     -------
@@ -236,13 +246,22 @@ def fill_unobserved(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray, s: 
     """
     theta = np.array(theta, float)
     unobs = np.asarray(unobserved, bool)
+    hid = unobs if hidden is None else np.asarray(hidden, bool)
     left, msgs = unobs, []
     if couple:
         theta, coupled, report = couple_hidden(skel, theta, root_xyz, s, unobs, diverged,
                                                r2_min=r2_min)
         left = unobs & ~coupled
+        hid = hid & ~coupled
         msgs += [f"{c.limb}: {c.frames} unobserved frames predicted from the opposite thigh "
                  f"(R² {c.r2:.2f} on {c.n_train} observed frames)" for c in report if c.frames]
+    if mirror:
+        theta, mirrored, mreport = mirror_hidden(skel, theta, s, hid, diverged, anchors,
+                                                 r2_min=mirror_r2)
+        left = left & ~mirrored
+        msgs += [f"{m.limb}: hidden in frames {m.frames[0]}–{m.frames[1] - 1}, mirrored from "
+                 f"the other arm (the legs move mirrored there, R² {m.r2:.2f})"
+                 for m in mreport if m.mirrored]
     if bridge:
         theta, bridged = bridge_hidden(theta, left, diverged)
         if bridged.any():

@@ -76,6 +76,11 @@ class SequenceSettings:
     #: the limb was observed (:mod:`core.fit_coupling`); what it leaves is bridged
     couple_hidden: bool = True
     couple_r2: float = 0.5
+    #: then an arm whose parts are hidden takes the other arm's angles, mirrored, where
+    #: the legs move mirrored (a jump, a squat) over the stretch: their mirror image
+    #: explains ≥ ``mirror_r2`` of their sagittal variance (:mod:`core.fit_mirror`)
+    mirror_hidden: bool = True
+    mirror_r2: float = 0.8
     sigma_click: float = 0.003  # σ of a forward-intersected click, metres
     segment_max_dist: float = 0.04
     segment_margin: float = 0.015  # ambiguous points between non-adjacent parts dropped

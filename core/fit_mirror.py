@@ -16,11 +16,12 @@ each other (R² < 0 on make demo's walk and walk_ortho3), and nothing is mirrore
 On jumps_line3 (CMU 01_01, forward jumps, line3) the right arm is behind the body in
 all three cameras in every frame; only the hand is seen, in frames 35–46.  The legs
 move mirrored at R² 0.93; on the truth the mirrored left elbow and wrist lie 22 and 36
-mm from the right ones on average.  Mirroring the fitted left arm: MPJPE 20.33 → 14.43
-mm, right elbow 60 → 30 mm, right wrist 96 → 44 mm, limb segments 11.7° → 7.1°.
-Anchoring the shoulder and elbow at the frames where only the hand was seen (the
-unobserved-angle rule of :mod:`core.fit_bridge`) kept them 75–89 mm off there (15.8
-mm); so the angles of every hidden part are mirrored, a seen hand keeping its own.
+mm from the right ones on average.  Mirroring the fitted left arm (in-process on the
+scene's tracks, cues both): MPJPE 20.33 → 14.17 mm, right elbow 60 → 28 mm, right
+wrist 96 → 43 mm, limb segments 11.7° → 7.0° (14.43 mm without the clicked frame as an
+anchor).  Anchoring the shoulder and elbow at the frames where only the hand was seen
+(the unobserved-angle rule of :mod:`core.fit_bridge`) kept them 75–89 mm off there
+(15.8 mm); so the angles of every hidden part are mirrored, a seen hand keeping its own.
 """
 
 from __future__ import annotations
@@ -29,11 +30,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .fit_bridge import hidden_runs
+from .fit_bridge import hidden_runs, unobserved
 from .skeleton import Skeleton, forward, joint_positions
 
-#: DOF-name prefixes (after ``l_``/``r_``) of the arms' parts
-ARM_PARTS = ("clavicle", "shoulder", "elbow", "wrist")
+#: DOF-name prefixes (after ``l_``/``r_``) of the arms' parts that are mirrored (the
+#: clavicles, seldom seen and anchored to the clicked posture, are left); an arm is
+#: hidden when its shoulder is
+ARM_PARTS = ("shoulder", "elbow", "wrist")
 #: the legs' angles whose mirror symmetry gates the mirroring (sagittal: they carry a
 #: jump's or a squat's motion, and swing against each other in gait)
 GATE_DOFS = ("hip_x", "knee_x")
@@ -120,7 +123,8 @@ def mirror_hidden(skel: Skeleton, theta: np.ndarray, s: np.ndarray, hidden: np.n
     theta : (F, n) fitted angles, radians
     s : (G,) bone scales
     hidden : (F, n) bool, angles of parts without observations of their own (only
-        these are replaced, and only from an arm angle that is not hidden)
+        these are replaced, and only from an arm angle that moves some part that is
+        not hidden, :func:`core.fit_bridge.unobserved`)
     diverged : (F,) bool, frames that are only a prediction (neither replaced nor
         judged on)
     anchors : frames whose pose is known whether or not the parts were seen (the
@@ -146,12 +150,17 @@ def mirror_hidden(skel: Skeleton, theta: np.ndarray, s: np.ndarray, hidden: np.n
     pairs = mirror_pairs(skel, s)
     left, right, sign = pairs
     source = theta.copy()  # the observed arm before anything is replaced
+    # a source angle serves wherever any part it moves was seen (an upper arm with few
+    # points of its own is still placed by its forearm's)
+    unseen = unobserved(hidden, skel.dof_parent)
     mirrored = np.zeros_like(hidden)
     report: list[Mirroring] = []
     arm = np.array([skel.dof_names[k][2:].rsplit("_", 1)[0] in ARM_PARTS for k in left])
     for side, (dst, src) in (("r", (right, left)), ("l", (left, right))):
         dst, src, sg = dst[arm], src[arm], sign[arm]
-        stretch = (hidden[:, dst] & ~hidden[:, src]).any(axis=1) & ~div & ~fixed
+        key = np.array([skel.dof_names[j][2:].startswith("shoulder") for j in dst])
+        stretch = (hidden[:, dst[key]].all(axis=1) & ~unseen[:, src[key]].any(axis=1)
+                   & ~div & ~fixed)
         for a, b in hidden_runs(stretch):
             win = np.arange(max(0, a - margin), min(nf, b + margin))
             r2 = legs_mirror_r2(skel, source, pairs, win[~div[win]], min_motion)
@@ -160,7 +169,7 @@ def mirror_hidden(skel: Skeleton, theta: np.ndarray, s: np.ndarray, hidden: np.n
             if not ok_gate:
                 continue
             for j, k, g in zip(dst, src, sg, strict=True):
-                gap = hidden[:, j] & ~hidden[:, k] & ~div & ~fixed
+                gap = hidden[:, j] & ~unseen[:, k] & ~div & ~fixed
                 gap[:a] = gap[b:] = False
                 pred = g * source[:, k]
                 known = (~hidden[:, j] | fixed) & ~div

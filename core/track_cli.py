@@ -36,8 +36,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--frames", type=int, default=None, help="track only the first N frames")
     parser.add_argument("--seeds", type=int, default=5, help="seed joints from clicks.json")
     parser.add_argument("--step", type=int, default=2, help="surface grid step, pixels")
-    parser.add_argument("--regen-every", type=int, default=5,
-                        help="regenerate points every N frames (0: never)")
+    parser.add_argument("--regen-every", type=int, default=None,
+                        help="regenerate points every N frames (0: never; default: "
+                             "core.track_settings.TrackSettings's, 3)")
     parser.add_argument("--predict", choices=("ekf", "linear"), default="ekf",
                         help="search prediction: 3-D Kalman filter or 2-D linear")
     parser.add_argument("--max-coast", type=int, default=None,
@@ -78,8 +79,9 @@ def run(args) -> int:
           file=sys.stderr)
     t1 = time.perf_counter()
     tr = track(lambda i: [scene.image(c, i) for c in scene.cameras], cams, surf, n, scene.fps,
-               step=args.step, regen_every=args.regen_every, predict=args.predict,
+               step=args.step, predict=args.predict,
                anchor=not args.no_anchor, jump_seeds=not args.no_jump_seeds, progress=progress,
+               **({} if args.regen_every is None else {"regen_every": args.regen_every}),
                **({} if args.max_dormant is None else {"max_dormant": args.max_dormant}),
                **({} if args.max_coast is None else {"max_coast": args.max_coast}))
     dt = time.perf_counter() - t1

@@ -100,6 +100,16 @@ class ContourSettings:
     containment_textured: bool = False  # ... also for the parts the texture points observe
     min_fg_frac: float = 0.002     # a foreground mask covering less of the image, ...
     max_fg_frac: float = 0.5       # ... or more, gives no contours for that view
+    #: shaping the body from the clicked frame's silhouettes (contours alone, or too few
+    #: points there): the metaball centres of these parts leave their template places,
+    #: about them with σ ``shape_center_sigma_m`` [m] (None: centres held).  The template
+    #: sets trunk, head and feet metaballs on their bones' axes, where a real body's
+    #: flesh is not; held there, the silhouettes push the skeleton off in every frame.
+    #: The arms keep theirs: too thin for their silhouettes to place them apart from
+    #: the pose.
+    shape_center_sigma_m: float | None = 0.02
+    shape_center_parts: tuple = ("pelvis", "lowerback", "spine", "chest", "neck", "head",
+                                 "l_hip", "l_knee", "l_ankle", "r_hip", "r_knee", "r_ankle")
 
 
 @dataclass

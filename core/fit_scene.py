@@ -177,7 +177,8 @@ def run_scene(scene, observations: str = "auto", model: str = "complete",
     min_points = (settings or SequenceSettings()).min_points
     if cframes is not None and (cues == "contours" or len(obs[init.frame].xyz) < min_points):
         # no points to shape the body at the clicked frame: the silhouettes do
-        init = _shape_from_silhouettes(init, cameras, cframes[init.frame], msgs)
+        init = _shape_from_silhouettes(init, cameras, cframes[init.frame], msgs,
+                                       contour_settings)
         if settings is None:  # the shape is the silhouettes': no further shape frames
             settings = SequenceSettings(shape_frames=1)
     anchors = None
@@ -265,10 +266,19 @@ def _flow_anchors(scene, cameras, flow, cframes):
     return FlowAnchors(cameras, image, cfg, rays=rays)
 
 
-def _shape_from_silhouettes(init, cameras, cframe, msgs):
-    """The initialisation with its metaball radii (and a refined pose) fitted to the
-    clicked frame's silhouettes (:func:`core.contour_track.fit_shape_to_contours`; the
-    clicked pose held tightly)."""
+def _center_sigma(skel, balls, cfg) -> np.ndarray | None:
+    """σ (M,) of each metaball centre in the silhouette shape fit (NaN: held), metres."""
+    if cfg is None or cfg.shape_center_sigma_m is None:
+        return None
+    names = np.array(skel.bone_names)[balls.bone]
+    return np.where(np.isin(names, cfg.shape_center_parts), cfg.shape_center_sigma_m, np.nan)
+
+
+def _shape_from_silhouettes(init, cameras, cframe, msgs, cfg=None):
+    """The initialisation with its metaball radii, the centres of
+    ``cfg.shape_center_parts`` (:class:`core.fit_contours.ContourSettings`) and a refined
+    pose fitted to the clicked frame's silhouettes
+    (:func:`core.contour_track.fit_shape_to_contours`; the clicked pose held tightly)."""
     from dataclasses import replace
 
     from .contour_track import ContourTrackSettings, fit_shape_to_contours
@@ -276,13 +286,18 @@ def _shape_from_silhouettes(init, cameras, cframe, msgs):
     tight = ContourTrackSettings(q_sigma_theta=0.01, q_sigma_root=0.002)
     balls, th, rt, rms = fit_shape_to_contours(init.skeleton, init.s, init.metaballs,
                                                init.theta, init.root_xyz, cameras,
-                                               cframe.contours, tight, rays=cframe.rays)
+                                               cframe.contours, tight, rays=cframe.rays,
+                                               center_prior_m=_center_sigma(
+                                                   init.skeleton, init.metaballs, cfg))
     if not np.isfinite(rms) or not (np.all(np.isfinite(th)) and np.all(np.isfinite(rt))):
         msgs.append(f"frame {init.frame}: too few silhouette contour pairs for the shape: "
                     "the template shape is kept")
         return init
+    moved = np.linalg.norm(balls.center0 - init.metaballs.center0, axis=1) * 100
+    shift = (f"; {int((moved > 0).sum())} metaball centres moved, {np.median(moved[moved > 0]):.1f}"
+             f" cm median, {moved.max():.1f} cm at most" if moved.max() > 0 else "")
     msgs.append(f"shape fitted to frame {init.frame}'s silhouettes (contour RMS {rms:.2f} px "
-                "before the last step)")
+                f"before the last step{shift})")
     return replace(init, metaballs=balls, theta=th, root_xyz=rt)
 
 

@@ -6,6 +6,7 @@ import pytest
 from core.contour_obs import body_ellipsoids
 from core.contour_track import ContourTrackSettings, fit_shape_to_contours, track_contours
 from core.contours import occluding_contours
+from core.fit_contours import ContourSettings
 from core.metaballs import make_metaballs
 from core.model_render import render_parts
 from core.skeleton import joint_positions, make_skeleton
@@ -67,6 +68,39 @@ def test_shape_from_silhouettes_recovers_radii(rig):
 
     # silhouettes agree far better than the template's (0.89 here)
     assert iou(fitted) > 0.95 and iou(fitted) > iou(balls) + 0.05
+
+
+def test_shape_from_silhouettes_moves_centres_off_the_bone_axis(rig):
+    """Head and chest lie 3 cm off their bones' axes: with free centres (the trunk's and
+    legs', as the fit frees them) the fit moves them there; the arms' stay."""
+    skel, balls, s, cams = rig
+    theta, root = _swing(skel, 1)
+    names = np.array(skel.bone_names)[balls.bone]
+    moved = np.flatnonzero(np.isin(names, ["chest", "head"]))
+    centres = balls.center0.copy()
+    centres[moved] += [0.0, 0.03, 0.0]
+    truth = balls.with_parts(centres, balls.radii)
+    observed = _contours(skel, theta[0], root[0], s, truth, cams)
+    tight = ContourTrackSettings(q_sigma_theta=0.01, q_sigma_root=0.002)
+    held, *_ = fit_shape_to_contours(skel, s, balls, theta[0], root[0], cams, observed, tight)
+    cfg = ContourSettings()
+    sigma = np.where(np.isin(names, cfg.shape_center_parts), cfg.shape_center_sigma_m, np.nan)
+    free, th, rt, rms = fit_shape_to_contours(skel, s, balls, theta[0], root[0], cams,
+                                              observed, tight, center_prior_m=sigma)
+    assert np.array_equal(held.center0, balls.center0)
+    err = np.linalg.norm(free.center0[moved] - centres[moved], axis=1)
+    assert err.mean() < 0.5 * 0.03, err                          # 3 cm off before
+    arms = ~np.isin(names, cfg.shape_center_parts)
+    assert arms.sum() > 10 and np.array_equal(free.center0[arms], balls.center0[arms])
+    assert np.linalg.norm(rt - root[0]) < 0.005 and rms < 1.0
+
+    def iou(body, th_, rt_):
+        a = [render_parts(cam, *body_ellipsoids(skel, th_, rt_, s, body)).mask for cam in cams]
+        b = [render_parts(cam, *body_ellipsoids(skel, theta[0], root[0], s, truth)).mask
+             for cam in cams]
+        return np.mean([(x & y).sum() / (x | y).sum() for x, y in zip(a, b, strict=True)])
+
+    assert iou(free, th, rt) > iou(held, theta[0], root[0]) + 0.005
 
 
 def test_tracking_follows_the_motion_with_and_without_selection(rig):

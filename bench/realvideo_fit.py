@@ -312,9 +312,17 @@ def run_config(names: list[str], check: str, allc: dict, clicks: dict, video: di
     # contours only: shape from frame 0's silhouettes, EKF with per-part camera selection
     rays_q = [camera_rays(c) for c in cams_q]
     t0 = time.perf_counter()
+    sig_c = None
+    if a.center_sigma is not None:
+        from core.fit_contours import ContourSettings
+
+        names = np.array(init.skeleton.bone_names)[init.metaballs.bone]
+        sig_c = np.where(np.isin(names, ContourSettings().shape_center_parts), a.center_sigma,
+                         np.nan)
     balls_c, th0, rt0, rms0 = fit_shape_to_contours(
         init.skeleton, init.s, init.metaballs, init.theta, init.root_xyz, cams_q, contours[0],
-        ContourTrackSettings(q_sigma_theta=0.05, q_sigma_root=0.01), rays=rays_q)
+        ContourTrackSettings(q_sigma_theta=0.05, q_sigma_root=0.01), rays=rays_q,
+        center_prior_m=sig_c)
     t_shape = time.perf_counter() - t0
     t0 = time.perf_counter()
     variants = {"contours only": CONTOUR_CFG}
@@ -441,6 +449,9 @@ def main(argv=None) -> int:
                     help="also track contours with motion-ranked camera selection and with "
                          "all cameras fused")
     ap.add_argument("--overlay-frames", default="0,30,60,99")
+    ap.add_argument("--center-sigma", type=float, default=None,
+                    help="free the trunk's, head's and legs' metaball centres in the shape "
+                         "from frame 0's silhouettes, with this σ, metres (default: held)")
     a = ap.parse_args(argv)
     t_all = time.perf_counter()
     calib = a.data / "calibration" / "Calib.qca.txt"

@@ -98,7 +98,10 @@ the point-based limb search it has the silhouette one (``silhouette_search``,
 explains the foreground that the rest of the body leaves unexplained — an arm that
 swung out from in front of the trunk beyond the contour pairing's reach — and the frame
 refitted from there, kept when the body's projection then disagrees with the foreground
-at fewer pixels); the cameras each part used are recorded in the quality.
+at fewer pixels); the joints of a part whose contour pairs all come from one camera
+are held along that camera's rays at the previous frame's depth (σ
+``ContourSettings.depth_sigma_m``, :mod:`core.fit_depth`: one view leaves that direction
+free); the cameras each part used are recorded in the quality.
 
 Frames before the clicked frame are processed backwards from it the same way.
 :func:`core.fit_scene.fit_scene` runs what a scene needs (calibration from the wand when
@@ -116,6 +119,7 @@ from .fit_assess import assess_frame
 from .fit_bridge import unobserved
 from .fit_contours import containment_parts
 from .fit_coupling import fill_unobserved
+from .fit_depth import depth_holds, single_view_parts
 from .fit_init import Initialisation
 from .fit_predict import PosePredictor
 from .fit_search import explain_cost, recentred_starts, search_limbs
@@ -249,6 +253,19 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
                            < cf.cfg.min_part_matches)
         return hidden
 
+    def single_view_holds(cf, hidden, q_ref):
+        """Contours alone: the joints of the parts that one camera's contours see, and
+        that are not hidden, held along its rays at pose ``q_ref`` (the previous frame),
+        :mod:`core.fit_depth`; None when ``cf.cfg.depth_sigma_m`` is None."""
+        if cf.cfg.depth_sigma_m is None or cf.pairs is None or not len(cf.pairs):
+            return None
+        B = len(skel.bone_names)
+        view = single_view_parts(cf.pairs.bone, cf.pairs.camera, B, len(cf.cameras))
+        shown = np.ones(B, bool)
+        shown[dof_bone[hidden]] = False
+        return depth_holds(skel, q_ref[:n], q_ref[n:], s, view, cf.cameras, shown,
+                           cf.cfg.depth_sigma_m)
+
     def prior(hidden, th_pred, sig_pred, th_hold):
         """Target and σ of the prior on the angles: the prediction, σ capped for stiff
         DOFs; the DOFs of parts with too few points (hidden) follow the (damped)
@@ -310,10 +327,13 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
                     return (None, None, False,
                             f"frame {f}: only {(part >= 0).sum()} usable points", lab)
                 break
-            target, sig = prior(hidden_dofs(pts.xyz, q, max_dist, cf), target_q[:n], sig_pred,
+            hidden = hidden_dofs(pts.xyz, q, max_dist, cf)
+            target, sig = prior(hidden, target_q[:n], sig_pred,
                                 None if q_hold is None else q_hold[:n])
             o = _observations(pts, part, target, sig, n, joints)
             o.contours = cf
+            if cf is not None and len(pts.xyz) < cfg.min_points:
+                o.depth = single_view_holds(cf, hidden, target_q if q_hold is None else q_hold)
             o.trajectory = traj
             if flow is not None and (len(pts.xyz) < cfg.min_points
                                      or not flow.cfg.without_points_only):

@@ -82,6 +82,12 @@ class ContourSettings:
     #: walk_line3, real tracks: 25.8 -> 25.1 mm, limb segments 43.8 -> 28.2 deg.
     #: Frames with contours alone (no points) un-hide from one view as before.
     unhide_views: int = 2
+    #: with contours alone: a part whose pairs come from one camera only keeps its
+    #: joints' depth along that camera's rays at the previous frame's, with this σ [m]
+    #: (:mod:`core.fit_depth`; None: off).  bench.looks' call, contours alone: skin
+    #: look 34.1 -> 27.9 mm, walk_ortho3 26.9 -> 18.9 mm.  Hiding such parts instead
+    #: (all their angles held): skin 27.8 mm, walk_ortho3 58.1 mm (both legs lost).
+    depth_sigma_m: float | None = 0.03
     textured_scale: float = 1.0    # σ of the pairs of parts that texture points observe, × this
     spacing_px: float = 2.0        # sampling of the image contours [px]
     rim_samples: int = 32          # model rim samples per metaball

@@ -85,6 +85,8 @@ class Observations:
       held fixed in their bones' frames since the previous frame (rigid motion, metres)
     flow : optional :class:`core.fit_flow.FlowObs` — image corners followed from the
       previous frame in one camera, held fixed in their bones' frames (pixels)
+    depth : optional :class:`core.fit_depth.DepthHolds` — joints held along one camera's
+      rays where only that view's contours see their part (metres)
     """
 
     xyz: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
@@ -98,6 +100,7 @@ class Observations:
     contours: object | None = None
     trajectory: object | None = None
     flow: object | None = None
+    depth: object | None = None
 
 
 @dataclass
@@ -249,6 +252,10 @@ class _Problem:
             if o.flow is not None and len(o.flow):
                 parts.append(("flow", *o.flow.block(
                     skel, theta[f], root[f], s, self.anc, M3 if shape else None)))
+            if o.depth is not None and len(o.depth):
+                db = o.depth.block(skel, theta[f], root[f], s)
+                z = zeros(len(db[0]))
+                parts.append(("depth", *db, z[3], z[4]))
             if len(o.joint_idx):
                 xj, Jt, Js = joint_jacobians(skel, theta[f][None], root[f][None], s)
                 w = 1.0 / o.sigma_joint

@@ -456,3 +456,46 @@ def test_tracking_inside_fit_reports_bad_clicks_in_one_line(tmp_path, capsys):
     assert len(err) == 1, err
     assert str(tmp_path / "clicks.json") in err[0]
     assert not (tmp_path / "fit.json").exists() and not (tmp_path / "tracks.npz").exists()
+
+
+
+def test_one_view_depth_holds_keep_the_arm_on_its_side_of_the_image_plane(body):
+    """Contours of one camera only (cam01, in front of the subject): an arm swung 0.3 rad
+    away from the camera and its mirror image, swung 0.3 rad towards it, draw almost the
+    same outline.  Started from the mirror (a prediction that overshot), the fit without
+    depth holds stays there; holding the elbow and wrist along cam01's rays at the
+    previous frame's depth (the arm swung away) brings it back to the true side, and
+    still lets it follow a swing in the image (0.2 rad of abduction)."""
+    from core.fit_depth import depth_holds
+
+    skel, balls, s, theta, root, cams, observed = body
+    swing, abduct = skel.dof_index("r_shoulder_x"), skel.dof_index("r_shoulder_y")
+    prev = theta.copy()
+    prev[swing] = 0.3  # the previous frame: swung away from cam01
+    truth_th = prev.copy()
+    truth_th[abduct] -= 0.2  # this frame: abducted less, in cam01's image plane
+    start = truth_th.copy()
+    start[swing] = -0.3  # the mirror image, towards cam01
+    one_view = [_silhouettes(skel, balls, truth_th, root, s, cams)[0], [], []]
+    sig = np.full(skel.n_dof, 0.03)
+    sig[[swing, abduct, skel.dof_index("r_elbow_x")]] = 0.5
+    B = len(skel.bone_names)
+    view = np.full(B, -1)
+    view[[skel.bone_index("r_shoulder"), skel.bone_index("r_elbow")]] = 0
+    joints = [skel.joint_index("r_elbow"), skel.joint_index("r_wrist")]
+    truth = sk.joint_positions(skel, truth_th, root, s)[joints]
+    err, rms = {}, {}
+    for held in (False, True):
+        cf = ContourFrame(cams, one_view, ContourSettings(sigma_px=1.0, huber_px=2.0))
+        obs = Observations(theta_pred=start, sigma_pred=sig, contours=cf)
+        if held:
+            obs.depth = depth_holds(skel, prev, root, s, view, cams, np.ones(B, bool), 0.03)
+            assert len(obs.depth) == 2  # the elbow and the wrist
+        r = fit(skel, balls, obs, start, root, s, solve="pose",
+                settings=FitSettings(irls_rounds=6, max_nfev=30))
+        err[held] = np.linalg.norm(sk.joint_positions(skel, r.theta, r.root_xyz, s)[joints]
+                                   - truth, axis=1).max()
+        rms[held] = cf.stats(skel, balls, r.theta, r.root_xyz, s)["rms_px"]
+    assert err[False] > 0.08, err  # stayed on the mirror side
+    assert err[True] < 0.015, err
+    assert rms[False] < 2.0 and rms[True] < 2.0, rms  # both explain the one view

@@ -119,7 +119,7 @@ from .fit_assess import assess_frame
 from .fit_bridge import unobserved
 from .fit_contours import containment_parts
 from .fit_coupling import fill_unobserved
-from .fit_depth import depth_holds, single_view_parts
+from .fit_depth import frame_depth_holds
 from .fit_init import Initialisation
 from .fit_predict import PosePredictor
 from .fit_search import explain_cost, recentred_starts, search_limbs
@@ -253,19 +253,6 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
                            < cf.cfg.min_part_matches)
         return hidden
 
-    def single_view_holds(cf, hidden, q_ref):
-        """Contours alone: the joints of the parts that one camera's contours see, and
-        that are not hidden, held along its rays at pose ``q_ref`` (the previous frame),
-        :mod:`core.fit_depth`; None when ``cf.cfg.depth_sigma_m`` is None."""
-        if cf.cfg.depth_sigma_m is None or cf.pairs is None or not len(cf.pairs):
-            return None
-        B = len(skel.bone_names)
-        view = single_view_parts(cf.pairs.bone, cf.pairs.camera, B, len(cf.cameras))
-        shown = np.ones(B, bool)
-        shown[dof_bone[hidden]] = False
-        return depth_holds(skel, q_ref[:n], q_ref[n:], s, view, cf.cameras, shown,
-                           cf.cfg.depth_sigma_m)
-
     def prior(hidden, th_pred, sig_pred, th_hold):
         """Target and σ of the prior on the angles: the prediction, σ capped for stiff
         DOFs; the DOFs of parts with too few points (hidden) follow the (damped)
@@ -333,7 +320,8 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
             o = _observations(pts, part, target, sig, n, joints)
             o.contours = cf
             if cf is not None and len(pts.xyz) < cfg.min_points:
-                o.depth = single_view_holds(cf, hidden, target_q if q_hold is None else q_hold)
+                q_ref = target_q if q_hold is None else q_hold  # the previous frame
+                o.depth = frame_depth_holds(skel, cf, hidden, q_ref[:n], q_ref[n:], s)
             o.trajectory = traj
             if flow is not None and (len(pts.xyz) < cfg.min_points
                                      or not flow.cfg.without_points_only):

@@ -102,3 +102,30 @@ def depth_holds(skel: Skeleton, theta: np.ndarray, root: np.ndarray, s: np.ndarr
     d = x - centres[view[skel.joint_bone[joint]]] if len(joint) else np.zeros((0, 3))
     d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
     return DepthHolds(joint, d, x, np.full(len(joint), float(sigma_m)))
+
+
+def frame_depth_holds(skel: Skeleton, contours, hidden: np.ndarray, theta: np.ndarray,
+                      root: np.ndarray, s: np.ndarray) -> DepthHolds | None:
+    """The depth holds of one contours-alone frame.
+
+    Parameters
+    ----------
+    contours : :class:`core.fit_contours.ContourFrame`, frozen (its pairs at the current
+        pose); its ``cfg.depth_sigma_m`` (None: no holds)
+    hidden : (n,) bool — the hidden DOFs; their parts are held otherwise, not here
+    theta : (n,) radians, root : (3,) metres, s : (G,) — the previous frame's pose
+
+    Returns
+    -------
+    DepthHolds, or None (off, or no contour pairs)
+    """
+    sigma = contours.cfg.depth_sigma_m
+    if sigma is None or contours.pairs is None or not len(contours.pairs):
+        return None
+    B = len(skel.bone_names)
+    view = single_view_parts(contours.pairs.bone, contours.pairs.camera, B,
+                             len(contours.cameras))
+    shown = np.ones(B, bool)
+    shown[[skel.bone_index(d.rsplit("_", 1)[0]) for d in np.array(skel.dof_names)[hidden]]] \
+        = False
+    return depth_holds(skel, theta, root, s, view, contours.cameras, shown, sigma)

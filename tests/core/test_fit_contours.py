@@ -499,3 +499,29 @@ def test_one_view_depth_holds_keep_the_arm_on_its_side_of_the_image_plane(body):
     assert err[False] > 0.08, err  # stayed on the mirror side
     assert err[True] < 0.015, err
     assert rms[False] < 2.0 and rms[True] < 2.0, rms  # both explain the one view
+
+
+def test_frame_depth_holds_cover_the_single_view_parts_that_are_not_hidden(body):
+    """Only cam01's contours: every part with pairs is seen by one view and its joints
+    are held along cam01's rays, except those of hidden parts; with every camera's
+    contours (the parts seen by two or more views) there are fewer holds."""
+    from core.fit_depth import frame_depth_holds
+
+    skel, balls, s, theta, root, cams, observed = body
+    hidden = np.zeros(skel.n_dof, bool)
+    hidden[[skel.dof_index(d) for d in skel.dof_names if d.startswith("r_shoulder_")]] = True
+    one = ContourFrame(cams, [observed[0], [], []], ContourSettings())
+    one.freeze(skel, balls, theta, root, s)
+    holds = frame_depth_holds(skel, one, hidden, theta, root, s)
+    carried = {skel.bone_names[skel.joint_bone[j]] for j in holds.joint}
+    seen = {skel.bone_names[b] for b in np.unique(one.pairs.bone)
+            if np.sum(one.pairs.bone == b) >= 10}
+    assert carried == seen - {"r_shoulder"} and "r_elbow" in carried
+    x = sk.joint_positions(skel, theta, root, s)[holds.joint]
+    np.testing.assert_allclose(np.cross(holds.direction, x - cams[0].center), 0.0, atol=1e-12)
+    every = ContourFrame(cams, observed, ContourSettings())
+    every.freeze(skel, balls, theta, root, s)
+    assert len(frame_depth_holds(skel, every, hidden, theta, root, s)) < len(holds)
+    off = ContourFrame(cams, observed, ContourSettings(depth_sigma_m=None))
+    off.freeze(skel, balls, theta, root, s)
+    assert frame_depth_holds(skel, off, hidden, theta, root, s) is None

@@ -85,7 +85,8 @@ class ContourSettings:
     #: with contours alone: a part whose pairs come from one camera only keeps its
     #: joints' depth along that camera's rays at the previous frame's, with this σ [m]
     #: (:mod:`core.fit_depth`; None: off).  bench.looks' call, contours alone: skin
-    #: look 34.1 -> 27.9 mm, walk_ortho3 26.9 -> 18.9 mm.  Hiding such parts instead
+    #: look 34.1 -> 27.9 mm, walk_ortho3 26.9 -> 18.9 mm (σ 1.5 cm: 29.6 / 32.5, 6 cm:
+    #: 26.6 / 22.6 mm).  Hiding such parts instead
     #: (all their angles held): skin 27.8 mm, walk_ortho3 58.1 mm (both legs lost).
     depth_sigma_m: float | None = 0.03
     textured_scale: float = 1.0    # σ of the pairs of parts that texture points observe, × this

@@ -98,10 +98,11 @@ the point-based limb search it has the silhouette one (``silhouette_search``,
 explains the foreground that the rest of the body leaves unexplained — an arm that
 swung out from in front of the trunk beyond the contour pairing's reach — and the frame
 refitted from there, kept when the body's projection then disagrees with the foreground
-at fewer pixels); the joints of a part whose contour pairs all come from one camera
-are held along that camera's rays at the previous frame's depth (σ
-``ContourSettings.depth_sigma_m``, :mod:`core.fit_depth`: one view leaves that direction
-free); the cameras each part used are recorded in the quality.
+at fewer pixels); the joints of a part whose contour pairs all come from one camera,
+or from cameras whose rays to it are at most ``ContourSettings.depth_spread_deg`` apart,
+are held along those rays at the previous frame's depth (σ
+``ContourSettings.depth_sigma_m``, :mod:`core.fit_depth`: such views leave that
+direction free); the cameras each part used are recorded in the quality.
 
 Frames before the clicked frame are processed backwards from it the same way.
 :func:`core.fit_scene.fit_scene` runs what a scene needs (calibration from the wand when

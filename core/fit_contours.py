@@ -89,6 +89,14 @@ class ContourSettings:
     #: 26.6 / 22.6 mm).  Hiding such parts instead
     #: (all their angles held): skin 27.8 mm, walk_ortho3 58.1 mm (both legs lost).
     depth_sigma_m: float | None = 0.03
+    #: ... and so does a part whose views' rays to it are at most this many degrees
+    #: apart (held along their mean direction): views a few tens of degrees apart see
+    #: nearly the same outline (:func:`core.fit_depth.narrow_depth_holds`; 0: one view
+    #: only).  line3's outer cameras are 38° apart.  Contours alone, 0 -> 40: sweater
+    #: 33.2 -> 26.3 mm, skin 27.9 -> 25.6, jumps_line3 30.0 -> 25.0; pirouette_line3
+    #: with selection 176.1 -> 40.3 (fused 39.8 -> 61.2), dance_line3 fused 162.6 ->
+    #: 68.2 (selection 205.2 -> 207.7).  The orthogonal rig's views are 90° apart.
+    depth_spread_deg: float = 40.0
     textured_scale: float = 1.0    # σ of the pairs of parts that texture points observe, × this
     spacing_px: float = 2.0        # sampling of the image contours [px]
     rim_samples: int = 32          # model rim samples per metaball

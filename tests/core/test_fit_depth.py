@@ -3,7 +3,13 @@
 import numpy as np
 
 from core import skeleton as sk
-from core.fit_depth import DepthHolds, depth_holds, single_view_parts
+from core.fit_depth import (
+    DepthHolds,
+    depth_holds,
+    narrow_depth_holds,
+    part_views,
+    single_view_parts,
+)
 from tests.core._bodyscene import look_at
 
 
@@ -73,3 +79,39 @@ def test_no_single_view_part_gives_no_holds():
     assert isinstance(holds, DepthHolds) and len(holds) == 0
     r, Jt, Jr, Js = holds.block(skel, theta, root, np.ones(skel.n_groups))
     assert r.shape == (0,) and Jt.shape == (0, skel.n_dof) and Jr.shape == (0, 3)
+
+
+def test_narrow_views_hold_along_their_mean_ray_and_wide_views_do_not():
+    """Three cameras in a line 36° apart see one limb's outline nearly alike: its joints
+    are held along the mean of their rays.  A part two orthogonal views see is not held;
+    with a spread of 0 only single-view parts are, exactly as :func:`depth_holds`."""
+    rng = np.random.default_rng(7)
+    skel = sk.make_skeleton()
+    s = np.ones(skel.n_groups)
+    theta, root = _pose(skel, rng)
+    cams = [look_at(f"cam0{i + 1}", (x, -4.0, 1.1), (0.0, 0.0, 1.0), f=700.0)
+            for i, x in enumerate((-1.3, 0.0, 1.3))]
+    cams.append(look_at("cam04", (4.0, 0.0, 1.1), (0.0, 0.0, 1.0), f=700.0))
+    B = len(skel.bone_names)
+    # r_elbow (forearm) in the three line cameras, l_knee (shin) in cam01 and the
+    # orthogonal cam04, l_shoulder (upper arm) in cam02 alone
+    bone = np.repeat([skel.bone_index(b) for b in ("r_elbow", "l_knee", "l_shoulder")],
+                     [36, 24, 12])
+    camera = np.concatenate([np.repeat([0, 1, 2], 12), np.repeat([0, 3], 12),
+                             np.full(12, 1)])
+    seen = part_views(bone, camera, B, 4)
+    shown = np.ones(B, bool)
+    holds = narrow_depth_holds(skel, theta, root, s, seen, cams, shown, 0.03, 40.0)
+    assert [skel.joint_names[j] for j in holds.joint] == ["l_elbow", "r_wrist"]
+    x = sk.joint_positions(skel, theta, root, s)[holds.joint]
+    rays = x[1] - np.array([c.center for c in cams[:3]])
+    mean = np.sum(rays / np.linalg.norm(rays, axis=1, keepdims=True), axis=0)
+    np.testing.assert_allclose(holds.direction[1], mean / np.linalg.norm(mean), atol=1e-12)
+    np.testing.assert_allclose(np.cross(holds.direction[0], x[0] - cams[1].center), 0.0,
+                               atol=1e-12)
+    assert len(narrow_depth_holds(skel, theta, root, s, seen, cams, shown, 0.03, 30.0)) == 1
+    single = narrow_depth_holds(skel, theta, root, s, seen, cams, shown, 0.03, 0.0)
+    ref = depth_holds(skel, theta, root, s, single_view_parts(bone, camera, B, 4), cams,
+                      shown, 0.03)
+    np.testing.assert_array_equal(single.joint, ref.joint)
+    np.testing.assert_allclose(single.direction, ref.direction, atol=1e-12)

@@ -10,10 +10,13 @@ only turns those arrays into Blender data.
   θ = 0 (upright, arms down, facing −Y) with the soles on z = 0; each bone's head is its
   head joint, its Y axis points to its tail joint, X to the subject's left.  Bones are
   not "connected", so every pose of core's kinematics is reproduced exactly.
-* **Metaballs** — one metaball object per bone, parented to the bone, all named
-  ``<body>`` / ``<body>.<bone>`` so that Blender treats them as one family (metaballs
-  of one family blend into one surface).  Each element is an ellipsoid whose visible
-  surface has the state's visible semi-axes ``VISIBLE · (lx, ly, lz)``.
+* **Metaballs** — one metaball object per bone, parented to the bone, named
+  ``<body>``, ``<body>.001``, ``<body>.002`` … (the bone in the object's
+  ``somacap_bone`` property and the metaball data's name): Blender blends metaball
+  objects into one surface only when their names differ by a *numeric* suffix — named
+  ``<body>.<bone>`` each bone's metaballs were tessellated on their own.  Each element
+  is an ellipsoid whose field is matched to core's (:data:`KERNEL_SCALE`,
+  :data:`STIFFNESS`), so that Blender's blended surface is the fitted ``Σ f = 0.5``.
 * **Action** — named after the take; bones in quaternion mode, one key per frame on
   every rotation channel and on the root's location (bulk ``foreach_set``).  A bone's
   keys at frames where the cameras did not observe it (the state's
@@ -27,9 +30,22 @@ import numpy as np
 
 from . import _core, action_api
 
-#: A lone Blender ellipsoid element with stiffness 2 and threshold 0.6 is visible out to
-#: this fraction of its radius: ``(1 - r²)³ · 2 = 0.6``.
-_BLENDER_VISIBLE = float(np.sqrt(1.0 - (0.6 / 2.0) ** (1.0 / 3.0)))
+#: Blender's metaball field.  An element of radius ``R`` and stiffness ``a`` adds
+#: ``a · (1 − d²/R²)³`` inside ``R`` (``d`` measured in the element's scaled frame) and
+#: the surface is where the sum reaches the threshold ``T``; core's metaball adds
+#: ``exp(−2 t)`` with ``t = Σ (y_i / l_i)²`` and the surface is at 0.5.  The element's
+#: semi-axes are ``KERNEL_SCALE · l`` and its stiffness ``A · T``, with ``(A, k)``
+#: fitted so that Blender's field reaches ``T`` on core's surface: least squares of the
+#: normal offset ``(H/T − 1) / |∇(H/T)|`` at points of ``Σ f = 0.5`` of four fitted
+#: bodies (make demo's walk with its per-part and its whole-body shape, jumps_line3's
+#: and walk_ortho3's whole-body shape; two frames each): mean offset 0.4 mm, RMS 2.5 mm.
+#: Matching a lone metaball's surface and the junction of two equal ones exactly
+#: instead (A 1.755, k 1.424) leaves Blender's body 5.1 mm inside core's on average,
+#: since three or more metaballs overlap on a body; matching the lone surface alone
+#: (stiffness 2, the former mapping) left the junctions 16 % of a radius thinner.
+THRESHOLD = 0.6
+KERNEL_SCALE = 1.516
+STIFFNESS = 1.660 * THRESHOLD
 
 
 def rest_matrices(state) -> np.ndarray:
@@ -179,6 +195,22 @@ def unobserved_bones(state, names: list) -> dict:
     return out
 
 
+def _free_family(name: str, taken: set) -> str:
+    """``name``, or ``name_2``, ``name_3`` …: a metaball family name no object uses yet
+    (Blender would rename a second ``name`` to ``name.001`` — a member of the first
+    body's family)."""
+    base, k = name, 1
+
+    def used(n):
+        return any(t == n or (t.startswith(n + ".") and t[len(n) + 1:].isdigit())
+                   for t in taken)
+
+    while used(name):
+        k += 1
+        name = f"{base}_{k}"
+    return name
+
+
 def build_metaballs(state, armature, name: str = "SomacapBody", collection=None,
                     resolution: float = 0.02):
     """Metaball objects parented to ``armature``'s bones, one family named ``name``.
@@ -191,20 +223,21 @@ def build_metaballs(state, armature, name: str = "SomacapBody", collection=None,
 
     skel, balls = state.skeleton, state.metaballs
     collection = collection or bpy.context.scene.collection
+    name = _free_family(name, {o.name for o in bpy.data.objects})
     rest = armature_rest(armature)
     names = [b.name for b in armature.data.bones]
     align = skel.bone_align()  # anatomical -> Blender bone frame
     scale = np.where(balls.group >= 0, np.asarray(state.s)[np.maximum(balls.group, 0)], 1.0)
     centre = balls.center0 * scale[:, None]
-    visible = _core.metaballs.VISIBLE * balls.radii  # visible semi-axes, metres
+    axes = KERNEL_SCALE * balls.radii  # Blender element semi-axes, metres
     objects = []
     for b in np.unique(balls.bone):
         bname = skel.bone_names[b]
         idx = np.flatnonzero(balls.bone == b)
         mb = bpy.data.metaballs.new(f"{name}.{bname}")
         mb.resolution = mb.render_resolution = resolution
-        mb.threshold = 0.6
-        obj_name = name if not objects else f"{name}.{bname}"
+        mb.threshold = THRESHOLD
+        obj_name = name if not objects else f"{name}.{len(objects):03d}"
         obj = bpy.data.objects.new(obj_name, mb)
         collection.objects.link(obj)
         A = align[b].T  # anatomical -> Blender bone frame coordinates
@@ -215,10 +248,10 @@ def build_metaballs(state, armature, name: str = "SomacapBody", collection=None,
             el = mb.elements.new(type="ELLIPSOID")
             el.co = c_bl[m].tolist()
             el.rotation = Quaternion(quats[m].tolist())
-            r = float(visible[k].max()) / _BLENDER_VISIBLE
+            r = float(axes[k].max())
             el.radius = r
-            el.size_x, el.size_y, el.size_z = (visible[k] / _BLENDER_VISIBLE / r).tolist()
-            el.stiffness = 2.0
+            el.size_x, el.size_y, el.size_z = (axes[k] / r).tolist()
+            el.stiffness = STIFFNESS
         # Bone parenting: the parent frame is the bone's tail in pose space.
         bone = armature.data.bones[names.index(bname)]
         obj.parent = armature

@@ -12,12 +12,12 @@ cached under ``out/bench_fit/<name>``; a missing one is rendered first by
 ``python -m sample_scenes.studio`` in a subprocess, one at a time.
 
 For each scene: runs ``python -m core fit`` (timed end to end) and ``python -m core
-evaluate --json``, measures the fitted metaball surface against the true mesh (mean
-distance of the true surface, sampled by area, to the fitted surface, by projection
-onto ``Σ f = 0.5`` in :mod:`core.metaballs`), and prints one table row with per-joint MPJPE and
-per-segment orientation RMSE lines under it.  With ``--observations truth`` the fit
-uses truth-derived surface points — a development stand-in for the tracker, labelled
-as such in the table, never the pipeline's result.
+evaluate --json``, which also reports the fitted metaball surface against the true mesh
+(``surface_mm``: mean distance of the true surface, sampled by area, to the fitted
+``Σ f = 0.5``, :func:`core.evaluate.surface_distance_mm`), and prints one table row
+with per-joint MPJPE and per-segment orientation RMSE lines under it.  With
+``--observations truth`` the fit uses truth-derived surface points — a development
+stand-in for the tracker, labelled as such in the table, never the pipeline's result.
 
 With truth-derived observations, the default scene's row is followed by a row of the
 same scene through the **real pipeline** (``--real``, default ``both``): the tracker's
@@ -128,51 +128,6 @@ def render_studio_scene(name: str, root: Path = RENDERS) -> tuple[Path, float | 
                           "--wand-positions", "0"])
 
 
-def surface_distance_mm(state, vertices: np.ndarray, faces: np.ndarray, frames: list[int],
-                        per_frame: int = 2000, seed: int = 0) -> float:
-    """Mean distance (mm) of the true mesh's surface to the fitted metaball surface.
-
-    The mesh surface is sampled uniformly by area (``per_frame`` points per frame on its
-    triangles) and each sample projected onto the fitted ``Σ f = 0.5``
-    (:func:`core.metaballs.project_to_surface`).  Sampling by area, not by vertex: the
-    character's vertices crowd on the head, hands and feet (1,600 on each hand of
-    13,380), so a vertex mean weighs those several times their area (make demo's walk:
-    22.8 mm per vertex, 25.7 mm by area).
-
-    Parameters
-    ----------
-    state : core.state.FitState
-        The fitted state.
-    vertices : ndarray, shape (F, V, 3)
-        True mesh vertices per frame, world metres.
-    faces : ndarray, shape (T, 3)
-        The mesh's triangles (vertex indices).
-    frames : list of int
-        Frames to measure.
-    """
-    from core import metaballs as mb
-    from core.skeleton import forward
-
-    rng = np.random.default_rng(seed)
-    faces = np.asarray(faces, int)
-    out = []
-    for f in frames:
-        v = np.asarray(vertices[f], float)
-        a, b, c = v[faces[:, 0]], v[faces[:, 1]], v[faces[:, 2]]
-        area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
-        k = rng.choice(len(faces), per_frame, p=area / area.sum())
-        u, w = rng.random(per_frame), rng.random(per_frame)
-        flip = u + w > 1.0
-        u[flip], w[flip] = 1.0 - u[flip], 1.0 - w[flip]
-        p = a[k] + u[:, None] * (b[k] - a[k]) + w[:, None] * (c[k] - a[k])
-        pose = forward(state.skeleton, state.theta[f][None], state.root_xyz[f][None], state.s)
-        Rw, cw = mb.world_frames(state.skeleton, pose, state.metaballs, state.s)
-        xs, ok = mb.project_to_surface(p, Rw[0], cw[0], state.metaballs.radii,
-                                       iterations=60, tol=1e-6)
-        out.append(np.linalg.norm(xs - p, axis=1)[ok])
-    return float(np.mean(np.concatenate(out)) * 1000.0)
-
-
 #: Joint -> the DOF whose σ says whether the part that places the joint was observed.
 _PLACING_DOF = {"l_elbow": "l_shoulder_x", "r_elbow": "r_shoulder_x",
                 "l_wrist": "l_elbow_x", "r_wrist": "r_elbow_x",
@@ -208,7 +163,7 @@ def hidden_split(state, truth: dict) -> dict:
 
 
 def run_one(scene: Path, frames: int | None, observations: str, model: str,
-            cues: str = "texture", tracks: Path | None = None, shape: str = "template",
+            cues: str = "texture", tracks: Path | None = None, shape: str = "written",
             flow: bool = True) -> dict:
     """Fit and evaluate one scene folder; return the figures (or ``{"error": ...}``).
 
@@ -244,8 +199,7 @@ def run_one(scene: Path, frames: int | None, observations: str, model: str,
         pts_line = [ln for ln in p.stdout.splitlines() if ln.startswith("points per frame")]
     sc = load_scene(scene, check_images=False)
     ok = [f for f in range(state.n_frames) if not state.quality.diverged[f]]
-    surf = surface_distance_mm(state, sc.truth["vertices"], sc.truth["faces"],
-                               ok[:: max(1, len(ok) // 5)])
+    surf = metrics.get("surface_mm")  # core.evaluate.surface_distance_mm
     return {"hidden": hidden_split(state, sc.truth),
             "scene": scene.name, "size": sc.image_size, "frames": len(ok),
             "n_frames": state.n_frames, "rig": sc.meta.get("source", {}).get("rig", "?"),
@@ -375,7 +329,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="with truth-derived observations: also fit walk_line3 through the "
                          "real pipeline (its tracker's tracks) with these cues, printed under "
                          "the truth-derived row (default both; none: skip)")
-    ap.add_argument("--shape", default="template", choices=("template", "written", "tracked"),
+    ap.add_argument("--shape", default="written", choices=("template", "written", "tracked"),
                     help="body shape of the fits (python -m core fit --shape)")
     ap.add_argument("--fit-shape", action="store_true",
                     help="compare the template with the whole-body fitted shape on one scene "
@@ -440,7 +394,7 @@ def print_row(r: dict, scene: Path, render_wall: float | None, name: str | None 
           f"{m['mpjpe_mm']:>10.1f}"
           f"{m['max_joint_error_pct_height']:>8.2f}"
           f"{100 * m['frames_within_1pct_height']:>8.0f}%"
-          f"{m['segment_orientation_rmse_deg']:>9.1f}{r['surface_mm']:>9.1f}"
+          f"{m['segment_orientation_rmse_deg']:>9.1f}{r['surface_mm'] or float('nan'):>9.1f}"
           f"{r['s_per_frame']:>9.2f}  {r['size'][0]}x{r['size'][1]}; {r['fit_line']}; "
           f"{r['pts']}; {_render_note(scene, render_wall)}")
     print("    per joint mm: " + ", ".join(

@@ -34,6 +34,8 @@ def format_table(ev) -> str:
         f"({ev.height_m:.3f} m); frames within 1 %: {100 * ev.frames_within_1pct:.1f} %",
         f"segment orientation RMSE     {_fmt(ev.segment_orientation_rmse_deg)} deg "
         "(upper/lower arms and legs)",
+        f"metaball surface             {_fmt(ev.surface_mm, 1)} mm from the true mesh "
+        "(mean, by area)",
         "",
         f"{'joint':<14}{'mean mm':>10}",
     ]

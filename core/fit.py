@@ -12,15 +12,17 @@ clicked frame's initial posture (:mod:`core.fit_init`):
    the next ``shape_frames − 1`` frames are pose-fitted and join the shape solve; the
    shape is fixed afterwards and every shape frame's pose refitted (the clicked frame
    with the clicks as joint observations, σ ``sigma_click``).  With
-   ``settings.shape = "fit"`` (an option; the default ``"template"`` is the above
-   alone) the *whole-body* shape is fitted as well (:func:`core.shape_fit.fit_shape`: metaball
+   ``settings.shape = "fit"`` (the default; ``"template"`` is the above alone) the
+   *whole-body* shape is fitted as well (:func:`core.shape_fit.fit_shape`: metaball
    radii and centres, the anti-bulge term with the scene's ``cameras``), from the
    template deflated so that its blended surface follows the ellipsoids the contours
    render (``shape_fit_deflate``, :func:`core.metaballs.deflate`).  With
    ``shape_fit_track = False`` (its default) the tracking keeps the per-part shape and the
-   whole-body shape is fitted after the motion, at the poses of the
-   ``shape_fit_frames`` fitted frames nearest the clicked one, and only written to
-   the state; with ``shape_fit_track`` it is fitted right after at least
+   whole-body shape is fitted after the motion, at the fitted poses, and only written to
+   the state (:func:`core.fit_whole_shape.written_shape`: with silhouette contours, at
+   ``shape_fit_silhouette_frames`` frames spread over the take, to their points and
+   silhouettes; else at the ``shape_fit_frames`` frames nearest the clicked one, to
+   their points); with ``shape_fit_track`` it is fitted right after at least
    ``shape_fit_frames`` shape frames, replaces the shape, and those frames' poses are
    refitted once more.  Its convergence,
    message and per-frame flags are recorded (:class:`ShapeRecord`).  (Skipping the
@@ -126,7 +128,7 @@ from .fit_predict import PosePredictor
 from .fit_search import explain_cost, recentred_starts, search_limbs
 from .fit_trajectory import TrajectoryAnchors
 from .fit_types import FramePoints, SequenceResult, SequenceSettings
-from .fit_whole_shape import whole_body_shape
+from .fit_whole_shape import whole_body_shape, written_shape
 from .fitting import FitSettings, Observations, fit
 from .free_space import FrameProbes
 from .metaballs import deflate
@@ -595,15 +597,9 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
                                           cfg.mirror_hidden, cfg.mirror_r2)
     msgs += fill_msgs
     if cfg.shape == "fit" and not shape_first:  # at the fitted poses, for the state only
-        good = np.flatnonzero(~div & conv & (n_pts >= cfg.min_points))
-        use = np.sort(good[np.argsort(np.abs(good - f0), kind="stable")][:cfg.shape_fit_frames])
-        if len(use):
-            fitted_balls, _, shape_rec = whole_body_shape(skel, start, s, theta, root, frames,
-                                                          use.tolist(), cameras, cfg.shape_fit,
-                                                          msgs, progress)
-        else:  # e.g. contours alone: the shape they fitted is kept
-            msgs.append("whole-body shape fit: no fitted frame with points, the shape "
-                        "tracked with is kept")
+        fitted_balls, shape_rec = written_shape(skel, start, s, theta, root, frames, contours,
+                                                ~div & conv, n_pts, unobs, f0, cfg, cameras,
+                                                msgs, progress)
     balls_out = balls.copy(radii=radii) if fitted_balls is None else fitted_balls.copy()
     q = Quality(rmse_m=rmse, theta_sigma=q_sig, converged=conv & ~div, diverged=div,
                 cameras=cams_used, unobserved=unobs)

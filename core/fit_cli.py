@@ -11,10 +11,12 @@ ones), ``contours`` (the silhouettes' occluding contours from every camera's
 foreground, σ in pixels; no tracker; the metaball shape is fitted to the clicked
 frame's silhouettes) or ``both``; with contours the cameras each part used are written
 per frame in the state's quality (SPEC: ``quality.cameras``).
-``--shape`` chooses the body shape written: ``template`` (default) keeps the per-part
-shape of the shape frames; ``written`` fits the whole-body metaball shape after the
-motion at the poses of the frames nearest the clicked one, from the deflated template
-(:func:`core.metaballs.deflate`), for the state only (the motion is the default's);
+``--shape`` chooses the body shape written: ``written`` (default) fits the whole-body
+metaball shape after the motion, at the fitted poses, from the deflated template
+(:func:`core.metaballs.deflate`) — with contours to the points and silhouettes of frames
+spread over the take, else to the points of the frames nearest the clicked one — for
+the state only (the motion is the same as with ``template``); ``template`` keeps the
+per-part shape of the shape frames, that the motion was tracked with;
 ``tracked`` fits it right after the shape frames and tracks with it (``--fit-shape`` is
 the same; see :mod:`core.fit`); the shape fit's result is printed as a note.  Prints the
 per-frame quality summary, the messages (dropped clicks, diverged frames) and the
@@ -58,11 +60,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --cues both: no single-camera texture flow in the "
                              "frames that have too few 3-D points (on by default)")
     parser.add_argument("--shape", choices=("template", "written", "tracked"),
-                        default="template",
-                        help="body shape: 'template' (default) keeps the per-part shape of "
-                             "the shape frames; 'written' fits the whole-body metaball "
-                             "shape after the motion, for the state only; 'tracked' fits it "
-                             "after the shape frames and tracks with it")
+                        default="written",
+                        help="body shape: 'written' (default) fits the whole-body metaball "
+                             "shape after the motion (to the silhouettes too, with "
+                             "contours), for the state only; 'template' keeps the per-part "
+                             "shape of the shape frames; 'tracked' fits it after the shape "
+                             "frames and tracks with it")
     parser.add_argument("--fit-shape", action="store_true",
                         help="the same as --shape tracked")
 

@@ -121,12 +121,24 @@ class SequenceSettings:
     anneal: tuple = ((0.12, 12.0), (0.07, 6.0), (0.04, 3.0), (0.04, 3.0))
     max_nfev: int = 20
     max_nfev_shape: int = 40
-    #: "template" (default): the per-part shape solve of the shape frames only;
-    #: "fit": then the whole-body shape fit (:func:`core.shape_fit.fit_shape`)
-    shape: str = "template"
+    #: "template": the per-part shape solve of the shape frames only (the shape the
+    #: motion is tracked with); "fit" (default): then the whole-body shape fit
+    #: (:func:`core.shape_fit.fit_shape`) — the blended surface that is rendered,
+    #: measured and built in Blender.  make demo's walk, surface against the true mesh:
+    #: per-part 29.0 mm, whole-body 13.7 mm (jumps_line3 31.3 -> 14.1, walk_ortho3 with
+    #: contours alone 44.5 -> 17.0 mm); the motion is the same bit for bit
+    shape: str = "fit"
     #: with shape = "fit": its frames — the first ones (shape frames at least) when the
-    #: tracking uses it, else the fitted frames nearest the clicked frame
+    #: tracking uses it, else the fitted frames nearest the clicked frame (without
+    #: silhouettes; see ``shape_fit_silhouette_frames``)
     shape_fit_frames: int = 3
+    #: with shape = "fit" after the motion and silhouette contours: this many fitted
+    #: frames spread evenly over the take instead, their silhouettes fitted with their
+    #: points (:func:`core.shape_fit.fit_shape` ``contours``).  make demo's walk, the
+    #: written surface against the true mesh (frames 0/12/24/36/48): the 3 frames
+    #: nearest the clicked one without silhouettes 28.8 mm; with them 21.5 mm; 5 / 8 /
+    #: 12 frames spread 14.6 / 15.2 / 17.9 mm (12: not converged in 10 rounds)
+    shape_fit_silhouette_frames: int = 5
     #: with shape = "fit": track with the fitted shape (True: fitted right after the
     #: shape frames), or track with the per-part shape and fit the whole-body shape
     #: after the motion, at the fitted poses, for the state only (False)

@@ -88,7 +88,16 @@ class ShapeSettings:
     round_tol: float = 2e-4  # converged when no radius or centre moved more than this
     cost_tol: float = 0.01  # ... or the cost changed by less than this share in a round
     min_radius: float = 0.005
+    #: every radius stays within [start / ratio, start · ratio] (0: only ``min_radius``):
+    #: overlapping metaballs can trade widths along nearly flat directions of the cost,
+    #: and left free some collapse into needles while a neighbour swells
+    radius_ratio: float = 2.0
     min_points: int = 20  # a frame with fewer data points is left out (flagged)
+    #: σ of a silhouette contour pair of the blended surface [px] (0: off; needs the
+    #: frames' contours, :func:`fit_shape` ``contours``)
+    sigma_silhouette_px: float = 1.0
+    huber_silhouette_px: float = 3.0  # Huber knee of those pairs [px]
+    max_dist_silhouette_px: float = 12.0  # largest rim ↔ contour pairing distance [px]
 
 
 @dataclass
@@ -101,6 +110,7 @@ class ShapeFit:
     rms_m : (F,) RMS distance of each frame's data points to the surface (Cauchy
         inliers, i.e. within the last round's knee), NaN for a frame left out
     model_rms_m : (F,) RMS normal offset of the seen model points to the data
+    silhouette_rms_px : (F,) RMS of the silhouette contour pairs (with ``contours``)
     n_points : (F,) data points used; n_model : (F,) seen model points
     frame_ok : (F,) False for a frame left out (too few points)
     converged : the last round moved no unknown by more than ``round_tol`` or changed
@@ -117,6 +127,8 @@ class ShapeFit:
     frame_ok: np.ndarray
     converged: bool
     message: str
+    #: (F,) RMS of each frame's silhouette contour pairs at the last freeze [px] (NaN: none)
+    silhouette_rms_px: np.ndarray | None = None
 
 
 def nearest_members(xyz: np.ndarray, Rw: np.ndarray, cw: np.ndarray, radii: np.ndarray,
@@ -297,12 +309,15 @@ def _smooth_rows(pairs: np.ndarray, M: int, n_c: int, w: float, radii, centers, 
 class _Frame:
     """One frame's data and model points, with the weights frozen for a round."""
 
-    def __init__(self, pose, xyz, sigma):
+    def __init__(self, pose, xyz, sigma, theta=None, root=None, contours=None, parts=None):
         self.pose, self.xyz, self.sigma = pose, xyz, sigma
+        self.theta, self.root, self.contours, self.parts = theta, root, contours, parts
         self.idx = self.valid = self.w = None
         self.knee = np.inf
         self.xs = self.sidx = self.svalid = self.soff = self.sinv = None
         self.soff_all = None
+        self.sil = None  # silhouette rows linearised at the round's start: (r0, J, x0, w)
+        self.sil_rms = np.nan
 
 
 def _cauchy(r: np.ndarray, c: float) -> np.ndarray:
@@ -320,14 +335,20 @@ class ShapeProblem:
 
     def __init__(self, skel: Skeleton, balls: Metaballs, s: np.ndarray, poses: list,
                  points: list[np.ndarray], sigma: list[np.ndarray],
-                 cameras: list[Camera] | None, cfg: ShapeSettings, seed: int = 0):
+                 cameras: list[Camera] | None, cfg: ShapeSettings, seed: int = 0,
+                 silhouettes=None):
         self.skel, self.balls, self.s, self.cfg = skel, balls, np.asarray(s, float), cfg
         self.cameras = cameras
         self.anc = skel.ancestors()
         self.M = len(balls)
         self.n_c = 3 * self.M if cfg.free_centers else 0
         self.radii0, self.centers0 = balls.radii.copy(), balls.center0.copy()
-        self.frames = [_Frame(p, x, sg) for p, x, sg in zip(poses, points, sigma, strict=True)]
+        # silhouettes: (cameras, rays, [(theta (n,), root (3,), contours per camera,
+        # parts (B,) bool or None)] per frame)
+        self.sil_cameras, self.sil_rays, sil = silhouettes or (None, None, None)
+        sil = sil or [(None, None, None, None)] * len(poses)
+        self.frames = [_Frame(p, x, sg, *c)
+                       for p, x, sg, c in zip(poses, points, sigma, sil, strict=True)]
         self.sym = mirror_pairs(skel, balls, s) if cfg.sigma_symmetry > 0 else None
         self.chain = chain_pairs(balls, skel) if cfg.sigma_smooth > 0 else None
         self.seed = int(seed)
@@ -353,6 +374,10 @@ class ShapeProblem:
         radii, centers = self.unpack(x)
         for k, fr in enumerate(self.frames):
             b, Rw, cw = self.geometry(fr, radii, centers)
+            self._freeze_silhouette(fr, b, x)
+            if not len(fr.xyz):  # silhouettes only
+                fr.xs = fr.soff_all = None
+                continue
             fr.idx, fr.valid = nearest_members(fr.xyz, Rw, cw, radii, cfg.k_members)
             att = attractor(fr.xyz, fr.idx, fr.valid, Rw, cw, radii)
             dist = np.where(np.isfinite(att.dist), att.dist, 1.0)
@@ -365,6 +390,9 @@ class ShapeProblem:
             xs, ok = sample_surface(self.skel, fr.pose, b, self.s,
                                     per_ball=cfg.samples_per_ball,
                                     seed=self.seed + k)  # same directions every round
+            if fr.parts is not None:  # no penalty on a part the frame did not measure
+                owner = np.repeat(np.arange(self.M), cfg.samples_per_ball)
+                ok &= np.asarray(fr.parts, bool)[b.bone[owner]]
             xs = xs[ok]
             seen = seen_by(self.cameras, xs, Rw, cw, b.visible, b.bone, cfg.depth_tol)
             xs = xs[seen >= cfg.min_views]
@@ -380,6 +408,50 @@ class ShapeProblem:
             fr.xs, fr.sidx, fr.svalid = xs[bulge], sidx[bulge], svalid[bulge]
             fr.soff = off[bulge] - cfg.model_gate
             fr.sinv = satt.inv_g[bulge]
+
+    def _freeze_silhouette(self, fr: _Frame, b: Metaballs, x: np.ndarray) -> None:
+        """Pair the blended surface's rim with the frame's image contours and linearise.
+
+        The whole-body surface ``Σ f = 0.5`` is rendered as the ellipsoids that follow it
+        (:func:`core.metaballs.render_radii`, their ratio to the radii held for the
+        round); its occluding contour is paired with the observed one in every camera
+        (:func:`core.contour_obs.contour_observations`, all cameras fused) and the
+        residuals (pixels, along the image normal) are linearised in the radii and the
+        centres: ``r(x) ≈ r0 + J (x − x0)``, Huber-weighted at ``r0``.
+        """
+        from .contour_obs import contour_observations
+        from .metaballs import render_radii
+
+        cfg = self.cfg
+        fr.sil, fr.sil_rms = None, np.nan
+        if fr.contours is None or self.sil_cameras is None or cfg.sigma_silhouette_px <= 0:
+            return
+        vis = render_radii(self.skel, fr.pose, b, self.s)
+        bv = b.copy()
+        bv.visible_scale = vis / b.radii
+        obs = contour_observations(self.skel, fr.theta, fr.root, self.s, bv, self.sil_cameras,
+                                   fr.contours, sigma_px=cfg.sigma_silhouette_px,
+                                   max_dist_px=cfg.max_dist_silhouette_px, select=False,
+                                   rays=self.sil_rays)
+        keep = np.ones(len(obs), bool) if fr.parts is None else \
+            np.asarray(fr.parts, bool)[obs.part]  # parts a measurement placed, only
+        if not keep.any():
+            return
+        M = self.M
+        e = obs.ellipsoid[keep]
+        J = np.zeros((len(e), 3 * M + self.n_c))
+        np.put_along_axis(J, 3 * e[:, None] + np.arange(3)[None], obs.J_radii[keep], axis=1)
+        if self.n_c:  # a centre moves its ellipsoid's rim rigidly: the root's Jacobian
+            Rb, _ = bone_frames(self.skel, fr.pose)
+            scale = np.where(b.group >= 0, self.s[np.maximum(b.group, 0)], 1.0)
+            Jc = np.einsum("mj,mjk->mk", obs.J_root[keep], Rb[0, b.bone[e]]) * scale[e, None]
+            np.put_along_axis(J, 3 * M + 3 * e[:, None] + np.arange(3)[None], Jc, axis=1)
+        r0 = np.asarray(obs.residual, float)[keep]
+        a = np.abs(r0)
+        k = cfg.huber_silhouette_px
+        w = np.sqrt(np.where(a <= k, 1.0, k / np.maximum(a, 1e-12))) / cfg.sigma_silhouette_px
+        fr.sil = (r0, J, x.copy(), w)
+        fr.sil_rms = float(np.sqrt(np.mean(r0**2)))
 
     def _rows(self, fr, b, Rw, cw, radii, x, idx, valid, w, off=None):
         att = attractor(x, idx, valid, Rw, cw, radii)
@@ -400,15 +472,20 @@ class ShapeProblem:
         res, jac = [], []
         for fr in self.frames:
             b, Rw, cw = self.geometry(fr, radii, centers)
-            r, J = self._rows(fr, b, Rw, cw, radii, fr.xyz, fr.idx, fr.valid, fr.w)
-            res.append(r)
-            jac.append(J)
+            if len(fr.xyz):
+                r, J = self._rows(fr, b, Rw, cw, radii, fr.xyz, fr.idx, fr.valid, fr.w)
+                res.append(r)
+                jac.append(J)
             if fr.xs is not None:
                 r, J = self._rows(fr, b, Rw, cw, radii, fr.xs, fr.sidx, fr.svalid,
                                   np.full(len(fr.xs), 1.0 / cfg.sigma_model),
                                   off=(fr.soff, fr.sinv))
                 res.append(r)
                 jac.append(J)
+            if fr.sil is not None:
+                r0, J, x0, w = fr.sil
+                res.append((r0 + J @ (x - x0)) * w)
+                jac.append(J * w[:, None])
         w = 1.0 / cfg.sigma_radius
         res.append((radii - self.radii0).ravel() * w)
         jac.append(np.hstack([np.eye(3 * M) * w, np.zeros((3 * M, n_c))]))
@@ -455,7 +532,8 @@ def fit_shape(skel: Skeleton, balls: Metaballs, s: np.ndarray, theta: np.ndarray
               cameras: list[Camera] | None = None,
               sigma: list[np.ndarray] | None = None,
               settings: ShapeSettings | None = None, seed: int = 0,
-              progress=None) -> ShapeFit:
+              progress=None, contours: list | None = None, rays=None,
+              parts: list | None = None) -> ShapeFit:
     """Fit the metaball radii (and centres) to surface points of F frames, pose held.
 
     Parameters
@@ -468,6 +546,17 @@ def fit_shape(skel: Skeleton, balls: Metaballs, s: np.ndarray, theta: np.ndarray
     sigma : list (F) of (N_f,) a-priori σ of the points, metres (default
         ``settings.sigma_point``)
     seed : seeds the model points' sampling
+    contours : list (F) of list (C) of list of :class:`core.contours.Contour`, optional
+        Each frame's observed occluding contours in ``cameras``: the blended surface's
+        outline is fitted to them too (σ ``settings.sigma_silhouette_px``), so the shape
+        follows the silhouettes where no point lies (the back of a body the cameras see
+        from one side).  A frame with contours needs no points.
+    rays : list (C) of (H, W, 3) cached viewing rays (:func:`core.model_render.camera_rays`)
+    parts : list (F) of (B,) bool or None, optional
+        The body parts (bones) whose silhouette pairs and model points (the penalty
+        against bulging) count in each frame — those whose pose the frame measured; a
+        part posed by inference (hidden, mirrored, bridged) would teach the shape its
+        pose error.  None: every part.
     progress : callable ``(round, rounds)``, optional
         Called before every re-weighting round (a :class:`core.progress.Progress`
         wrapper raises there when the user cancels).
@@ -485,36 +574,53 @@ def fit_shape(skel: Skeleton, balls: Metaballs, s: np.ndarray, theta: np.ndarray
         raise ValueError(f"{nf} frames of points need theta ({nf}, {skel.n_dof}) and "
                          f"root_xyz ({nf}, 3), got {theta.shape} and {root_xyz.shape}")
     s = np.asarray(s, float)
-    keep, poses, xyzs, sigs = np.zeros(nf, bool), [], [], []
+    use_sil = (contours is not None and cameras is not None and cfg.sigma_silhouette_px > 0)
+    if use_sil and len(contours) != nf:
+        raise ValueError(f"{nf} frames of points need {nf} frames of contours, got {len(contours)}")
+    keep, poses, xyzs, sigs, sil = np.zeros(nf, bool), [], [], [], []
     for f in range(nf):
         xyz = np.asarray(points[f], float).reshape(-1, 3)
         sig = np.full(len(xyz), cfg.sigma_point) if sigma is None else \
             np.broadcast_to(np.asarray(sigma[f], float), (len(xyz),)).copy()
         good = np.all(np.isfinite(xyz), axis=1) & np.isfinite(sig) & (sig > 0)
+        outline = use_sil and contours[f] is not None and any(len(c) for c in contours[f])
         if good.sum() < cfg.min_points:
-            continue
+            if not outline:
+                continue
+            good[:] = False  # too few points to weigh: the silhouettes alone
         keep[f] = True
         poses.append(forward(skel, theta[f][None], root_xyz[f][None], s))
         xyzs.append(xyz[good])
         sigs.append(sig[good])
+        sil.append((theta[f], root_xyz[f], contours[f] if outline else None,
+                    None if parts is None else parts[f]))
     nan = np.full(nf, np.nan)
     if not keep.any():
         return ShapeFit(balls.copy(), nan, nan.copy(), np.zeros(nf, int), np.zeros(nf, int),
-                        keep, False, "no frame has enough points: the start shape is kept")
+                        keep, False, "no frame has enough points"
+                        + (" or silhouettes" if use_sil else "") + ": the start shape is kept",
+                        nan.copy())
     use_cams = cameras if (cfg.model_points and cameras is not None
                            and len(cameras) >= cfg.min_views) else None
-    prob = ShapeProblem(skel, balls, s, poses, xyzs, sigs, use_cams, cfg, seed)
+    prob = ShapeProblem(skel, balls, s, poses, xyzs, sigs, use_cams, cfg, seed,
+                        silhouettes=(cameras, rays, sil) if use_sil else None)
     x = prob.pack(prob.radii0, prob.centers0)
-    lo = np.full(len(x), -np.inf)
+    lo, hi = np.full(len(x), -np.inf), np.full(len(x), np.inf)
     lo[:3 * prob.M] = cfg.min_radius
-    x = np.maximum(x, lo)
+    if cfg.radius_ratio > 0:
+        r0 = prob.radii0.ravel()
+        lo[:3 * prob.M] = np.maximum(cfg.min_radius, r0 / cfg.radius_ratio)
+        hi[:3 * prob.M] = np.maximum(r0 * cfg.radius_ratio, lo[:3 * prob.M])
+    x = np.clip(x, lo, hi)
     converged, moved, cost, change = False, np.inf, np.inf, np.inf
     for k in range(cfg.rounds):
         if progress is not None:
             progress(k, cfg.rounds)
         prob.freeze(x)
-        sol = _levenberg_marquardt(prob.system, x, lo, cfg.max_nfev, cfg.tol, max_step=0.02)
+        sol = _levenberg_marquardt(prob.system, x, lo, cfg.max_nfev, cfg.tol, max_step=0.02,
+                                   hi=hi)
         moved = float(np.abs(sol.x - x).max(initial=0.0))
+
         change = abs(cost - sol.cost) / max(sol.cost, 1e-300) if np.isfinite(cost) else np.inf
         x, cost = sol.x, sol.cost
         if moved < cfg.round_tol or change < cfg.cost_tol:
@@ -528,7 +634,11 @@ def fit_shape(skel: Skeleton, balls: Metaballs, s: np.ndarray, theta: np.ndarray
     prob.freeze(x)
     rms, mrms = nan.copy(), nan.copy()
     n_pts, n_mod = np.zeros(nf, int), np.zeros(nf, int)
+    srms = nan.copy()
     for f, fr in zip(np.flatnonzero(keep), prob.frames, strict=True):
+        srms[f] = fr.sil_rms
+        if not len(fr.xyz):
+            continue
         _, Rw, cw = prob.geometry(fr, radii, centers)
         dist = attractor(fr.xyz, fr.idx, fr.valid, Rw, cw, radii).dist
         inl = np.abs(dist) <= fr.knee
@@ -539,4 +649,4 @@ def fit_shape(skel: Skeleton, balls: Metaballs, s: np.ndarray, theta: np.ndarray
             n_mod[f] = len(fr.soff_all)
     if not keep.all():
         msg += f"; {int((~keep).sum())} frame(s) with fewer than {cfg.min_points} points left out"
-    return ShapeFit(out, rms, mrms, n_pts, n_mod, keep, converged, msg)
+    return ShapeFit(out, rms, mrms, n_pts, n_mod, keep, converged, msg, srms)

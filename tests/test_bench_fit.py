@@ -67,9 +67,9 @@ def test_surface_distance_samples_the_mesh_by_area():
     """One spherical metaball against a sphere mesh whose vertices crowd on a cap: the
     distance by area is ~0 for the same radius and 10 mm for a sphere 1 cm larger
     (a vertex mean would not see the crowding; the area sampling does not care)."""
-    from bench.fit import surface_distance_mm
     from core import metaballs as mb
     from core import skeleton as sk
+    from core.evaluate import surface_distance_mm
     from core.state import FitState, Quality
 
     skel = sk.make_skeleton()

@@ -89,8 +89,8 @@ def _shape_sequence(rng, nf=3):
 def test_shape_fit_option_moves_the_surface_to_the_truth(rng):
     """shape="fit": three frames of points on a thicker/thinner 'true' body; the fitted
     surface lies much closer to held-out true surface points than the per-part
-    template shape's, the shape record is filled, and the template run (the default)
-    has none.  Written after the motion (``shape_fit_track=False``) it leaves the
+    template shape's, the shape record is filled, and the template run has none.
+    Written after the motion (``shape_fit_track=False``, the default) it leaves the
     motion exactly as the template run's."""
     skel, s, template, truth, theta, root, frames, cams, init = _shape_sequence(rng)
     # the per-part shape solve held near the template (its radii blend into a surface
@@ -125,7 +125,7 @@ def test_shape_fit_option_moves_the_surface_to_the_truth(rng):
         (dist(st), dist(default.state))
     written = fit_sequence(frames, init, replace(base, shape="fit", shape_fit=shape_cfg),
                            cameras=cams)
-    assert SequenceSettings().shape == "template" and not SequenceSettings().shape_fit_track
+    assert SequenceSettings().shape == "fit" and not SequenceSettings().shape_fit_track
     assert written.shape is not None and written.shape.frames.tolist() == [0, 1, 2]
     np.testing.assert_array_equal(written.state.theta, default.state.theta)
     assert dist(written.state) < 0.5 * dist(default.state), \

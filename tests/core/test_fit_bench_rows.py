@@ -14,7 +14,7 @@ def _record(monkeypatch):
     calls.shapes = []
 
     def fake_run_one(scene, frames, observations, model, cues="texture", tracks=None,
-                     shape="template"):
+                     shape="written"):
         calls.append((Path(scene).name, observations, cues, tracks))
         calls.shapes.append(shape)
         return {"scene": Path(scene).name, "error": ["not run in this test"]}
@@ -49,5 +49,5 @@ def test_tracks_observations_use_the_cached_tracks_of_the_default_scene(monkeypa
 def test_the_body_shape_goes_to_every_fit(monkeypatch):
     calls = _record(monkeypatch)
     bf.main([str(bf.DEFAULT), "--real", "both"])
-    bf.main([str(bf.DEFAULT), "--real", "both", "--shape", "written"])
-    assert calls.shapes == ["template", "template", "written", "written"]
+    bf.main([str(bf.DEFAULT), "--real", "both", "--shape", "template"])
+    assert calls.shapes == ["written", "written", "template", "template"]

@@ -166,6 +166,9 @@ def test_sequence_from_contours_alone_and_a_frame_without_contours():
     names = {c.name for c in cams}
     assert q.cameras[3] and all(set(v) <= names for v in q.cameras[3].values())
     assert q.cameras[2] == {}  # nothing observed, nothing used
+    # the whole-body shape written: fitted to the silhouettes of the frames that have them
+    assert res.shape is not None and res.shape.frames.tolist() == [0, 1, 3]
+    assert np.all(np.isfinite(st.metaballs.radii)) and np.all(np.isfinite(st.metaballs.visible))
 
 
 def test_unusable_background_gives_no_contours_and_a_flag():
@@ -244,7 +247,8 @@ def test_contours_without_any_usable_background_is_a_clear_error(tmp_path, capsy
 def test_cli_contours_alone_with_one_unusable_camera(tmp_path, capsys):
     """``core fit --cues contours``: one camera shows only noise — it is named and left
     out, the other two fit every frame; finite output, cameras recorded per part.  With
-    ``--shape written`` and no points the shape the contours fitted is kept, said so."""
+    ``--shape written`` and no points the whole-body shape is fitted to the silhouettes
+    of frames spread over the take, said so."""
     from core.cli import main
     from core.state import read_state
 
@@ -254,9 +258,11 @@ def test_cli_contours_alone_with_one_unusable_camera(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "camera cam02: no usable background" in out
     assert "silhouette contours alone" in out
-    assert "no fitted frame with points, the shape tracked with is kept" in out
+    line = next(ln for ln in out.splitlines() if "whole-body shape fit of frames" in ln)
+    assert "frames [0, 1, 2, 4, 5]" in line  # 5 spread over 6
+    assert "silhouette RMS" in line and "surface RMS" not in line
     st = read_state(tmp_path / "fit.json")
-    for arr in (st.theta, st.root_xyz, st.s, st.metaballs.radii):
+    for arr in (st.theta, st.root_xyz, st.s, st.metaballs.radii, st.metaballs.visible):
         assert np.all(np.isfinite(arr))
     assert st.quality.diverged.sum() <= 1
     used = {c for f in range(st.n_frames) if not st.quality.diverged[f]
@@ -341,7 +347,8 @@ def test_contours_alone_find_an_arm_that_swung_beyond_the_pairing_reach():
     for on in (False, True):
         cfr = contour_frames(cams, cons, ContourSettings(sigma_px=1.0, huber_px=2.0))
         res = fit_sequence(frames, init, SequenceSettings(max_nfev=15, shape_frames=1,
-                                                          silhouette_search=on), contours=cfr)
+                                                          silhouette_search=on,
+                                                          shape="template"), contours=cfr)
         err[on] = np.linalg.norm(res.state.joints_xyz()[:, wrist]
                                  - sk.joint_positions(skel, theta, root, s)[:, wrist], axis=-1)
     assert err[False][-1] > 0.2, err

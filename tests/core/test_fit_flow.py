@@ -209,7 +209,8 @@ def test_sequence_without_points_follows_the_texture_where_the_outline_misleads(
     for use in (False, True):
         cfr = contour_frames(cams, cons, ContourSettings())
         anchors = FlowAnchors(cams, lambda c, f: imgs[c, f], FlowSettings(), rays=rays)
-        res = fit_sequence(frames, init, SequenceSettings(max_nfev=15, shape_frames=1),
+        res = fit_sequence(frames, init,
+                           SequenceSettings(max_nfev=15, shape_frames=1, shape="template"),
                            contours=cfr, flow=anchors if use else None)
         assert not res.state.quality.diverged.any()
         err[use] = np.linalg.norm(res.state.joints_xyz()[:, idx] - truth, axis=-1)

@@ -175,20 +175,27 @@ def run_scene(scene, observations: str = "auto", model: str = "complete",
         raise InputError(f"{scene.root / 'clicks.json'}: clicked frame {init.frame} is "
                          f"outside the {nf} fitted frames")
     min_points = (settings or SequenceSettings()).min_points
+    silhouette_shaped = False
     if cframes is not None and (cues == "contours" or len(obs[init.frame].xyz) < min_points):
         # no points to shape the body at the clicked frame: the silhouettes do
         init = _shape_from_silhouettes(init, cameras, cframes[init.frame], msgs,
                                        contour_settings)
+        silhouette_shaped = True
         if settings is None:  # the shape is the silhouettes': no further shape frames
             settings = SequenceSettings(shape_frames=1)
+    settings = settings or SequenceSettings()
     anchors = None
     if flow == "auto":
         flow = cues == "both"
     if flow:
         anchors = _flow_anchors(scene, cameras, flow, cframes)
-    res = fit_sequence(obs, init, settings, fps=scene.fps, source_scene=str(scene.root),
-                       metaball_model=model, progress=progress, cameras=cameras,
-                       contours=cframes, flow=anchors)
+    kw = dict(fps=scene.fps, source_scene=str(scene.root), metaball_model=model,
+              progress=progress, cameras=cameras, flow=anchors)
+    res = fit_sequence(obs, init, settings, contours=cframes, **kw)
+    if (silhouette_shaped and settings.silhouette_second_pass and settings.shape == "fit"
+            and res.shape is not None and res.shape.frame_ok.any()):
+        res = _second_pass(obs, init, settings, res, cframes, anchors, kw, timings,
+                           time.perf_counter() - t2)
     timings["fit"] = time.perf_counter() - t2
     timings["total"] = time.perf_counter() - t0
     if res.shape is not None:
@@ -198,6 +205,33 @@ def run_scene(scene, observations: str = "auto", model: str = "complete",
                     contour_matches=None if cframes is None else res.contour_matches,
                     contour_rms_px=None if cframes is None else res.contour_rms_px,
                     hidden=res.hidden)
+
+
+def _second_pass(obs, init, settings, first, cframes, anchors, kw, timings, seconds):
+    """The motion fitted again, tracked with the whole-body shape of the ``first`` pass.
+
+    A take shaped from one frame's silhouettes tracks a shape that only that posture
+    showed; the first pass's written shape follows the silhouettes (and any points) of
+    frames spread over the take.  The second pass keeps it (``shape = "template"``:
+    nothing to re-solve without points), on fresh contour frames and flow anchors; the
+    result carries the first pass's shape record.
+    """
+    from dataclasses import replace
+
+    from .fit_contours import ContourFrame
+
+    timings["first_pass"] = seconds
+    fresh = [None if cf is None else ContourFrame(cf.cameras, cf.contours, cf.cfg, rays=cf.rays)
+             for cf in cframes]
+    if anchors is not None:
+        anchors.clear()
+    res = fit_sequence(obs, replace(init, metaballs=first.state.metaballs),
+                       replace(settings, shape="template"), contours=fresh, **kw)
+    note = ("second pass: the motion tracked with the first pass's whole-body shape "
+            f"({int(first.state.quality.diverged.sum())} -> "
+            f"{int(res.state.quality.diverged.sum())} diverged frames)")
+    shape_msgs = [m for m in first.messages if m.startswith("whole-body shape")]
+    return replace(res, shape=first.shape, messages=shape_msgs + [note] + res.messages)
 
 
 #: The observation types ``run_scene`` / ``python -m core fit --cues`` can fit.

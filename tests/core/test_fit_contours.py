@@ -248,7 +248,7 @@ def test_cli_contours_alone_with_one_unusable_camera(tmp_path, capsys):
     """``core fit --cues contours``: one camera shows only noise — it is named and left
     out, the other two fit every frame; finite output, cameras recorded per part.  With
     ``--shape written`` and no points the whole-body shape is fitted to the silhouettes
-    of frames spread over the take, said so."""
+    of frames spread over the take and the motion tracked again with it, said so."""
     from core.cli import main
     from core.state import read_state
 
@@ -261,6 +261,7 @@ def test_cli_contours_alone_with_one_unusable_camera(tmp_path, capsys):
     line = next(ln for ln in out.splitlines() if "whole-body shape fit of frames" in ln)
     assert "frames [0, 1, 2, 4, 5]" in line  # 5 spread over 6
     assert "silhouette RMS" in line and "surface RMS" not in line
+    assert "second pass: the motion tracked with the first pass's whole-body shape" in out
     st = read_state(tmp_path / "fit.json")
     for arr in (st.theta, st.root_xyz, st.s, st.metaballs.radii, st.metaballs.visible):
         assert np.all(np.isfinite(arr))

@@ -224,7 +224,7 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
     stiff = stiff_sigma(skel)
     anchor = anchor_sigma(skel)
 
-    dof_bone = np.array([skel.bone_index(d.rsplit("_", 1)[0]) for d in skel.dof_names])
+    dof_bone = skel.dof_bones()
     anchors = TrajectoryAnchors()  # the trajectories of the last fitted frame
 
     def cframe(f):

@@ -181,7 +181,6 @@ def frame_depth_holds(skel: Skeleton, contours, hidden: np.ndarray, theta: np.nd
     B = len(skel.bone_names)
     seen = part_views(contours.pairs.bone, contours.pairs.camera, B, len(contours.cameras))
     shown = np.ones(B, bool)
-    shown[[skel.bone_index(d.rsplit("_", 1)[0]) for d in np.array(skel.dof_names)[hidden]]] \
-        = False
+    shown[skel.dof_bones()[np.asarray(hidden)]] = False
     return narrow_depth_holds(skel, theta, root, s, seen, contours.cameras, shown, sigma,
                               contours.cfg.depth_spread_deg)

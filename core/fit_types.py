@@ -139,11 +139,14 @@ class SequenceSettings:
     #: nearest the clicked one without silhouettes 28.8 mm; with them 21.5 mm; 5 / 8 /
     #: 12 frames spread 14.6 / 15.2 / 17.9 mm (12: not converged in 10 rounds)
     shape_fit_silhouette_frames: int = 5
-    #: a take whose clicked frame the silhouettes shaped (contours alone there): fit the
-    #: motion a second time, tracked with the whole-body shape the first pass wrote
-    #: (:func:`core.fit_scene.run_scene`; shape = "fit" only).  Contours alone, MPJPE
-    #: first -> second pass: the sweater walk 26.3 -> 19.8, the skin walk 26.9 -> 23.1,
-    #: jumps_line3 25.0 -> 20.7, walk_ortho3 (with the texture flow) 17.6 -> 15.2 mm
+    #: a take whose clicked frame the silhouettes shaped (contours alone there) and that
+    #: follows no texture flow: fit the motion a second time, tracked with the
+    #: whole-body shape the first pass wrote (:func:`core.fit_scene.run_scene`; shape =
+    #: "fit" only).  Contours alone, MPJPE first -> second pass: the sweater walk 26.3 ->
+    #: 19.8 (22.0 -> 19.2 with a second shape frame), the skin walk 26.9 -> 23.1 (29.5 ->
+    #: 20.2), jumps_line3 25.0 -> 20.7, walk_ortho3 33.1 -> 19.8 mm.  With the texture
+    #: flow (cues both, no points) it helped once and hurt twice: walk_ortho3 17.6 ->
+    #: 15.2 (17.1 -> 22.1 with a second shape frame), the skin walk 16.9 -> 19.0 mm
     silhouette_second_pass: bool = True
     #: with shape = "fit": track with the fitted shape (True: fitted right after the
     #: shape frames), or track with the per-part shape and fit the whole-body shape

@@ -72,11 +72,8 @@ def measured_parts(skel: Skeleton, unobserved: np.ndarray, always: tuple = ()) -
     are seen is placed by them: observed.)  The bones named in ``always`` count as
     measured in every frame.
     """
-    chain = np.asarray(unobserved, bool).copy()
-    for k, p in enumerate(skel.dof_parent):  # parents come first
-        if p >= 0:
-            chain[:, k] |= chain[:, p]
-    dof_bone = np.array([skel.bone_index(d.rsplit("_", 1)[0]) for d in skel.dof_names])
+    chain = np.asarray(unobserved, bool) @ skel.ancestors().T  # (F, n): any on the chain
+    dof_bone = skel.dof_bones()
     out = np.ones((chain.shape[0], len(skel.bone_names)), bool)
     for b in range(len(skel.bone_names)):
         on = dof_bone == b
@@ -116,10 +113,9 @@ def whole_body_shape(skel: Skeleton, template: Metaballs, s: np.ndarray, theta: 
     :class:`core.fit_contours.ContourFrame` or None, optional): the shape also follows
     those frames' silhouettes, and a frame needs no points; ``parts`` ((F, B) bool,
     optional, :func:`measured_parts`) limits those to the parts each frame measured.
-    Appends its message to
-    ``msgs``; with no usable frame the template is kept.  ``progress`` (a
-    :class:`core.progress.Progress`, optional) is updated every round of the shape
-    fit, and cancels it.
+    Appends its message to ``msgs``; with no usable frame the template is kept.
+    ``progress`` (a :class:`core.progress.Progress`, optional) is updated every round of
+    the shape fit, and cancels it.
 
     Returns
     -------

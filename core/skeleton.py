@@ -168,6 +168,10 @@ class Skeleton:
     def joint_index(self, name: str) -> int:
         return self.joint_names.index(name)
 
+    def dof_bones(self) -> np.ndarray:
+        """``(n,)`` int: the bone each DOF turns (the bone named by its name's prefix)."""
+        return np.array([self.bone_index(d.rsplit("_", 1)[0]) for d in self.dof_names], int)
+
     def ancestors(self) -> np.ndarray:
         """``(n, n)`` bool: ``[k, j]`` is True when DOF j is DOF k or one of its ancestors."""
         n = self.n_dof

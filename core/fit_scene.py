@@ -181,13 +181,14 @@ def run_scene(scene, observations: str = "auto", model: str = "complete",
         init = _shape_from_silhouettes(init, cameras, cframes[init.frame], msgs,
                                        contour_settings)
         silhouette_shaped = True
-    # The same settings however the fit is called (core fit passes its own; the add-on
-    # and the benchmarks passed None, which gave a silhouette-shaped take one shape frame
-    # instead of two until da6b412).  Without points a second shape frame leaves the
-    # shape as it is and only changes how the motion starts, yet the runs differ: one
-    # frame / two, contours alone with the second pass, the sweater walk 19.8 / 19.2, the
-    # skin walk 23.1 / 20.2 mm; walk_ortho3 through bench.fit 17.6 / 17.1 mm, limb
-    # segments 43.4 / 20.6 deg.
+        # the shape is the silhouettes': no further shape frames, however the fit is
+        # called (core fit passes its own settings and had two until da6b412, the add-on
+        # and the benchmarks one).  Without points a second shape frame leaves the shape
+        # as it is and only changes how the motion starts; single runs, one frame / two:
+        # contours alone with the second pass, the sweater walk 19.8 / 19.2, the skin
+        # walk 17.0 / 20.2 mm; cues both (flow, one pass): the skin walk 16.9 / 20.9,
+        # walk_ortho3 17.6 / 17.1 mm (limb segments 43.4 / 20.6 deg).
+        settings = replace(settings or SequenceSettings(), shape_frames=1)
     settings = settings or SequenceSettings()
     anchors = None
     if flow == "auto":

@@ -9,7 +9,10 @@ Poses are the truth's (:func:`core.truth_state.truth_to_state`, exact joints), s
 figures measure the *shape* alone.  The shape is fitted to **truth-derived surface
 points** (:mod:`core.truth_points`: points of the true mesh seen by two cameras,
 1.5 mm noise, 5 % gross outliers) of a few frames — a stand-in for the tracker's
-points, labelled as such.  The distances are measured on other frames as well:
+points, labelled as such.  Beside it, the row ``mesh`` fits the same model to the
+*whole* true mesh of those frames (area samples, no noise, front and back): what the
+metaball model itself can reach, against which the targets can be read.  The
+distances are measured on other frames as well:
 
 * metaball → mesh: points on the whole-body iso-surface ``Σ f = 0.5``
   (:func:`core.metaballs.sample_surface`) to the nearest point of the true mesh
@@ -40,6 +43,17 @@ from core.metaballs import (
 from core.skeleton import Skeleton, forward
 
 REPO = Path(__file__).resolve().parents[1]
+MESH_POINTS = 4000  # area samples of the whole true mesh per frame (the capacity row)
+
+
+def _capacity_settings():
+    """Shape-fit settings with the whole mesh as data: the penalty against bulging on
+    every model point, seen or not (``min_views`` 0: every side has data; without it
+    the surface swells freely where no data point pulls, 18.7 mm metaball -> mesh on
+    walk_line3), no symmetry (the true body need not be symmetric), wide bounds."""
+    from core.shape_fit import ShapeSettings
+
+    return ShapeSettings(model_points=True, min_views=0, sigma_symmetry=0.0, radius_ratio=4.0)
 
 
 def seen_vertices(vertices: np.ndarray, faces: np.ndarray, cameras, min_views: int = 2):
@@ -92,6 +106,7 @@ def surface_distances(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray, s
 def shape_table(scene_dir: Path, fit_frames: list[int], eval_frames: list[int],
                 n_points: int, models: tuple[str, ...], vis_step: int | None):
     from bench.visibility import compare
+    from core.evaluate import sample_mesh_surface
     from core.scene import load_scene
     from core.shape_fit import fit_shape
     from core.truth_points import sample_frame
@@ -106,6 +121,7 @@ def shape_table(scene_dir: Path, fit_frames: list[int], eval_frames: list[int],
     rng = np.random.default_rng(0)
     pts = [sample_frame(verts[f].astype(float), faces, cams, n_points, rng)[0]
            for f in fit_frames]
+    mesh_pts = [sample_mesh_surface(verts[f], faces, MESH_POINTS, rng) for f in fit_frames]
     print(f"\nShape on {scene.name}: truth poses; fitted to truth-derived surface points of "
           f"frames {fit_frames} ({', '.join(str(len(p)) for p in pts)} points seen by 2 "
           f"cameras, 1.5 mm noise, 5 % outliers); distances on frames {eval_frames}")
@@ -119,7 +135,14 @@ def shape_table(scene_dir: Path, fit_frames: list[int], eval_frames: list[int],
         fit = fit_shape(skel, template, s, state.theta[fit_frames], state.root_xyz[fit_frames],
                         pts, cams)
         t_fit = time.perf_counter() - t0
-        for label, balls in (("template", template), ("fitted", fit.metaballs)):
+        # the model's capacity: the same fit with the whole true mesh as its data
+        t0 = time.perf_counter()
+        floor = fit_shape(skel, template, s, state.theta[fit_frames],
+                          state.root_xyz[fit_frames], mesh_pts, cams,
+                          settings=_capacity_settings())
+        t_floor = time.perf_counter() - t0
+        for label, balls in (("template", template), ("fitted", fit.metaballs),
+                             ("mesh", floor.metaballs)):
             bm, mb, sn = [], [], []
             for f in eval_frames:
                 d = surface_distances(skel, state.theta[f], state.root_xyz[f], s, balls,
@@ -128,14 +151,15 @@ def shape_table(scene_dir: Path, fit_frames: list[int], eval_frames: list[int],
                 mb.append(d["mesh_to_ball"])
                 sn.append(seen[f][d["vertex_idx"]])
             bm, mb, sn = 1e3 * np.concatenate(bm), 1e3 * np.concatenate(mb), np.concatenate(sn)
-            note = fit.message if label == "fitted" else ""
-            tf = f"{t_fit:6.1f}" if label == "fitted" else f"{'':6s}"
+            note = {"fitted": fit.message, "mesh": f"capacity: {floor.message}"}.get(label, "")
+            tf = {"fitted": f"{t_fit:6.1f}", "mesh": f"{t_floor:6.1f}"}.get(label, f"{'':6s}")
             print(f"{model:11s} {label:9s} {len(balls):3d} {bm.mean():8.1f} ({np.median(bm):4.1f})"
                   f" {mb.mean():8.1f} ({np.median(mb):4.1f}) {0.5 * (bm.mean() + mb.mean()):9.1f}"
                   f" {mb[sn].mean():9.1f} {tf}  {note}")
             results[(model, label)] = balls
     print("   (mean, median in brackets; symmetric = the average of both directions; seen mesh ="
-          " mesh -> ball over the vertices two cameras see)")
+          " mesh -> ball over the vertices two cameras see; 'mesh' = fitted to the whole true"
+          f" mesh, {MESH_POINTS} points by area per frame, no noise: what the model can reach)")
     if vis_step is None:
         return results
     vis_frames = range(0, scene.n_frames, vis_step)

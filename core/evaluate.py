@@ -227,6 +227,31 @@ def evaluate_state(state, truth: dict, truth_path: str | Path = "truth.npz",
     return ev
 
 
+def sample_mesh_surface(vertices: np.ndarray, faces: np.ndarray, n: int,
+                        rng: np.random.Generator) -> np.ndarray:
+    """Points (n, 3) drawn uniformly by area on a triangle mesh.
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (V, 3)
+        Mesh vertices, world metres.
+    faces : ndarray, shape (T, 3)
+        Triangles (vertex indices).
+    n : int
+        Number of points.
+    rng : numpy.random.Generator
+    """
+    v = np.asarray(vertices, float)
+    faces = np.asarray(faces, int)
+    a, b, c = v[faces[:, 0]], v[faces[:, 1]], v[faces[:, 2]]
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    k = rng.choice(len(faces), n, p=area / area.sum())
+    u, w = rng.random(n), rng.random(n)
+    flip = u + w > 1.0
+    u[flip], w[flip] = 1.0 - u[flip], 1.0 - w[flip]
+    return a[k] + u[:, None] * (b[k] - a[k]) + w[:, None] * (c[k] - a[k])
+
+
 def surface_distance_mm(state, vertices: np.ndarray, faces: np.ndarray, frames: list[int],
                         per_frame: int = 2000, seed: int = 0) -> float:
     """Mean distance (mm) of the true mesh's surface to the fitted metaball surface.
@@ -253,17 +278,9 @@ def surface_distance_mm(state, vertices: np.ndarray, faces: np.ndarray, frames: 
     from .skeleton import forward
 
     rng = np.random.default_rng(seed)
-    faces = np.asarray(faces, int)
     out = []
     for f in frames:
-        v = np.asarray(vertices[f], float)
-        a, b, c = v[faces[:, 0]], v[faces[:, 1]], v[faces[:, 2]]
-        area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
-        k = rng.choice(len(faces), per_frame, p=area / area.sum())
-        u, w = rng.random(per_frame), rng.random(per_frame)
-        flip = u + w > 1.0
-        u[flip], w[flip] = 1.0 - u[flip], 1.0 - w[flip]
-        p = a[k] + u[:, None] * (b[k] - a[k]) + w[:, None] * (c[k] - a[k])
+        p = sample_mesh_surface(vertices[f], faces, per_frame, rng)
         pose = forward(state.skeleton, state.theta[f][None], state.root_xyz[f][None], state.s)
         Rw, cw = mb.world_frames(state.skeleton, pose, state.metaballs, state.s)
         xs, ok = mb.project_to_surface(p, Rw[0], cw[0], state.metaballs.radii,

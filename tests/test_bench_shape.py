@@ -62,3 +62,28 @@ def test_model_vertex_parts_follow_the_nearest_rendered_ellipsoid():
 def test_compare_rejects_unknown_labels():
     with pytest.raises(ValueError, match="unknown part labels"):
         compare(None, {}, [], [], labels="bones")
+
+
+def test_capacity_fit_takes_the_whole_mesh_as_data():
+    """The capacity row's settings: a metaball started 2 cm too small, fitted to area
+    samples of a whole sphere mesh, takes the sphere's size — model points on every
+    side, seen by the one camera or not."""
+    from bench.shape import _capacity_settings
+    from core.evaluate import sample_mesh_surface
+    from core.shape_fit import fit_shape
+    from tests.core._bodyscene import look_at
+
+    skel = sk.make_skeleton()
+    s = np.ones(skel.n_groups)
+    theta, root = np.zeros(skel.n_dof), np.array([0.0, 0.0, 1.0])
+    balls = mb.Metaballs(np.array([skel.bone_index("head")]), np.zeros((1, 3)),
+                         np.array([-1]), np.eye(3)[None], np.full((1, 3), 0.10 / mb.VISIBLE))
+    pose = sk.forward(skel, theta[None], root[None], s)
+    _, cw = mb.world_frames(skel, pose, balls, s)
+    v, f = _sphere_mesh(cw[0, 0], 0.12, n=60)
+    pts = sample_mesh_surface(v, f, 3000, np.random.default_rng(0))
+    cam = look_at("cam01", (0.0, -3.0, 1.6), tuple(cw[0, 0]), f=700.0)
+    fit = fit_shape(skel, balls, s, theta[None], root[None], [pts], [cam],
+                    settings=_capacity_settings())
+    d = surface_distances(skel, theta, root, s, fit.metaballs, v, f, per_ball=200)
+    assert d["mesh_to_ball"].mean() < 1e-3 and d["ball_to_mesh"].mean() < 1e-3

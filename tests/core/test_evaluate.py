@@ -174,3 +174,21 @@ def test_default_scene_truth_scores_zero_and_offsets_exactly():
         state.joints_override = state.joints_override + np.array([0.0, 0.006, 0.008])
     ev = evaluate_state(state, scene.truth)
     assert ev.mpjpe_mm == pytest.approx(10.0, abs=1e-6)
+
+
+def test_mesh_samples_lie_on_the_triangles_spread_by_area():
+    """Two triangles in the z = 0 plane, the second three times the first's area: the
+    samples lie inside them, about a quarter on the first."""
+    from core.evaluate import sample_mesh_surface
+
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0],  # area 0.5
+                  [2, 0, 0], [5, 0, 0], [2, 1, 0]], float)  # area 1.5
+    faces = np.array([[0, 1, 2], [3, 4, 5]])
+    p = sample_mesh_surface(v, faces, 20000, np.random.default_rng(0))
+    assert p.shape == (20000, 3) and np.all(p[:, 2] == 0)
+    first = p[:, 0] < 1.5
+    x, y = p[first, 0], p[first, 1]
+    assert np.all((x >= 0) & (y >= 0) & (x + y <= 1 + 1e-12))
+    x, y = p[~first, 0] - 2, p[~first, 1]
+    assert np.all((x >= 0) & (y >= 0) & (x / 3 + y <= 1 + 1e-12))
+    assert abs(first.mean() - 0.25) < 0.01

@@ -25,10 +25,7 @@ clicked frame's initial posture (:mod:`core.fit_init`):
    their points); with ``shape_fit_track`` it is fitted right after at least
    ``shape_fit_frames`` shape frames, replaces the shape, and those frames' poses are
    refitted once more.  Its convergence,
-   message and per-frame flags are recorded (:class:`ShapeRecord`).  (Skipping the
-   per-part solve and fitting those poses with the template instead left walk_line3's
-   frame 0 with 34 % of its points far from the body and the shape fit at 12.6 mm
-   RMS, not converged; after it: 4.8 mm, converged.);
+   message and per-frame flags are recorded (:class:`ShapeRecord`);
 2. **motion** — every other frame is *predicted* (the extended Kalman filter of
    :mod:`core.ekf` over ``[θ, root]``, or constant velocity), its points are
    *segmented* to body parts at the predicted pose (:mod:`core.segment`: points far
@@ -46,8 +43,7 @@ clicked frame's initial posture (:mod:`core.fit_init`):
    Tracked trajectories (points with ``ids``) that continue from the previous fitted
    frame are also *rigid-motion* observations (``trajectories``,
    :mod:`core.fit_trajectory`): each stays fixed in its part's frame, which observes a
-   part's twist and slide that the surface distances do not (walk_line3 through the real
-   tracker, texture alone: MPJPE 52.2 -> 39.1 mm, left arm 25.8/29.8 -> 3.6/4.5 deg);
+   part's twist and slide that the surface distances do not;
 3. **recovery** (:mod:`core.fit_search`) — the robust *explain cost* (truncated
    distances of all points to the whole body, no segmentation) judges poses.  After
    an accepted fit, the limb grid search tries to place each limb where it explains
@@ -74,12 +70,8 @@ clicked frame's initial posture (:mod:`core.fit_init`):
 **Free space** (``free_space``, :mod:`core.free_space`; the points' ``views`` and the
 cameras): the limb search and the explain cost that picks among a frame's fits also
 count the body found in a point's lines of sight to the cameras that measured it, and
-a limb is also searched for the points it buries or hides.  On the default scene the
-reappearing right forearm had been placed 9 cm in front of its own points (frames
-25–34, wrist 91 mm) and the hidden right leg had swung into the left one (frames 37–39,
-ankle up to 324 mm); with it (and shape bounds of 2×) the wrist is 20 mm there and the
-ankle ≤ 67 mm.  The shape solves keep every metaball within bounds of the template
-(``FitSettings.radius_ratio``, ``center_shift``).
+a limb is also searched for the points it buries or hides.  The shape solves keep every
+metaball within bounds of the template (``FitSettings.radius_ratio``, ``center_shift``).
 
 **Contours** (``contours``, one :class:`core.fit_contours.ContourFrame` per frame, issue 7
 item 6): the frame's silhouette contours join every pose solve as one more observation
@@ -100,7 +92,10 @@ the point-based limb search it has the silhouette one (``silhouette_search``,
 explains the foreground that the rest of the body leaves unexplained — an arm that
 swung out from in front of the trunk beyond the contour pairing's reach — and the frame
 refitted from there, kept when the body's projection then disagrees with the foreground
-at fewer pixels); the joints of a part whose contour pairs all come from one camera,
+at fewer pixels — in frames with points too, after their own search
+(``silhouette_search_points``), where a limb moves only if the frame's points are
+explained no worse: a limb faster than the tracker, whose points it lost); the joints
+of a part whose contour pairs all come from one camera,
 or from cameras whose rays to it are at most ``ContourSettings.depth_spread_deg`` apart,
 are held along those rays at the previous frame's depth (σ
 ``ContourSettings.depth_sigma_m``, :mod:`core.fit_depth`: such views leave that
@@ -125,11 +120,11 @@ from .fit_coupling import fill_unobserved
 from .fit_depth import frame_depth_holds
 from .fit_init import Initialisation
 from .fit_predict import PosePredictor
-from .fit_search import explain_cost, recentred_starts, search_limbs
+from .fit_search import explain_cost, keeps_points, recentred_starts, search_limbs
 from .fit_trajectory import TrajectoryAnchors
-from .fit_types import FramePoints, SequenceResult, SequenceSettings
-from .fit_whole_shape import whole_body_shape, written_shape
-from .fitting import FitSettings, Observations, fit
+from .fit_types import FramePoints, SequenceResult, SequenceSettings, frame_observations
+from .fit_whole_shape import has_outline, whole_body_shape, written_shape
+from .fitting import FitSettings, fit
 from .free_space import FrameProbes
 from .metaballs import deflate
 from .progress import Progress
@@ -141,23 +136,6 @@ from .silhouette_search import (
 )
 from .skeleton import anchor_sigma, joint_positions, stiff_sigma
 from .state import FitState, Quality
-
-
-def _point_sigma(sigma_m: np.ndarray, model_m: float) -> np.ndarray:
-    """A-priori σ (N,) of a point's distance to the model surface: the point's own σ and
-    the metaball model's misfit to a real body, added in quadrature (metres)."""
-    return np.sqrt(np.asarray(sigma_m, float) ** 2 + model_m**2)
-
-
-def _observations(pts: FramePoints, part: np.ndarray, q_pred, sig_pred, n, joints=None,
-                  model_m: float = 0.004):
-    use = part >= 0
-    o = Observations(xyz=pts.xyz[use], part=part[use], sigma=_point_sigma(pts.sigma[use], model_m),
-                     theta_pred=None if q_pred is None else q_pred[:n],
-                     sigma_pred=sig_pred)
-    if joints is not None:
-        o.joint_idx, o.joint_xyz, o.sigma_joint = joints
-    return o
 
 
 def fit_sequence(frames: list[FramePoints], init: Initialisation,
@@ -320,7 +298,7 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
             hidden = hidden_dofs(pts.xyz, q, max_dist, cf)
             target, sig = prior(hidden, target_q[:n], sig_pred,
                                 None if q_hold is None else q_hold[:n])
-            o = _observations(pts, part, target, sig, n, joints)
+            o = frame_observations(pts, part, target, sig, n, joints)
             o.contours = cf
             if cf is not None and len(pts.xyz) < cfg.min_points:
                 q_ref = target_q if q_hold is None else q_hold  # the previous frame
@@ -390,7 +368,11 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
         cf = cframe(f)
         q = res[0]
         body = balls.copy(radii=radii)
-        sr = search_limbs_silhouette(skel, body, s, q[:n], q[n:], cf.cameras, cf.masks())
+        xyz = frames[f].xyz
+        veto = keeps_points(xyz, skel, balls, s, radii, q[n:], cfg.search_tau,
+                            frame_probes(f)) if len(xyz) >= cfg.min_points else None
+        sr = search_limbs_silhouette(skel, body, s, q[:n], q[n:], cf.cameras, cf.masks(),
+                                     allowed=veto)
         if not sr.moved:
             return res, True, "", st
         q1 = q.copy()
@@ -451,7 +433,10 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
             if ok2 and (not ok or st2["cost"] < st["cost"]):
                 res, ok, why, st = res2, ok2, why2, st2
                 retried[f] = True
-        elif cfg.silhouette_search and cframe(f) is not None:
+        if (search and ok and cfg.silhouette_search and cfg.silhouette_search_points
+                and has_outline(cframe(f))):
+            res, ok, why, st = silhouette_retry(f, res, st, sig_pred, joints, q_hold)
+        elif not search and cfg.silhouette_search and cframe(f) is not None:
             if not ok:
                 res, ok, why, st = recentre_retry(f, res, ok, why, st, q_pred, sig_pred,
                                                   joints, q_hold)
@@ -518,7 +503,7 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
                 part, _d = segment_points(frames[g].xyz, skel, balls, theta[g], root[g], s,
                                           radii, cfg.segment_max_dist, cfg.segment_margin)
                 if (part >= 0).sum() >= cfg.min_points:
-                    obs_s.append(_observations(frames[g], part, None, cfg.sigma_pred, n))
+                    obs_s.append(frame_observations(frames[g], part, None, cfg.sigma_pred, n))
                     keep.append(g)
             if not obs_s:
                 break

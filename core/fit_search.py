@@ -170,6 +170,21 @@ def _rho(d: np.ndarray, tau: float, sigma: float) -> np.ndarray:
     return np.minimum(np.abs(d), tau) ** 2 / sigma**2
 
 
+def keeps_points(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarray,
+                 radii: np.ndarray, root: np.ndarray, tau: float = 0.05,
+                 probes: Probes | None = None):
+    """A veto for the silhouette limb search in a frame with points
+    (:func:`core.silhouette_search.search_limbs_silhouette` ``allowed``): a move from
+    ``theta`` (n,) to ``candidate`` (n,), the root (3,) held, is allowed when the body
+    explains the points ``xyz`` (N, 3) no worse (:func:`explain_cost`).  The silhouettes
+    then place a limb the tracker lost, but do not take a limb off its points."""
+    def allowed(theta, candidate):
+        c = explain_cost(xyz, skel, balls, s, radii, np.stack([theta, candidate]),
+                         np.stack([root, root]), tau, probes=probes)
+        return bool(c[1] <= c[0])
+    return allowed
+
+
 def explain_cost(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarray,
                  radii: np.ndarray, theta: np.ndarray, root: np.ndarray,
                  tau: float = 0.05, sigma: float = 0.01, chunk: int = 16,

@@ -2,7 +2,8 @@
 
 :class:`FramePoints` — one frame's 3-D surface observations; :class:`SequenceSettings`
 — the fit's settings; :class:`ShapeRecord` — the whole-body shape fit's record;
-:class:`SequenceResult` — the fitted state with per-frame diagnostics.  World frame: Z
+:class:`SequenceResult` — the fitted state with per-frame diagnostics;
+:func:`frame_observations` — a frame's points as the per-frame fit's observations.  World frame: Z
 up, metres; angles in radians.  All are re-exported by :mod:`core.fit`.
 """
 
@@ -12,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .fitting import FitSettings
+from .fitting import FitSettings, Observations
 from .shape_fit import ShapeSettings
 from .state import FitState
 
@@ -111,6 +112,9 @@ class SequenceSettings:
     #: frame refitted; a failed frame refitted with the root re-centred on the foreground
     #: (core.silhouette_search)
     silhouette_search: bool = True
+    #: with contours, in frames with points too: after the point-based fit (and its limb
+    #: search), the silhouette limb search, its refit kept on the same terms
+    silhouette_search_points: bool = True
     #: contours alone: a frame whose body overlaps the foreground less (mean IoU over the
     #: cameras with one) is diverged.  Walk, skin look, a 29 mm fit: 0.81-0.90; the dance
     #: (orthogonal3) lost by 600 mm and more: below 0.45, down to 0 with the body 25 m away
@@ -204,3 +208,23 @@ class SequenceResult:
     contour_rms_px: np.ndarray | None = None
     #: (F, n) bool: the DOFs of parts too little observed at the fitted pose (held)
     hidden: np.ndarray | None = None
+
+
+def point_sigma(sigma_m: np.ndarray, model_m: float) -> np.ndarray:
+    """A-priori σ (N,) of a point's distance to the model surface: the point's own σ and
+    the metaball model's misfit to a real body, added in quadrature (metres)."""
+    return np.sqrt(np.asarray(sigma_m, float) ** 2 + model_m**2)
+
+
+def frame_observations(pts: FramePoints, part: np.ndarray, q_pred, sig_pred, n: int,
+                       joints=None, model_m: float = 0.004) -> Observations:
+    """The points of one frame assigned to a part (``part`` (N,) bone index, −1: left
+    out) as :class:`core.fitting.Observations`, with the prior on the angles
+    (``q_pred`` (≥ n,) radians or None, σ ``sig_pred`` (n,)) and optional joint
+    observations ``joints`` = (indices, xyz (K, 3) metres, σ metres)."""
+    use = part >= 0
+    o = Observations(xyz=pts.xyz[use], part=part[use], sigma=point_sigma(pts.sigma[use], model_m),
+                     theta_pred=None if q_pred is None else q_pred[:n], sigma_pred=sig_pred)
+    if joints is not None:
+        o.joint_idx, o.joint_xyz, o.sigma_joint = joints
+    return o

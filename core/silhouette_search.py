@@ -319,7 +319,8 @@ def search_limbs_silhouette(skel: Skeleton, balls: Metaballs, s: np.ndarray,
                             masks: list, limbs: tuple | None = None,
                             sigma_prior: float = 0.6, prior_px: float = 20.0,
                             w_background: float = 1.0, min_gain_px: float = 200.0,
-                            rounds: int = 2, step: int = 2) -> SilhouetteSearch:
+                            rounds: int = 2, step: int = 2,
+                            allowed=None) -> SilhouetteSearch:
     """Place each limb at the grid pose that best explains the foreground near it.
 
     Parameters
@@ -335,6 +336,9 @@ def search_limbs_silhouette(skel: Skeleton, balls: Metaballs, s: np.ndarray,
     min_gain_px : a move must gain more than this many pixels (summed over cameras)
     rounds : moves per limb at most, greedy (the limb that gains most moves first)
     step : spacing of the foreground pixels sampled near a limb, pixels
+    allowed : callable ``(theta, candidate) -> bool``, optional — a veto on a limb's move
+        from the current pose ``theta`` (n,) to ``candidate`` (n,), e.g. when it would
+        take the limb off the 3-D points that place it
 
     Returns
     -------
@@ -350,7 +354,7 @@ def search_limbs_silhouette(skel: Skeleton, balls: Metaballs, s: np.ndarray,
         for name in names:
             gain, th = _limb_gain(skel, balls, s, theta, root, SILHOUETTE_LIMBS[name], cameras,
                                   masks, sigma_prior, prior_px, w_background, step)
-            if gain > best_gain:
+            if gain > best_gain and (allowed is None or allowed(theta, th)):
                 best_gain, best_theta, best_name = gain, th, name
         if best_theta is None:
             break

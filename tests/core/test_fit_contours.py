@@ -533,3 +533,38 @@ def test_frame_depth_holds_cover_the_single_view_parts_that_are_not_hidden(body)
     off = ContourFrame(cams, observed, ContourSettings(depth_sigma_m=None))
     off.freeze(skel, balls, theta, root, s)
     assert frame_depth_holds(skel, off, hidden, theta, root, s) is None
+
+
+@pytest.mark.slow
+def test_a_leg_the_tracker_lost_is_found_by_the_silhouettes_in_frames_with_points():
+    """A fast kick: from frame 1 the left leg is raised and carries no tracked point (the
+    tracker lost it), while the rest of the body keeps its points.  The point fit holds
+    the leg hanging where it was; the silhouette limb search in frames with points
+    (``silhouette_search_points``) puts it where the silhouettes show it."""
+    nf = 3
+    skel, s, balls, theta = _motion(nf)
+    theta[1:, skel.dof_index("l_hip_x")] -= 1.0  # a kick forward
+    root = np.array([[0.0, 0.0, 1.0]] * nf)
+    cams = _cams()
+    cons = [_silhouettes(skel, balls, theta[f], root[f], s, cams) for f in range(nf)]
+    leg = np.isin(balls.bone, [skel.bone_index(b) for b in ("l_hip", "l_knee", "l_ankle")])
+    frames = []
+    for f in range(nf):
+        pose = sk.forward(skel, theta[f][None], root[f][None], s)
+        xyz, ok = mb.sample_surface(skel, pose, balls, s, per_ball=30, seed=f)
+        keep = ok & (~np.repeat(leg, 30) if f else ok)
+        frames.append(FramePoints(xyz[keep], np.full(keep.sum(), 0.002)))
+    init = initialise(clicks_of(skel, theta[0], root[0], s, cams, CLICK_JOINTS), cams,
+                      model="simplified")
+    init.metaballs = balls.copy()
+    ankle = skel.joint_index("l_ankle")
+    truth = sk.joint_positions(skel, theta, root, s)[:, ankle]
+    err = {}
+    for search in (True, False):
+        res = fit_sequence(frames, init, SequenceSettings(
+            max_nfev=15, shape_frames=1, shape="template", silhouette_search_points=search),
+            contours=contour_frames(cams, cons, ContourSettings(sigma_px=1.0, huber_px=2.0)))
+        assert not res.state.quality.diverged.any()
+        err[search] = np.linalg.norm(res.state.joints_xyz()[1:, ankle] - truth[1:], axis=-1)
+    assert err[False].max() > 0.2, err  # lost in a frame without it
+    assert err[True].max() < 0.05, err

@@ -73,6 +73,29 @@ def test_an_arm_out_of_place_is_put_back_and_an_arm_without_evidence_stays(body)
     assert again.moved == [] and np.array_equal(again.theta, true)
 
 
+def test_a_vetoed_move_is_not_made(body):
+    """``allowed`` vetoes a limb's move (the 3-D points that place the limb disagree):
+    the arm the silhouettes would raise stays down, and the veto sees the candidate."""
+    skel, s, balls = body
+    cams = cameras()
+    root = np.array([0.0, 0.0, 1.0])
+    true = np.zeros(skel.n_dof)
+    true[skel.dof_index("r_shoulder_x")] = -1.0
+    masks = _masks(skel, balls, true, root, s, cams)
+    start = np.zeros(skel.n_dof)
+    seen = []
+
+    def veto(theta, cand):
+        seen.append(cand[skel.dof_index("r_shoulder_x")] - theta[skel.dof_index("r_shoulder_x")])
+        return False
+
+    res = search_limbs_silhouette(skel, balls, s, start, root, cams, masks, allowed=veto)
+    assert res.moved == [] and np.array_equal(res.theta, start)
+    assert min(seen) < -0.5  # the raise was offered, and refused
+    assert search_limbs_silhouette(skel, balls, s, start, root, cams, masks,
+                                   allowed=lambda th, c: True).moved == ["r_arm"]
+
+
 def test_a_camera_without_a_mask_is_left_out(body):
     skel, s, balls = body
     cams = cameras()

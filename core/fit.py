@@ -94,9 +94,9 @@ swung out from in front of the trunk beyond the contour pairing's reach — and 
 refitted from there, kept when the body's projection then disagrees with the foreground
 at fewer pixels — in frames with points too, after their own search
 (``silhouette_search_points``), where a limb moves only if the frame's points are
-explained no worse: a limb faster than the tracker, whose points it lost); the joints
-of a part whose contour pairs all come from one camera,
-or from cameras whose rays to it are at most ``ContourSettings.depth_spread_deg`` apart,
+explained no worse: a limb faster than the tracker, whose points it lost); the joints of
+a part whose contour pairs all come from one camera, or from cameras whose rays to it
+are at most ``ContourSettings.depth_spread_deg`` apart,
 are held along those rays at the previous frame's depth (σ
 ``ContourSettings.depth_sigma_m``, :mod:`core.fit_depth`: such views leave that
 direction free); the cameras each part used are recorded in the quality.
@@ -360,11 +360,11 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
         return res, ok, why, st
 
     def silhouette_retry(f, res, st, sig_pred, joints, q_hold):
-        """Contours alone: every limb placed where it best explains the frame's
-        foreground (:func:`core.silhouette_search.search_limbs_silhouette`) and the frame
-        refitted from there, the moved DOFs' hold and prior following the search; the
-        refit is kept when it is accepted and the body's projection disagrees with the
-        foreground at fewer pixels.  Returns ``(res, ok, why, stats)``."""
+        """Every limb placed where it best explains the frame's foreground
+        (:func:`search_limbs_silhouette`; with points, a move vetoed by ``keeps_points``)
+        and the frame refitted from there, the moved DOFs' hold and prior following the
+        search; the refit is kept when it is accepted and the body's projection disagrees
+        with the foreground at fewer pixels.  Returns ``(res, ok, why, stats)``."""
         cf = cframe(f)
         q = res[0]
         body = balls.copy(radii=radii)

@@ -12,13 +12,13 @@ from core import skeleton as sk
 from core.shape_fit import (
     ShapeProblem,
     ShapeSettings,
-    _symmetry_rows,
     fit_shape,
     mirror_pairs,
     model_offsets,
     nearest_members,
     seen_by,
 )
+from core.shape_priors import symmetry_rows
 
 from ._bodyscene import cameras
 
@@ -67,16 +67,16 @@ def test_symmetry_rows_vanish_for_a_mirrored_shape_and_are_linear(rng):
     sym = mirror_pairs(skel, balls, s)
     assert len(sym.left) == len(sym.right) > 10 and len(sym.centre) > 5
     M = len(balls)
-    r, J = _symmetry_rows(sym, M, 3 * M, 1.0, truth.radii, balls.center0)
+    r, J = symmetry_rows(sym, M, 3 * M, 1.0, truth.radii, balls.center0)
     assert np.abs(r).max() < 1e-9  # template centres are mirror images, radii mirrored
     bumped = truth.radii.copy()
     bumped[sym.left[0], 0] += 0.01
-    r2, _ = _symmetry_rows(sym, M, 3 * M, 1.0, bumped, balls.center0)
+    r2, _ = symmetry_rows(sym, M, 3 * M, 1.0, bumped, balls.center0)
     assert np.abs(r2).max() == pytest.approx(0.01)
     dx = rng.normal(0.0, 0.01, 6 * M)
     x = np.concatenate([truth.radii.ravel(), balls.center0.ravel()])
     x2 = x + dx
-    r3, _ = _symmetry_rows(sym, M, 3 * M, 1.0, x2[:3 * M].reshape(M, 3),
+    r3, _ = symmetry_rows(sym, M, 3 * M, 1.0, x2[:3 * M].reshape(M, 3),
                            x2[3 * M:].reshape(M, 3))
     np.testing.assert_allclose(r3, r + J @ dx, atol=1e-12)
 

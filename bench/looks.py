@@ -183,7 +183,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"tracked trajectories as rigid-motion observations: {seq.trajectories} (slip "
           f"{1000 * seq.traj_slip_m:.0f} mm, Cauchy knee {seq.traj_robust:g} sigma); hidden "
           f"parts held: {seq.hold_hidden}; silhouette limb search (contours alone): "
-          f"{seq.silhouette_search}")
+          f"{seq.silhouette_search}, in frames with points too (vetoed where it takes a "
+          f"limb off its points): {seq.silhouette_search and seq.silhouette_search_points}")
     print(f"load average {os.getloadavg()[0]:.1f} (2 shared cores: wall times are noisy)")
     return 0
 

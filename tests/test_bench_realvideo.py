@@ -63,3 +63,23 @@ def test_held_out_camera_finds_true_points_where_projected_and_skips_hidden_ones
     dist_b, tried_b = check_in_camera(imgs[3][None], videos, cams[3], cams[:2], xyz[None], uv,
                                       half=6)
     assert not tried_b.any() and not np.isfinite(dist_b).any()
+
+
+def test_across_a_wide_angle_the_plane_warp_lets_the_match_converge():
+    cams, imgs, xyz = _scene()
+    wide = look_at("wide", (1.85, -0.75, 0.1), (0, 0, 0), size=SIZE, f=400.0)  # ~68° off
+    rng = np.random.default_rng(1)
+    tex = cv2.GaussianBlur(rng.uniform(0, 255, (400, 400)).astype(np.float32), (0, 0), 2.0)
+    tex = cv2.normalize(tex, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+    imgs = [_render_plane(c, tex, 0.002) for c in (*cams[:2], wide)]
+    uv = np.stack([c.project(xyz) for c in cams[:2]], axis=1)[None]
+    videos = [im[None] for im in imgs[:2]]
+    found = {}
+    for warp in (False, True):
+        dist, tried = check_in_camera(imgs[2][None], videos, wide, cams[:2], xyz[None], uv,
+                                      half=6, warp=warp)
+        assert tried.all()
+        found[warp] = dist[np.isfinite(dist)]
+    assert found[True].size >= 0.9 * len(xyz)
+    assert np.median(found[True]) < 0.1
+    assert found[False].size < 0.5 * found[True].size

@@ -57,7 +57,11 @@ class FlowSettings:
     window_px: int = 15  # Lucas–Kanade window
     levels: int = 2  # pyramid levels above the image
     fb_px: float = 0.5  # largest forward–backward disagreement, pixels
-    sigma_px: float = 3.0  # a-priori σ of a followed corner, pixels
+    #: a-priori σ of a followed corner, pixels.  3 -> 1.5 (in-process on the scenes'
+    #: tracks, cues both, one run each): walk_ortho3 17.6 -> 15.7 mm (neck 9.9 -> 6.5,
+    #: left shoulder 20.7 -> 11.1, right knee 30.2 -> 19.5), the skin walk 16.9 -> 16.2;
+    #: 1.0: 15.6 / 16.2 (walk_ortho3's right ankle 11 -> 33 mm); 6.0: 17.5 on walk_ortho3
+    sigma_px: float = 1.5
     robust_scale: float = 3.0  # Cauchy knee, σ units
     #: corners keep the surface point of the frame they were lifted at, for as long as
     #: they are followed and stay within ``keep_px`` of its projection on their visible

@@ -5,7 +5,9 @@ seeds (:func:`core.surface.measure_surface`), tracked through all frames
 (:func:`core.tracking.track`), and in every frame the tracked 3-D position of each live
 point is projected into the held-out camera.  Where the point's surface faces that
 camera, an independent LSM match is sought there (template: the point in the tracking
-camera nearest in angle to the held-out one; start: the projection).  The distance
+camera nearest in angle to the held-out one; start: the projection, warped as the
+point's tangent plane maps the template into that view, :mod:`core.plane_warp`; the
+identity start is printed beside it).  The distance
 between the projection and that match, pixels, is the check: it measures calibration,
 sync, tracking drift and match errors together.  Without a held-out view the benchmark also
 prints the reprojection residuals, the 3-D acceleration and how much the mutual

@@ -1,0 +1,142 @@
+"""How far one fit's figures move when its input moves a little.
+
+``python -m bench.fit_spread [SCENE] [--runs N] [--click-noise PX] [--cues C] [--jobs J]``
+
+The sequence fit makes discrete choices — which camera a part uses, whether a limb
+search's move is kept, which corners the texture flow lifts — so on a scene where a limb
+is hardly observed a change far below what any figure could resolve can send that limb
+down another path.  One run's MPJPE is then one draw, and a setting that looks better
+by a millimetre in one run may be noise.  This benchmark fits the same tracks ``N``
+times: run 0 with the scene's clicks as they are, runs 1…N−1 with every click moved by
+Gaussian noise of ``--click-noise`` pixels (seeded by the run number; 0.5 px is well
+under what a person clicking reaches).  It prints each run's MPJPE, diverged frames,
+limb-segment RMSE and share of frames within 1 % of the height, then the median and
+range over the runs, overall and per joint.
+
+A SCENE is a scene folder or a :data:`bench.fit.STUDIO_SCENES` name (rendered and
+cached under ``out/bench_fit`` on first use; default: the default sample scene).  The
+fits run in-process (:func:`core.fit_scene.run_scene` with ``observations="tracks"``
+and the complete model, as ``core fit --observations tracks`` does), ``--jobs`` at a
+time (default 2), each on one BLAS thread; the tracks are the scene's own
+``tracks.npz`` (the default scene: :func:`bench.fit.default_tracks`), tracked first
+when missing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def perturbed_clicks(clicks: dict, noise_px: float, seed: int) -> dict:
+    """A copy of ``Scene.clicks()`` with every (u, v) moved by N(0, noise_px²) per axis;
+    ``seed`` 0 or ``noise_px`` 0 returns the clicks unchanged."""
+    if seed == 0 or noise_px <= 0:
+        return clicks
+    rng = np.random.default_rng(seed)
+    joints = {j: {c: np.asarray(uv, float) + rng.normal(0.0, noise_px, 2)
+                  for c, uv in sorted(per_cam.items())}
+              for j, per_cam in sorted(clicks["joints"].items())}
+    return {**clicks, "joints": joints}
+
+
+def fit_once(scene_dir: str, tracks: str, cues: str, noise_px: float, seed: int) -> dict:
+    """One in-process fit of the scene's tracks with perturbed clicks; its figures."""
+    from core.blas_threads import single_blas_thread
+    from core.evaluate import evaluate_state
+    from core.fit_scene import run_scene
+    from core.scene import load_scene
+
+    scene = load_scene(Path(scene_dir), check_images=False)
+    clicks = perturbed_clicks(scene.clicks(), noise_px, seed)
+    scene.clicks = lambda: clicks  # the fit's initialisation reads them from here
+    t0 = time.perf_counter()
+    with single_blas_thread():
+        res = run_scene(scene, observations="tracks", model="complete", cues=cues,
+                        tracks=tracks)
+    ev = evaluate_state(res.state, scene.truth)
+    return {"seed": seed, "mpjpe_mm": ev.mpjpe_mm, "diverged": ev.diverged_frames,
+            "segments_deg": ev.segment_orientation_rmse_deg,
+            "within_1pct": ev.frames_within_1pct, "per_joint_mm": ev.per_joint_mm,
+            "wall_s": time.perf_counter() - t0}
+
+
+def scene_tracks(scene: Path) -> Path:
+    """The tracks a ``core fit --observations tracks`` of ``scene`` would use, tracked
+    first (``python -m core track``) when missing."""
+    from bench.fit import _is_default, default_tracks
+
+    if _is_default(scene):
+        return default_tracks()
+    path = scene / "tracks.npz"
+    if not path.is_file():
+        print(f"tracking {scene.name} first (python -m core track; minutes) …", flush=True)
+        subprocess.run([sys.executable, "-m", "core", "track", str(scene), "-o", str(path)],
+                       check=True, cwd=ROOT)
+    return path
+
+
+def summary(rows: list[dict]) -> dict:
+    """Median, min and max over the runs of MPJPE and of every joint's error."""
+    m = np.array([r["mpjpe_mm"] for r in rows])
+    joints = list(rows[0]["per_joint_mm"])
+    pj = np.array([[r["per_joint_mm"][j] for j in joints] for r in rows])
+    return {"mpjpe_median_mm": float(np.median(m)), "mpjpe_min_mm": float(m.min()),
+            "mpjpe_max_mm": float(m.max()),
+            "per_joint": {j: (float(np.median(pj[:, k])), float(pj[:, k].min()),
+                              float(pj[:, k].max())) for k, j in enumerate(joints)}}
+
+
+def main(argv: list[str] | None = None) -> int:
+    from bench.fit import DEFAULT, RENDERS, _resolve
+
+    ap = argparse.ArgumentParser(prog="python -m bench.fit_spread",
+                                 description=__doc__.splitlines()[0])
+    ap.add_argument("scene", nargs="?", default=str(DEFAULT),
+                    help="scene folder or studio scene name (default: the sample scene)")
+    ap.add_argument("--runs", type=int, default=5, help="fits, the first unperturbed")
+    ap.add_argument("--click-noise", type=float, default=0.5, help="pixels, per axis")
+    ap.add_argument("--cues", default="both", choices=("texture", "contours", "both"))
+    ap.add_argument("--jobs", type=int, default=2, help="fits at a time")
+    ap.add_argument("--json", type=Path, default=None, help="write the figures here")
+    args = ap.parse_args(argv)
+    if args.runs < 1 or args.jobs < 1:
+        ap.error("--runs and --jobs must be at least 1")
+
+    scene, _ = _resolve(args.scene, RENDERS)
+    tracks = scene_tracks(scene)
+    print(f"{scene.name}: {args.runs} fits of {tracks}, cues {args.cues}, clicks moved by "
+          f"N(0, {args.click_noise} px) in runs 1..{args.runs - 1}", flush=True)
+    print(f"{'run':>3}  {'MPJPE mm':>8}  {'diverged':>8}  {'segments °':>10}  "
+          f"{'≤1 % height':>11}  {'s':>5}", flush=True)
+    rows = []
+    with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+        futs = [pool.submit(fit_once, str(scene), str(tracks), args.cues, args.click_noise, k)
+                for k in range(args.runs)]
+        for fut in futs:
+            r = fut.result()
+            rows.append(r)
+            print(f"{r['seed']:>3}  {r['mpjpe_mm']:8.1f}  {r['diverged']:8d}  "
+                  f"{r['segments_deg']:10.1f}  {100 * r['within_1pct']:10.0f}%  "
+                  f"{r['wall_s']:5.0f}", flush=True)
+    s = summary(rows)
+    print(f"MPJPE median {s['mpjpe_median_mm']:.1f} mm, range {s['mpjpe_min_mm']:.1f}–"
+          f"{s['mpjpe_max_mm']:.1f} mm over {len(rows)} runs")
+    print("per joint, median (min–max) mm: " + ", ".join(
+        f"{j} {a:.0f} ({b:.0f}–{c:.0f})" for j, (a, b, c) in s["per_joint"].items()))
+    if args.json:
+        args.json.write_text(json.dumps({"scene": scene.name, "runs": rows, **s}, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,71 @@
+"""The fit-spread benchmark's click perturbation and its summary."""
+
+import numpy as np
+import pytest
+
+from bench.fit_spread import fit_once, perturbed_clicks, summary
+
+SCENE = "sample_scenes/walk_line3"
+
+
+def _clicks(n=200):
+    rng = np.random.default_rng(7)
+    return {"frame": 3, "joints": {f"j{k}": {"cam01": rng.uniform(0, 500, 2),
+                                             "cam02": rng.uniform(0, 500, 2)}
+                                   for k in range(n)}}
+
+
+def test_run_zero_and_zero_noise_keep_the_clicks():
+    c = _clicks()
+    assert perturbed_clicks(c, 0.5, 0) is c
+    assert perturbed_clicks(c, 0.0, 3) is c
+
+
+def test_clicks_move_by_the_noise_and_repeat_per_seed():
+    c = _clicks()
+    before = {j: {k: v.copy() for k, v in p.items()} for j, p in c["joints"].items()}
+    a, b, other = (perturbed_clicks(c, 0.5, s) for s in (1, 1, 2))
+    d = np.array([a["joints"][j][k] - c["joints"][j][k]
+                  for j in c["joints"] for k in c["joints"][j]])
+    assert d.std() == pytest.approx(0.5, rel=0.1)
+    assert abs(d.mean()) < 0.05
+    assert a["frame"] == 3
+    assert all(np.array_equal(a["joints"][j][k], b["joints"][j][k]) for j in a["joints"]
+               for k in a["joints"][j])
+    assert not np.array_equal(a["joints"]["j0"]["cam01"], other["joints"]["j0"]["cam01"])
+    # the input is not touched
+    assert all(np.array_equal(before[j][k], c["joints"][j][k]) for j in c["joints"]
+               for k in c["joints"][j])
+
+
+def test_the_fit_initialises_from_the_perturbed_clicks(monkeypatch):
+    """fit_once hands the perturbed clicks to the pipeline (which reads Scene.clicks())."""
+    seen = {}
+
+    class Stop(Exception):
+        pass
+
+    def fake_run_scene(scene, **kw):
+        seen["clicks"] = scene.clicks()
+        raise Stop
+
+    import core.fit_scene
+
+    monkeypatch.setattr(core.fit_scene, "run_scene", fake_run_scene)
+    from core.scene import load_scene
+
+    orig = load_scene(SCENE, check_images=False).clicks()
+    with pytest.raises(Stop):
+        fit_once(SCENE, "unused.npz", "both", 0.5, 4)
+    want = perturbed_clicks(orig, 0.5, 4)
+    for j, per_cam in want["joints"].items():
+        for cam, uv in per_cam.items():
+            np.testing.assert_array_equal(seen["clicks"]["joints"][j][cam], uv)
+            assert not np.array_equal(uv, orig["joints"][j][cam])
+
+
+def test_summary_median_and_range():
+    rows = [{"mpjpe_mm": m, "per_joint_mm": {"a": m, "b": 2 * m}} for m in (14.0, 12.0, 17.0)]
+    s = summary(rows)
+    assert (s["mpjpe_median_mm"], s["mpjpe_min_mm"], s["mpjpe_max_mm"]) == (14.0, 12.0, 17.0)
+    assert s["per_joint"]["b"] == (28.0, 24.0, 34.0)

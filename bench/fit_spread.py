@@ -1,6 +1,7 @@
 """How far one fit's figures move when its input moves a little.
 
-``python -m bench.fit_spread [SCENE] [--runs N] [--click-noise PX] [--cues C] [--jobs J]``
+``python -m bench.fit_spread [SCENE] [--runs N] [--click-noise PX] [--cues C] [--jobs J]
+[--flow-sigma PX] [--setting NAME=VALUE ...]``
 
 The sequence fit makes discrete choices — which camera a part uses, whether a limb
 search's move is kept, which corners the texture flow lifts — so on a scene where a limb
@@ -11,7 +12,10 @@ times: run 0 with the scene's clicks as they are, runs 1…N−1 with every clic
 Gaussian noise of ``--click-noise`` pixels (seeded by the run number; 0.5 px is well
 under what a person clicking reaches).  It prints each run's MPJPE, diverged frames,
 limb-segment RMSE and share of frames within 1 % of the height, then the median and
-range over the runs, overall and per joint.
+range over the runs, overall and per joint.  ``--flow-sigma`` sets the texture flow's
+a-priori σ (:class:`core.fit_flow.FlowSettings` ``sigma_px``), so that two settings can
+be compared by their medians rather than by one run each; ``--setting`` likewise sets a
+field of :class:`core.fit_types.SequenceSettings` (VALUE in JSON: ``shape_scales=true``).
 
 A SCENE is a scene folder or a :data:`bench.fit.STUDIO_SCENES` name (rendered and
 cached under ``out/bench_fit`` on first use; default: the default sample scene).  The
@@ -49,25 +53,53 @@ def perturbed_clicks(clicks: dict, noise_px: float, seed: int) -> dict:
     return {**clicks, "joints": joints}
 
 
-def fit_once(scene_dir: str, tracks: str, cues: str, noise_px: float, seed: int) -> dict:
-    """One in-process fit of the scene's tracks with perturbed clicks; its figures."""
+def fit_once(scene_dir: str, tracks: str, cues: str, noise_px: float, seed: int,
+             flow_sigma_px: float | None = None, settings: dict | None = None) -> dict:
+    """One in-process fit of the scene's tracks with perturbed clicks; its figures.
+    ``flow_sigma_px``: the texture flow's σ (None: ``FlowSettings``' default);
+    ``settings``: :class:`SequenceSettings` fields (None: its defaults)."""
     from core.blas_threads import single_blas_thread
     from core.evaluate import evaluate_state
+    from core.fit_flow import FlowSettings
     from core.fit_scene import run_scene
+    from core.fit_types import SequenceSettings
     from core.scene import load_scene
 
     scene = load_scene(Path(scene_dir), check_images=False)
     clicks = perturbed_clicks(scene.clicks(), noise_px, seed)
     scene.clicks = lambda: clicks  # the fit's initialisation reads them from here
+    flow = "auto" if flow_sigma_px is None else FlowSettings(sigma_px=flow_sigma_px)
     t0 = time.perf_counter()
     with single_blas_thread():
         res = run_scene(scene, observations="tracks", model="complete", cues=cues,
-                        tracks=tracks)
+                        tracks=tracks, flow=flow,
+                        settings=SequenceSettings(**settings) if settings else None)
     ev = evaluate_state(res.state, scene.truth)
     return {"seed": seed, "mpjpe_mm": ev.mpjpe_mm, "diverged": ev.diverged_frames,
             "segments_deg": ev.segment_orientation_rmse_deg,
             "within_1pct": ev.frames_within_1pct, "per_joint_mm": ev.per_joint_mm,
             "wall_s": time.perf_counter() - t0}
+
+
+def parse_settings(items: list[str], error) -> dict:
+    """``["name=json", ...]`` -> ``{name: value}`` of :class:`SequenceSettings` fields;
+    ``error(message)`` on a malformed item or an unknown field."""
+    from dataclasses import fields
+
+    from core.fit_types import SequenceSettings
+
+    known = {f.name for f in fields(SequenceSettings)}
+    out = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or name not in known:
+            error(f"--setting {item!r}: expected NAME=VALUE with NAME a SequenceSettings "
+                  "field")
+        try:
+            out[name] = json.loads(value)
+        except json.JSONDecodeError:
+            error(f"--setting {item!r}: VALUE is not JSON (true, 0.5, \"fit\")")
+    return out
 
 
 def scene_tracks(scene: Path) -> Path:
@@ -107,21 +139,30 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--click-noise", type=float, default=0.5, help="pixels, per axis")
     ap.add_argument("--cues", default="both", choices=("texture", "contours", "both"))
     ap.add_argument("--jobs", type=int, default=2, help="fits at a time")
+    ap.add_argument("--flow-sigma", type=float, default=None,
+                    help="the texture flow's a-priori σ, pixels (default: FlowSettings')")
+    ap.add_argument("--setting", action="append", default=[], metavar="NAME=VALUE",
+                    help="a SequenceSettings field, VALUE in JSON (repeatable)")
     ap.add_argument("--json", type=Path, default=None, help="write the figures here")
     args = ap.parse_args(argv)
     if args.runs < 1 or args.jobs < 1:
         ap.error("--runs and --jobs must be at least 1")
+    if args.flow_sigma is not None and args.cues != "both":
+        ap.error("--flow-sigma needs --cues both (the flow runs only with both cues)")
 
+    settings = parse_settings(args.setting, ap.error)
     scene, _ = _resolve(args.scene, RENDERS)
     tracks = scene_tracks(scene)
     print(f"{scene.name}: {args.runs} fits of {tracks}, cues {args.cues}, clicks moved by "
-          f"N(0, {args.click_noise} px) in runs 1..{args.runs - 1}", flush=True)
+          f"N(0, {args.click_noise} px) in runs 1..{args.runs - 1}"
+          + ("" if args.flow_sigma is None else f", flow σ {args.flow_sigma} px")
+          + "".join(f", {k} = {v!r}" for k, v in settings.items()), flush=True)
     print(f"{'run':>3}  {'MPJPE mm':>8}  {'diverged':>8}  {'segments °':>10}  "
           f"{'≤1 % height':>11}  {'s':>5}", flush=True)
     rows = []
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-        futs = [pool.submit(fit_once, str(scene), str(tracks), args.cues, args.click_noise, k)
-                for k in range(args.runs)]
+        futs = [pool.submit(fit_once, str(scene), str(tracks), args.cues, args.click_noise, k,
+                            args.flow_sigma, settings) for k in range(args.runs)]
         for fut in futs:
             r = fut.result()
             rows.append(r)

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from bench.fit_spread import fit_once, perturbed_clicks, summary
+from bench.fit_spread import fit_once, parse_settings, perturbed_clicks, summary
 
 SCENE = "sample_scenes/walk_line3"
 
@@ -69,3 +69,16 @@ def test_summary_median_and_range():
     s = summary(rows)
     assert (s["mpjpe_median_mm"], s["mpjpe_min_mm"], s["mpjpe_max_mm"]) == (14.0, 12.0, 17.0)
     assert s["per_joint"]["b"] == (28.0, 24.0, 34.0)
+
+
+def test_settings_are_sequence_settings_fields_in_json():
+    def error(msg):
+        raise ValueError(msg)
+
+    assert parse_settings(["shape_scales=true", "sigma_pred=0.2", 'shape="template"'],
+                          error) == {"shape_scales": True, "sigma_pred": 0.2,
+                                     "shape": "template"}
+    with pytest.raises(ValueError, match="SequenceSettings field"):
+        parse_settings(["no_such_field=1"], error)
+    with pytest.raises(ValueError, match="not JSON"):
+        parse_settings(["shape_scales=yes"], error)

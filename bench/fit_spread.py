@@ -82,8 +82,9 @@ def fit_once(scene_dir: str, tracks: str, cues: str, noise_px: float, seed: int,
 
 
 def parse_settings(items: list[str], error) -> dict:
-    """``["name=json", ...]`` -> ``{name: value}`` of :class:`SequenceSettings` fields;
-    ``error(message)`` on a malformed item or an unknown field."""
+    """``["name=json", ...]`` -> ``{name: value}`` of :class:`SequenceSettings` fields
+    (scalar values); ``error(message)`` on a malformed item, an unknown field or a
+    list or object value."""
     from dataclasses import fields
 
     from core.fit_types import SequenceSettings
@@ -99,6 +100,8 @@ def parse_settings(items: list[str], error) -> dict:
             out[name] = json.loads(value)
         except json.JSONDecodeError:
             error(f"--setting {item!r}: VALUE is not JSON (true, 0.5, \"fit\")")
+        if isinstance(out.get(name), (list, dict)):
+            error(f"--setting {item!r}: only a number, true/false, null or a string")
     return out
 
 

@@ -82,3 +82,5 @@ def test_settings_are_sequence_settings_fields_in_json():
         parse_settings(["no_such_field=1"], error)
     with pytest.raises(ValueError, match="not JSON"):
         parse_settings(["shape_scales=yes"], error)
+    with pytest.raises(ValueError, match="only a number"):
+        parse_settings(['fit={"max_nfev": 3}'], error)

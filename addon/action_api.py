@@ -86,8 +86,14 @@ def mark_keys(fc, which: np.ndarray, key_type: str = "BREAKDOWN") -> int:
     return len(which)
 
 
-def key_channels(obj, action, channels: dict, frames: np.ndarray,
-                 marked: dict | None = None, key_type: str = "BREAKDOWN") -> int:
+def key_channels(
+    obj,
+    action,
+    channels: dict,
+    frames: np.ndarray,
+    marked: dict | None = None,
+    key_type: str = "BREAKDOWN",
+) -> int:
     """Key many channels at once.
 
     Parameters

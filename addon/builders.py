@@ -202,8 +202,7 @@ def _free_family(name: str, taken: set) -> str:
     base, k = name, 1
 
     def used(n):
-        return any(t == n or (t.startswith(n + ".") and t[len(n) + 1:].isdigit())
-                   for t in taken)
+        return any(t == n or (t.startswith(n + ".") and t[len(n) + 1 :].isdigit()) for t in taken)
 
     while used(name):
         k += 1
@@ -211,8 +210,9 @@ def _free_family(name: str, taken: set) -> str:
     return name
 
 
-def build_metaballs(state, armature, name: str = "SomacapBody", collection=None,
-                    resolution: float = 0.02):
+def build_metaballs(
+    state, armature, name: str = "SomacapBody", collection=None, resolution: float = 0.02
+):
     """Metaball objects parented to ``armature``'s bones, one family named ``name``.
 
     Returns the list of objects; the first (``name`` itself, on the first bone that has

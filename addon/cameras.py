@@ -30,8 +30,9 @@ CV_TO_BLENDER = np.diag([1.0, -1.0, -1.0])
 SENSOR_WIDTH_MM = 36.0
 
 
-def blender_intrinsics(K: np.ndarray, size: tuple[int, int],
-                       sensor_width: float = SENSOR_WIDTH_MM) -> dict:
+def blender_intrinsics(
+    K: np.ndarray, size: tuple[int, int], sensor_width: float = SENSOR_WIDTH_MM
+) -> dict:
     """OpenCV ``K`` (3, 3) px and ``size`` (W, H) -> Blender camera/render settings.
 
     Returns a dict with ``lens`` and ``sensor_width`` (mm), ``sensor_fit``
@@ -55,10 +56,17 @@ def blender_intrinsics(K: np.ndarray, size: tuple[int, int],
     }
 
 
-def intrinsics_from_blender(lens: float, sensor_width: float, sensor_height: float,
-                            sensor_fit: str, shift_x: float, shift_y: float,
-                            size: tuple[int, int], pixel_aspect_x: float = 1.0,
-                            pixel_aspect_y: float = 1.0) -> np.ndarray:
+def intrinsics_from_blender(
+    lens: float,
+    sensor_width: float,
+    sensor_height: float,
+    sensor_fit: str,
+    shift_x: float,
+    shift_y: float,
+    size: tuple[int, int],
+    pixel_aspect_x: float = 1.0,
+    pixel_aspect_y: float = 1.0,
+) -> np.ndarray:
     """Blender camera settings -> OpenCV ``K`` (3, 3) in pixels.
 
     Follows Blender's view-plane computation (``BKE_camera_params_compute_viewplane``):
@@ -106,6 +114,7 @@ def extrinsics_from_matrix_world(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 
 
 # -- bpy side -------------------------------------------------------------------------
+
 
 def create_cameras(cameras, *, scene=None, collection=None, image_dirs: dict | None = None):
     """Create one Blender camera object per calibrated camera.
@@ -204,8 +213,17 @@ def camera_from_object(obj, scene=None):
         H = int(r.resolution_y * r.resolution_percentage / 100)
         pax, pay = r.pixel_aspect_x, r.pixel_aspect_y
     d = obj.data
-    K = intrinsics_from_blender(d.lens, d.sensor_width, d.sensor_height, d.sensor_fit,
-                                d.shift_x, d.shift_y, (W, H), pax, pay)
+    K = intrinsics_from_blender(
+        d.lens,
+        d.sensor_width,
+        d.sensor_height,
+        d.sensor_fit,
+        d.shift_x,
+        d.shift_y,
+        (W, H),
+        pax,
+        pay,
+    )
     R, t = extrinsics_from_matrix_world(np.array(obj.matrix_world))
     dist = np.asarray(obj.get("somacap_dist", [0.0] * 5), dtype=float)
     name = str(obj.get("somacap_camera", obj.name))

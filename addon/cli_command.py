@@ -46,9 +46,12 @@ def build_parser() -> argparse.ArgumentParser:
     f = sub.add_parser("fit", help="fit a scene folder and write a .blend")
     f.add_argument("scene", type=Path)
     f.add_argument("--out", type=Path, required=True)
-    f.add_argument("--target", type=Path,
-                   help="character .blend to retarget onto, or 'rigify' for a Rigify human "
-                        "rig generated from Blender's meta-rig")
+    f.add_argument(
+        "--target",
+        type=Path,
+        help="character .blend to retarget onto, or 'rigify' for a Rigify human "
+        "rig generated from Blender's meta-rig",
+    )
     f.add_argument("--fit", type=Path, help="use this fitted state instead of fitting")
     f.add_argument("--take", help="take / action name (default: the scene folder name)")
     r = sub.add_parser("retarget", help="build a fitted state and retarget it")
@@ -61,15 +64,27 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--out", type=Path, required=True)
     b.add_argument("--target", type=Path)
     for sp in (f, b):
-        sp.add_argument("--cues", choices=tuple(_cue_help()), default=None,
-                        help="fit anew from these observations (default: use SCENE/fit.json "
-                             "when present, else fit with texture): "
-                             + "; ".join(f"{k}: {v}" for k, v in _cue_help().items()))
+        sp.add_argument(
+            "--cues",
+            choices=tuple(_cue_help()),
+            default=None,
+            help="fit anew from these observations (default: use SCENE/fit.json "
+            "when present, else fit with texture): "
+            + "; ".join(f"{k}: {v}" for k, v in _cue_help().items()),
+        )
     for sp in (f, r, b):
-        sp.add_argument("--foot-lock", action="store_true",
-                        help="pin the target's feet while in contact (with --target)")
-        sp.add_argument("--export", choices=("bvh", "fbx"), action="append", default=[],
-                        help="also export the motion next to the .blend (repeatable)")
+        sp.add_argument(
+            "--foot-lock",
+            action="store_true",
+            help="pin the target's feet while in contact (with --target)",
+        )
+        sp.add_argument(
+            "--export",
+            choices=("bvh", "fbx"),
+            action="append",
+            default=[],
+            help="also export the motion next to the .blend (repeatable)",
+        )
     return p
 
 
@@ -116,13 +131,28 @@ def cmd_fit(args) -> int:
     from . import pipeline
 
     if args.fit is not None and args.cues is not None:
-        raise _core.errors.InputError(f"{args.fit}: --fit uses a fitted state and --cues asks "
-                                      "for a new fit: give one of them")
-    state = pipeline.state_for_scene(args.scene, args.fit, _core.progress.Progress(),
-                                     cues=args.cues or "texture", refit=args.cues is not None)
+        raise _core.errors.InputError(
+            f"{args.fit}: --fit uses a fitted state and --cues asks for a new fit: give one of them"
+        )
+    state = pipeline.state_for_scene(
+        args.scene,
+        args.fit,
+        _core.progress.Progress(),
+        cues=args.cues or "texture",
+        refit=args.cues is not None,
+    )
     take = args.take or args.scene.resolve().name
-    print(_take(state, take, args.target, args.out, args.export, cameras_from=args.scene,
-                foot_lock=args.foot_lock))
+    print(
+        _take(
+            state,
+            take,
+            args.target,
+            args.out,
+            args.export,
+            cameras_from=args.scene,
+            foot_lock=args.foot_lock,
+        )
+    )
     return 0
 
 
@@ -138,8 +168,11 @@ def cmd_retarget(args) -> int:
 def _takes(folder: Path) -> list[Path]:
     if not folder.is_dir():
         raise _core.errors.InputError(f"{folder}: takes folder not found")
-    takes = sorted(p for p in folder.iterdir()
-                   if (p.is_dir() and (p / "scene.toml").is_file()) or p.suffix == ".json")
+    takes = sorted(
+        p
+        for p in folder.iterdir()
+        if (p.is_dir() and (p / "scene.toml").is_file()) or p.suffix == ".json"
+    )
     if not takes:
         raise _core.errors.InputError(f"{folder}: no takes (scene folders or .json states)")
     return takes
@@ -154,15 +187,29 @@ def cmd_batch(args) -> int:
         out = args.out / f"{take.stem}.blend"
         try:
             if take.is_dir():
-                state = pipeline.state_for_scene(take, None, _core.progress.Progress(),
-                                                 cues=args.cues or "texture",
-                                                 refit=args.cues is not None)
-                print(_take(state, take.name, args.target, out, args.export, cameras_from=take,
-                            foot_lock=args.foot_lock))
+                state = pipeline.state_for_scene(
+                    take,
+                    None,
+                    _core.progress.Progress(),
+                    cues=args.cues or "texture",
+                    refit=args.cues is not None,
+                )
+                print(
+                    _take(
+                        state,
+                        take.name,
+                        args.target,
+                        out,
+                        args.export,
+                        cameras_from=take,
+                        foot_lock=args.foot_lock,
+                    )
+                )
             else:
                 state = pipeline.read_state(take)
-                print(_take(state, take.stem, args.target, out, args.export,
-                            foot_lock=args.foot_lock))
+                print(
+                    _take(state, take.stem, args.target, out, args.export, foot_lock=args.foot_lock)
+                )
             done += 1
         except _core.errors.InputError as exc:
             failures.append((take.name, str(exc)))

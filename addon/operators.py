@@ -36,8 +36,9 @@ class SOMACAP_OT_create_cameras(bpy.types.Operator):
     def execute(self, context):
         s = _settings(context)
         try:
-            objs = pipeline.create_scene_cameras(bpy.path.abspath(s.scene_dir) or None,
-                                                 bpy.path.abspath(s.calibration) or None)
+            objs = pipeline.create_scene_cameras(
+                bpy.path.abspath(s.scene_dir) or None, bpy.path.abspath(s.calibration) or None
+            )
         except _core.errors.InputError as exc:
             return _fail(self, exc)
         self.report({"INFO"}, f"Created {len(objs)} cameras")
@@ -68,8 +69,11 @@ def _build(op, context, state) -> set:
     s = _settings(context)
     arm, balls, action = pipeline.build_take(state, s.take or "take")
     s.body = arm
-    op.report({"INFO"}, f"Built {arm.name}: {len(arm.data.bones)} bones, {len(balls)} metaball "
-                        f"objects, action '{action.name}' ({state.n_frames} frames)")
+    op.report(
+        {"INFO"},
+        f"Built {arm.name}: {len(arm.data.bones)} bones, {len(balls)} metaball "
+        f"objects, action '{action.name}' ({state.n_frames} frames)",
+    )
     return {"FINISHED"}
 
 
@@ -115,6 +119,7 @@ class SOMACAP_OT_fit(bpy.types.Operator):
 
         def job(progress):
             return pipeline.state_for_scene(scene_dir, state_path or None, progress, cues=cues)
+
         return job
 
     def execute(self, context):  # scripts and background mode: synchronous
@@ -162,8 +167,11 @@ class SOMACAP_OT_fit(bpy.types.Operator):
             return _fail(self, f"fit failed: {job.error!r}")
         s.status = "Done"
         if getattr(self, "_cached", False):
-            self.report({"WARNING"}, "Used the scene's existing fit.json: the Cues setting "
-                                     "applies to a new fit (move fit.json away to refit)")
+            self.report(
+                {"WARNING"},
+                "Used the scene's existing fit.json: the Cues setting "
+                "applies to a new fit (move fit.json away to refit)",
+            )
         return _build(self, context, job.result)
 
 
@@ -193,8 +201,11 @@ class SOMACAP_OT_map_bones(bpy.types.Operator):
             row = s.mapping.add()
             row.canonical, row.bone = c, m.bones.get(c, "")
         s.mapping_scheme = m.scheme
-        self.report({"INFO"}, f"{m.scheme}: mapped {len(m.bones)} bones; unmapped: "
-                              f"{', '.join(m.unmapped[:12]) or 'none'}")
+        self.report(
+            {"INFO"},
+            f"{m.scheme}: mapped {len(m.bones)} bones; unmapped: "
+            f"{', '.join(m.unmapped[:12]) or 'none'}",
+        )
         return {"FINISHED"}
 
 
@@ -258,15 +269,23 @@ class SOMACAP_OT_retarget(bpy.types.Operator):
     def execute(self, context):
         s = _settings(context)
         try:
-            res = rt.retarget(s.body, s.target, take=s.take or "take",
-                              target_preset=_mapping_from_settings(s), foot_lock=s.foot_lock)
+            res = rt.retarget(
+                s.body,
+                s.target,
+                take=s.take or "take",
+                target_preset=_mapping_from_settings(s),
+                foot_lock=s.foot_lock,
+            )
         except _core.errors.InputError as exc:
             return _fail(self, exc)
-        msg = (f"Retargeted {len(res.pairs)} bones onto {s.target.name} as "
-               f"'{res.action.name}' (leg scale {res.scale:.3f})")
+        msg = (
+            f"Retargeted {len(res.pairs)} bones onto {s.target.name} as "
+            f"'{res.action.name}' (leg scale {res.scale:.3f})"
+        )
         if res.foot_skate_mm:
-            msg += "; foot skate " + ", ".join(f"{k} {b:.0f}->{a:.0f} mm"
-                                               for k, (b, a) in res.foot_skate_mm.items())
+            msg += "; foot skate " + ", ".join(
+                f"{k} {b:.0f}->{a:.0f} mm" for k, (b, a) in res.foot_skate_mm.items()
+            )
         if res.unmapped_target:
             msg += f"; unmapped: {', '.join(res.unmapped_target[:10])}"
             if len(res.unmapped_target) > 10:

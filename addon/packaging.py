@@ -67,8 +67,9 @@ def blender_ext_cli() -> Path:
 
 def run_blender_ext(*args: str) -> subprocess.CompletedProcess:
     """Run ``blender_ext.py`` with this interpreter; returns the completed process."""
-    return subprocess.run([sys.executable, str(blender_ext_cli()), *args], capture_output=True,
-                          text=True, check=False)
+    return subprocess.run(
+        [sys.executable, str(blender_ext_cli()), *args], capture_output=True, text=True, check=False
+    )
 
 
 def validate(source: Path = REPO) -> subprocess.CompletedProcess:
@@ -84,8 +85,19 @@ def download_wheels(cache: Path) -> list[Path]:
             dest = cache / f"{platform}-py{py}"
             have = sorted(dest.glob("*.whl"))
             if len(have) < len(reqs):
-                cmd = [sys.executable, "-m", "pip", "download", "--quiet", "--no-deps",
-                       "--only-binary=:all:", "--python-version", py, "-d", str(dest)]
+                cmd = [
+                    sys.executable,
+                    "-m",
+                    "pip",
+                    "download",
+                    "--quiet",
+                    "--no-deps",
+                    "--only-binary=:all:",
+                    "--python-version",
+                    py,
+                    "-d",
+                    str(dest),
+                ]
                 for tag in tags:
                     cmd += ["--platform", tag]
                 subprocess.run(cmd + reqs, check=True)
@@ -123,8 +135,9 @@ def stage(dest: Path, wheels: list[Path]) -> Path:
     return dest
 
 
-def build(out_dir: Path, with_wheels: bool = True, cache: Path | None = None,
-          staging: Path | None = None) -> list[Path]:
+def build(
+    out_dir: Path, with_wheels: bool = True, cache: Path | None = None, staging: Path | None = None
+) -> list[Path]:
     """Build the extension zip(s) into ``out_dir``; returns their paths.
 
     With wheels: one zip per platform (``--split-platforms``).  Without: a single

@@ -58,9 +58,11 @@ class SOMACAP_PT_quality(bpy.types.Panel):
         i = context.scene.frame_current - context.scene.frame_start
         if 0 <= i < len(rmse):
             v = rmse[i]
-            self.layout.label(text=f"Frame {context.scene.frame_current}: RMSE "
-                              + (f"{v:.1f} mm" if v >= 0 else "unknown"))
-            if list(body.get("somacap_diverged", []))[i:i + 1] == [1]:
+            self.layout.label(
+                text=f"Frame {context.scene.frame_current}: RMSE "
+                + (f"{v:.1f} mm" if v >= 0 else "unknown")
+            )
+            if list(body.get("somacap_diverged", []))[i : i + 1] == [1]:
                 self.layout.label(text="Diverged on this frame", icon="ERROR")
         good = [v for v in rmse if v >= 0]
         if good:

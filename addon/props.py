@@ -26,34 +26,61 @@ class SOMACAP_PG_bone_pair(bpy.types.PropertyGroup):
 
 
 class SOMACAP_PG_settings(bpy.types.PropertyGroup):
-    scene_dir: StringProperty(name="Scene folder", subtype="DIR_PATH",
-                              description="A Somacap scene folder (scene.toml, images/, …)")
-    calibration: StringProperty(name="Calibration", subtype="FILE_PATH",
-                                description="calibration.toml (default: the scene's)")
-    state_path: StringProperty(name="Fitted state", subtype="FILE_PATH",
-                               description="fit.json to build the body from")
-    take: StringProperty(name="Take", default="take",
-                         description="Name of the new action(s)")
-    body: PointerProperty(name="Body", type=bpy.types.Object, poll=_is_armature,
-                          description="The recovered armature (source of retargeting)")
-    target: PointerProperty(name="Target", type=bpy.types.Object, poll=_is_armature,
-                            description="A rigged character to retarget onto")
-    foot_lock: BoolProperty(name="Foot locking", default=False,
-                            description="Pin each foot while it is in contact (low and slow), "
-                                        "bending the leg to reach it")
+    scene_dir: StringProperty(
+        name="Scene folder",
+        subtype="DIR_PATH",
+        description="A Somacap scene folder (scene.toml, images/, …)",
+    )
+    calibration: StringProperty(
+        name="Calibration",
+        subtype="FILE_PATH",
+        description="calibration.toml (default: the scene's)",
+    )
+    state_path: StringProperty(
+        name="Fitted state", subtype="FILE_PATH", description="fit.json to build the body from"
+    )
+    take: StringProperty(name="Take", default="take", description="Name of the new action(s)")
+    body: PointerProperty(
+        name="Body",
+        type=bpy.types.Object,
+        poll=_is_armature,
+        description="The recovered armature (source of retargeting)",
+    )
+    target: PointerProperty(
+        name="Target",
+        type=bpy.types.Object,
+        poll=_is_armature,
+        description="A rigged character to retarget onto",
+    )
+    foot_lock: BoolProperty(
+        name="Foot locking",
+        default=False,
+        description="Pin each foot while it is in contact (low and slow), "
+        "bending the leg to reach it",
+    )
     mapping: CollectionProperty(type=SOMACAP_PG_bone_pair)
     mapping_index: IntProperty()
     mapping_scheme: StringProperty(name="Scheme")
     fit_cues: EnumProperty(
-        name="Cues", default="texture",
+        name="Cues",
+        default="texture",
         description="Observations the fit uses (a scene's existing fit.json is used as it is)",
-        items=[("texture", "Texture", "3-D surface points from the tracker (needs textured "
-                                      "clothing)"),
-               ("contours", "Contours", "Silhouette contours of each camera's foreground "
-                                        "(no tracker; works on bare skin)"),
-               ("both", "Both", "Points and contours together, and each camera's texture "
-                                "flow in frames without points: the most accurate, about "
-                                "2.7x the fit's CPU time")])
+        items=[
+            ("texture", "Texture", "3-D surface points from the tracker (needs textured clothing)"),
+            (
+                "contours",
+                "Contours",
+                "Silhouette contours of each camera's foreground (no tracker; works on bare skin)",
+            ),
+            (
+                "both",
+                "Both",
+                "Points and contours together, and each camera's texture "
+                "flow in frames without points: the most accurate, about "
+                "2.7x the fit's CPU time",
+            ),
+        ],
+    )
     export_format: EnumProperty(name="Format", items=[("BVH", "BVH", ""), ("FBX", "FBX", "")])
     progress: FloatProperty(name="Progress", subtype="PERCENTAGE", min=0, max=100)
     status: StringProperty(name="Status")

@@ -39,7 +39,8 @@ def _check_target(obj, mapping, min_required: bool = True):
         raise errors.InputError(
             f"target '{obj.name}' does not look humanoid: no bones found for "
             f"{', '.join(mapping.missing_required)} (mapped {len(mapping.bones)} of "
-            f"{len(_core.bone_mapping.CANONICAL_BONES)}; edit the mapping or load a preset)")
+            f"{len(_core.bone_mapping.CANONICAL_BONES)}; edit the mapping or load a preset)"
+        )
 
 
 def rig_mapping(obj, preset=None):
@@ -65,8 +66,15 @@ def _rotations(M: np.ndarray) -> np.ndarray:
     return R / np.linalg.norm(R, axis=-2, keepdims=True)
 
 
-def retarget(source, target, take: str, frames=None, source_preset=None, target_preset=None,
-             foot_lock: bool = False):
+def retarget(
+    source,
+    target,
+    take: str,
+    frames=None,
+    source_preset=None,
+    target_preset=None,
+    foot_lock: bool = False,
+):
     """Retarget ``source``'s current animation onto ``target`` as a new action ``take``.
 
     Parameters
@@ -94,7 +102,8 @@ def retarget(source, target, take: str, frames=None, source_preset=None, target_
     _check_target(target, tgt_map)
     if not src_map.is_humanoid:
         raise _core.errors.InputError(
-            f"source '{source.name}' is not humanoid (missing {src_map.missing_required})")
+            f"source '{source.name}' is not humanoid (missing {src_map.missing_required})"
+        )
     canon = [c for c in bm.CANONICAL_BONES if c in src_map.bones and c in tgt_map.bones]
     if frames is None:
         ad = source.animation_data
@@ -111,8 +120,9 @@ def retarget(source, target, take: str, frames=None, source_preset=None, target_
     src_pose = builders.pose_world_matrices(source, fr)  # (F, Bs, 4, 4)
     src_rest = _rest_world(source)
     tgt_rest = _rest_world(target)
-    R_t = rt.transfer_rotations(_rotations(src_rest[si]), _rotations(src_pose[:, si]),
-                                _rotations(tgt_rest[ti]))  # world
+    R_t = rt.transfer_rotations(
+        _rotations(src_rest[si]), _rotations(src_pose[:, si]), _rotations(tgt_rest[ti])
+    )  # world
 
     # Root path scaled by leg length, about each rig's floor origin.
     src_heads = {c: src_rest[src_names.index(src_map.bones[c]), :3, 3] for c in src_map.bones}
@@ -127,16 +137,20 @@ def retarget(source, target, take: str, frames=None, source_preset=None, target_
         if foot_lock:
             raise _core.errors.InputError(
                 f"foot locking is not available for the constraint-driven rig "
-                f"'{target.name}' yet: retarget without it")
+                f"'{target.name}' yet: retarget without it"
+            )
         from . import retarget_driven
 
-        action = retarget_driven.key_controls(
-            target, tgt_map, canon, ti, R_t, hips_t, fr, take)
+        action = retarget_driven.key_controls(target, tgt_map, canon, ti, R_t, hips_t, fr, take)
         action["somacap_leg_scale"] = float(k)
         return RetargetResult(
-            action=action, pairs={src_map.bones[c]: tgt_map.bones[c] for c in canon},
-            unmapped_source=src_map.unmapped, unmapped_target=tgt_map.unmapped,
-            scale=float(k), frames=(int(fr[0]), int(fr[-1])))
+            action=action,
+            pairs={src_map.bones[c]: tgt_map.bones[c] for c in canon},
+            unmapped_source=src_map.unmapped,
+            unmapped_target=tgt_map.unmapped,
+            scale=float(k),
+            frames=(int(fr[0]), int(fr[-1])),
+        )
 
     # World -> target armature space.
     M_obj = np.array(target.matrix_world)
@@ -146,8 +160,9 @@ def retarget(source, target, take: str, frames=None, source_preset=None, target_
     hip_b = tgt_names.index(tgt_map.bones["pelvis"])
     root = {hip_b: (hips_t @ inv_obj[:3, :3].T) + inv_obj[:3, 3]}
     rest = builders.armature_rest(target)
-    parent = np.array([tgt_names.index(b.parent.name) if b.parent else -1
-                       for b in target.data.bones])
+    parent = np.array(
+        [tgt_names.index(b.parent.name) if b.parent else -1 for b in target.data.bones]
+    )
     # Bones left unmapped keep their current local pose (Blender keeps unkeyed values).
     buf = np.zeros(len(tgt_names) * 16, dtype=np.float32)
     target.pose.bones.foreach_get("matrix_basis", buf)
@@ -185,17 +200,23 @@ def retarget(source, target, take: str, frames=None, source_preset=None, target_
             channels[(path + ".rotation_euler", name)] = np.unwrap(xyz, axis=0)
     hip_bone = target.data.bones[hip_b]
     if not hip_bone.use_connect:
-        channels[(f'pose.bones["{tgt_names[hip_b]}"].location', tgt_names[hip_b])] = \
-            basis[:, hip_b, :3, 3]
+        channels[(f'pose.bones["{tgt_names[hip_b]}"].location', tgt_names[hip_b])] = basis[
+            :, hip_b, :3, 3
+        ]
     action = action_api.assign_new_action(target, take)
     action_api.key_channels(target, action, channels, fr)
     action["somacap_take"] = take
     action["somacap_leg_scale"] = float(k)
     action["somacap_foot_lock"] = bool(foot_lock)
     return RetargetResult(
-        action=action, pairs={src_map.bones[c]: tgt_map.bones[c] for c in canon},
-        unmapped_source=src_map.unmapped, unmapped_target=tgt_map.unmapped, scale=float(k),
-        frames=(int(fr[0]), int(fr[-1])), foot_skate_mm=skate)
+        action=action,
+        pairs={src_map.bones[c]: tgt_map.bones[c] for c in canon},
+        unmapped_source=src_map.unmapped,
+        unmapped_target=tgt_map.unmapped,
+        scale=float(k),
+        frames=(int(fr[0]), int(fr[-1])),
+        foot_skate_mm=skate,
+    )
 
 
 def _lock_feet(target, canon, ti, tgt_names, R_t, rot, pose, rest, M_obj) -> dict:
@@ -220,7 +241,8 @@ def _lock_feet(target, canon, ti, tgt_names, R_t, rot, pose, rest, M_obj) -> dic
         l2 = scale * float(np.linalg.norm(rest[bf, :3, 3] - rest[bs, :3, 3]))
         hip = pose[:, bt, :3, 3] @ M_obj[:3, :3].T + M_obj[:3, 3]
         Rt, Rs, contact, before, after = fl.lock_leg(
-            hip, R_t[:, canon.index(names[0])], R_t[:, canon.index(names[1])], l1, l2, fps)
+            hip, R_t[:, canon.index(names[0])], R_t[:, canon.index(names[1])], l1, l2, fps
+        )
         rot[bt] = R_obj.T[None] @ Rt
         rot[bs] = R_obj.T[None] @ Rs
         out[side] = (fl.skate_mm(before, contact), fl.skate_mm(after, contact))

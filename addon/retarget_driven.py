@@ -68,8 +68,9 @@ def control_levels(obj, controls: list[str]) -> list[list[str]]:
     def lev(c: str, depth: int = 0) -> int:
         if c not in level:
             deps = reach(c) - {c}
-            level[c] = 0 if not deps or depth > len(keyed) else \
-                1 + max(lev(d, depth + 1) for d in deps)
+            level[c] = (
+                0 if not deps or depth > len(keyed) else 1 + max(lev(d, depth + 1) for d in deps)
+            )
         return level[c]
 
     for c in controls:

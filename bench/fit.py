@@ -122,17 +122,39 @@ def render_studio_scene(name: str, root: Path = RENDERS) -> tuple[Path, float | 
         The scene folder and the render wall time in seconds (None when cached).
     """
     bvh, rig, start = STUDIO_SCENES[name]
-    return render_cached(name, root / name,
-                         ["--bvh", str(MOCAP / bvh), "--rig", rig, "--start", str(start),
-                          "--frames", str(FRAMES), "--fps", str(FPS), "--size", SIZE,
-                          "--wand-positions", "0"])
+    return render_cached(
+        name,
+        root / name,
+        [
+            "--bvh",
+            str(MOCAP / bvh),
+            "--rig",
+            rig,
+            "--start",
+            str(start),
+            "--frames",
+            str(FRAMES),
+            "--fps",
+            str(FPS),
+            "--size",
+            SIZE,
+            "--wand-positions",
+            "0",
+        ],
+    )
 
 
 #: Joint -> the DOF whose σ says whether the part that places the joint was observed.
-_PLACING_DOF = {"l_elbow": "l_shoulder_x", "r_elbow": "r_shoulder_x",
-                "l_wrist": "l_elbow_x", "r_wrist": "r_elbow_x",
-                "l_knee": "l_hip_x", "r_knee": "r_hip_x",
-                "l_ankle": "l_knee_x", "r_ankle": "r_knee_x"}
+_PLACING_DOF = {
+    "l_elbow": "l_shoulder_x",
+    "r_elbow": "r_shoulder_x",
+    "l_wrist": "l_elbow_x",
+    "r_wrist": "r_elbow_x",
+    "l_knee": "l_hip_x",
+    "r_knee": "r_hip_x",
+    "l_ankle": "l_knee_x",
+    "r_ankle": "r_knee_x",
+}
 #: σ (radians) above which that DOF counts as unobserved in a frame: a hidden part's
 #: angles follow the damped prediction and their σ grows from frame to frame.
 HIDDEN_SIGMA = 0.1
@@ -157,14 +179,25 @@ def hidden_split(state, truth: dict) -> dict:
         hid_e.append(e[h])
         share[j] = float(h.mean()) if len(h) else 0.0
     seen, hid = np.concatenate(seen_e), np.concatenate(hid_e)
-    return {"seen_mm": float(seen.mean()) if len(seen) else float("nan"), "n_seen": len(seen),
-            "hidden_mm": float(hid.mean()) if len(hid) else float("nan"),
-            "n_hidden": len(hid), "hidden_share": share}
+    return {
+        "seen_mm": float(seen.mean()) if len(seen) else float("nan"),
+        "n_seen": len(seen),
+        "hidden_mm": float(hid.mean()) if len(hid) else float("nan"),
+        "n_hidden": len(hid),
+        "hidden_share": share,
+    }
 
 
-def run_one(scene: Path, frames: int | None, observations: str, model: str,
-            cues: str = "texture", tracks: Path | None = None, shape: str = "written",
-            flow: bool = True) -> dict:
+def run_one(
+    scene: Path,
+    frames: int | None,
+    observations: str,
+    model: str,
+    cues: str = "texture",
+    tracks: Path | None = None,
+    shape: str = "written",
+    flow: bool = True,
+) -> dict:
     """Fit and evaluate one scene folder; return the figures (or ``{"error": ...}``).
 
     ``cues``, ``tracks`` (a tracker output other than ``SCENE/tracks.npz``) and ``shape``
@@ -175,9 +208,23 @@ def run_one(scene: Path, frames: int | None, observations: str, model: str,
 
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "fit.json"
-        cmd = [sys.executable, "-m", "core", "fit", str(scene), "-o", str(out),
-               "--observations", observations, "--model", model, "--cues", cues,
-               "--shape", shape]
+        cmd = [
+            sys.executable,
+            "-m",
+            "core",
+            "fit",
+            str(scene),
+            "-o",
+            str(out),
+            "--observations",
+            observations,
+            "--model",
+            model,
+            "--cues",
+            cues,
+            "--shape",
+            shape,
+        ]
         if tracks is not None:
             cmd += ["--tracks", str(tracks)]
         if not flow:
@@ -189,8 +236,12 @@ def run_one(scene: Path, frames: int | None, observations: str, model: str,
         wall = time.perf_counter() - t0
         if p.returncode != 0:
             return {"scene": scene.name, "error": p.stderr.strip().splitlines()[-1:]}
-        ev = subprocess.run([sys.executable, "-m", "core", "evaluate", str(scene), str(out),
-                             "--json"], capture_output=True, text=True, cwd=ROOT)
+        ev = subprocess.run(
+            [sys.executable, "-m", "core", "evaluate", str(scene), str(out), "--json"],
+            capture_output=True,
+            text=True,
+            cwd=ROOT,
+        )
         if ev.returncode != 0:
             return {"scene": scene.name, "error": ev.stderr.strip().splitlines()[-1:]}
         metrics = json.loads(ev.stdout.strip().splitlines()[-1])
@@ -200,16 +251,30 @@ def run_one(scene: Path, frames: int | None, observations: str, model: str,
     sc = load_scene(scene, check_images=False)
     ok = [f for f in range(state.n_frames) if not state.quality.diverged[f]]
     surf = metrics.get("surface_mm")  # core.evaluate.surface_distance_mm
-    return {"hidden": hidden_split(state, sc.truth),
-            "scene": scene.name, "size": sc.image_size, "frames": len(ok),
-            "n_frames": state.n_frames, "rig": sc.meta.get("source", {}).get("rig", "?"),
-            "metrics": metrics, "surface_mm": surf, "wall_s": wall,
-            "s_per_frame": wall / max(state.n_frames, 1),
-            "fit_line": fit_line[0] if fit_line else "", "pts": pts_line[0] if pts_line else ""}
+    return {
+        "hidden": hidden_split(state, sc.truth),
+        "scene": scene.name,
+        "size": sc.image_size,
+        "frames": len(ok),
+        "n_frames": state.n_frames,
+        "rig": sc.meta.get("source", {}).get("rig", "?"),
+        "metrics": metrics,
+        "surface_mm": surf,
+        "wall_s": wall,
+        "s_per_frame": wall / max(state.n_frames, 1),
+        "fit_line": fit_line[0] if fit_line else "",
+        "pts": pts_line[0] if pts_line else "",
+    }
 
 
-def shape_comparison(scene_dir: Path, frames: int | None, model: str = "complete",
-                     n_points: int = 3000, seed: int = 0, eval_frames: int = 3) -> list[dict]:
+def shape_comparison(
+    scene_dir: Path,
+    frames: int | None,
+    model: str = "complete",
+    n_points: int = 3000,
+    seed: int = 0,
+    eval_frames: int = 3,
+) -> list[dict]:
     """Template shape vs the whole-body fitted shape on one scene, truth-derived points.
 
     Parameters
@@ -239,55 +304,78 @@ def shape_comparison(scene_dir: Path, frames: int | None, model: str = "complete
     out = []
     for shape, track in (("template", True), ("fit", True), ("fit", False)):
         t0 = time.perf_counter()
-        res = run_scene(scene, observations="truth", model=model, n_points=n_points, seed=seed,
-                        frames=frames,
-                        settings=SequenceSettings(shape=shape, shape_fit_track=track))
+        res = run_scene(
+            scene,
+            observations="truth",
+            model=model,
+            n_points=n_points,
+            seed=seed,
+            frames=frames,
+            settings=SequenceSettings(shape=shape, shape_fit_track=track),
+        )
         sec = time.perf_counter() - t0
         st = res.state
         ok = np.flatnonzero(~st.quality.diverged)
         pick = ok[np.unique(np.linspace(0, len(ok) - 1, eval_frames).round().astype(int))]
         bm, mb, seen_mb = [], [], []
         for f in pick:
-            d = surface_distances(st.skeleton, st.theta[f], st.root_xyz[f], st.s, st.metaballs,
-                                  verts[f], faces)
+            d = surface_distances(
+                st.skeleton, st.theta[f], st.root_xyz[f], st.s, st.metaballs, verts[f], faces
+            )
             bm.append(d["ball_to_mesh"])
             mb.append(d["mesh_to_ball"])
             seen_mb.append(d["mesh_to_ball"][seen_vertices(verts[f], faces, cams)[d["vertex_idx"]]])
         full = _pad(st, scene.n_frames) if st.n_frames < scene.n_frames else st
-        out.append({"shape": shape if track else "fit-output",
-                    "eval": evaluate_state(full, scene.truth),
-                    "ball_mesh_mm": 1e3 * float(np.mean(np.concatenate(bm))),
-                    "mesh_ball_mm": 1e3 * float(np.mean(np.concatenate(mb))),
-                    "seen_mesh_ball_mm": 1e3 * float(np.mean(np.concatenate(seen_mb))),
-                    "eval_frames": pick.tolist(), "seconds": sec, "n_frames": st.n_frames,
-                    "diverged": int(st.quality.diverged.sum()), "record": res.shape})
+        out.append(
+            {
+                "shape": shape if track else "fit-output",
+                "eval": evaluate_state(full, scene.truth),
+                "ball_mesh_mm": 1e3 * float(np.mean(np.concatenate(bm))),
+                "mesh_ball_mm": 1e3 * float(np.mean(np.concatenate(mb))),
+                "seen_mesh_ball_mm": 1e3 * float(np.mean(np.concatenate(seen_mb))),
+                "eval_frames": pick.tolist(),
+                "seconds": sec,
+                "n_frames": st.n_frames,
+                "diverged": int(st.quality.diverged.sum()),
+                "record": res.shape,
+            }
+        )
     return out
 
 
 def print_shape_comparison(rows: list[dict], scene: Path) -> None:
     """Print :func:`shape_comparison` as a side-by-side table."""
     r0 = rows[0]
-    print(f"{scene.name}: template vs whole-body fitted shape, TRUTH-DERIVED OBSERVATIONS "
-          f"(points sampled on the true mesh, 1.5 mm noise, 5 % outliers), {r0['n_frames']} "
-          f"frames; surface on frames {[r['eval_frames'] for r in rows]}")
+    print(
+        f"{scene.name}: template vs whole-body fitted shape, TRUTH-DERIVED OBSERVATIONS "
+        f"(points sampled on the true mesh, 1.5 mm noise, 5 % outliers), {r0['n_frames']} "
+        f"frames; surface on frames {[r['eval_frames'] for r in rows]}"
+    )
     print(f"{'':26s}" + "".join(f"{r['shape']:>12s}" for r in rows))
-    lines = [("MPJPE mm", lambda r: r["eval"].mpjpe_mm),
-             ("max joint err % height", lambda r: r["eval"].max_joint_error_pct_height),
-             ("frames <= 1 % height %", lambda r: 100 * r["eval"].frames_within_1pct),
-             ("segment orient. RMSE deg", lambda r: r["eval"].segment_orientation_rmse_deg)]
+    lines = [
+        ("MPJPE mm", lambda r: r["eval"].mpjpe_mm),
+        ("max joint err % height", lambda r: r["eval"].max_joint_error_pct_height),
+        ("frames <= 1 % height %", lambda r: 100 * r["eval"].frames_within_1pct),
+        ("segment orient. RMSE deg", lambda r: r["eval"].segment_orientation_rmse_deg),
+    ]
     for seg in r0["eval"].per_segment_rmse_deg:
         lines.append((f"  {seg} deg", lambda r, k=seg: r["eval"].per_segment_rmse_deg[k]))
-    lines += [("ball -> mesh mm", lambda r: r["ball_mesh_mm"]),
-              ("mesh -> ball mm", lambda r: r["mesh_ball_mm"]),
-              ("seen mesh -> ball mm", lambda r: r["seen_mesh_ball_mm"]),
-              ("diverged frames", lambda r: r["diverged"]),
-              ("fit seconds", lambda r: r["seconds"])]
+    lines += [
+        ("ball -> mesh mm", lambda r: r["ball_mesh_mm"]),
+        ("mesh -> ball mm", lambda r: r["mesh_ball_mm"]),
+        ("seen mesh -> ball mm", lambda r: r["seen_mesh_ball_mm"]),
+        ("diverged frames", lambda r: r["diverged"]),
+        ("fit seconds", lambda r: r["seconds"]),
+    ]
     for name, get in lines:
         print(f"{name:26s}" + "".join(f"{get(r):12.2f}" for r in rows))
     for rec in (r["record"] for r in rows[1:]):
-        print(f"shape fit: frames {rec.frames.tolist()}, frame_ok {rec.frame_ok.tolist()}, "
-              f"RMS mm {np.round(1e3 * rec.rms_m, 2).tolist()}, {rec.seconds:.1f} s, "
-              f"converged {rec.converged}: {rec.message}", flush=True)
+        print(
+            f"shape fit: frames {rec.frames.tolist()}, frame_ok {rec.frame_ok.tolist()}, "
+            f"RMS mm {np.round(1e3 * rec.rms_m, 2).tolist()}, {rec.seconds:.1f} s, "
+            f"converged {rec.converged}: {rec.message}",
+            flush=True,
+        )
 
 
 def _resolve(arg: str, renders: Path) -> tuple[Path, float | None]:
@@ -313,30 +401,55 @@ def _render_note(scene: Path, wall: float | None) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m bench.fit", description=__doc__.splitlines()[0])
-    ap.add_argument("scenes", nargs="*",
-                    help=f"scene folders or studio scene names {list(STUDIO_SCENES)} "
-                         f"(default: walk_line3 and {', '.join(DEFAULT_SET)})")
+    ap.add_argument(
+        "scenes",
+        nargs="*",
+        help=f"scene folders or studio scene names {list(STUDIO_SCENES)} "
+        f"(default: walk_line3 and {', '.join(DEFAULT_SET)})",
+    )
     ap.add_argument("--frames", type=int, default=None)
     ap.add_argument("--observations", default="truth", choices=("truth", "tracks", "auto"))
     ap.add_argument("--model", default="complete", choices=("simplified", "complete"))
     ap.add_argument("--renders", type=Path, default=RENDERS, help="studio scene cache folder")
-    ap.add_argument("--cues", default="texture", choices=("texture", "contours", "both"),
-                    help="observation types of the fit (python -m core fit --cues)")
-    ap.add_argument("--tracks", type=Path, default=None,
-                    help="tracker output for --observations tracks (default SCENE/tracks.npz; "
-                         "for walk_line3 the bench.looks cache)")
-    ap.add_argument("--real", default="both", choices=("texture", "contours", "both", "none"),
-                    help="with truth-derived observations: also fit walk_line3 through the "
-                         "real pipeline (its tracker's tracks) with these cues, printed under "
-                         "the truth-derived row (default both; none: skip)")
-    ap.add_argument("--shape", default="written", choices=("template", "written", "tracked"),
-                    help="body shape of the fits (python -m core fit --shape)")
-    ap.add_argument("--fit-shape", action="store_true",
-                    help="compare the template with the whole-body fitted shape on one scene "
-                         "(default walk_line3), truth-derived observations, in-process")
-    ap.add_argument("--compare-flow", action="store_true",
-                    help="with --cues both: each scene also without the single-camera "
-                         "texture flow (core fit --no-flow), the row printed under it")
+    ap.add_argument(
+        "--cues",
+        default="texture",
+        choices=("texture", "contours", "both"),
+        help="observation types of the fit (python -m core fit --cues)",
+    )
+    ap.add_argument(
+        "--tracks",
+        type=Path,
+        default=None,
+        help="tracker output for --observations tracks (default SCENE/tracks.npz; "
+        "for walk_line3 the bench.looks cache)",
+    )
+    ap.add_argument(
+        "--real",
+        default="both",
+        choices=("texture", "contours", "both", "none"),
+        help="with truth-derived observations: also fit walk_line3 through the "
+        "real pipeline (its tracker's tracks) with these cues, printed under "
+        "the truth-derived row (default both; none: skip)",
+    )
+    ap.add_argument(
+        "--shape",
+        default="written",
+        choices=("template", "written", "tracked"),
+        help="body shape of the fits (python -m core fit --shape)",
+    )
+    ap.add_argument(
+        "--fit-shape",
+        action="store_true",
+        help="compare the template with the whole-body fitted shape on one scene "
+        "(default walk_line3), truth-derived observations, in-process",
+    )
+    ap.add_argument(
+        "--compare-flow",
+        action="store_true",
+        help="with --cues both: each scene also without the single-camera "
+        "texture flow (core fit --no-flow), the row printed under it",
+    )
     args = ap.parse_args(argv)
     if args.fit_shape:
         scene, _ = _resolve(args.scenes[0], args.renders) if args.scenes else (DEFAULT, None)
@@ -344,31 +457,62 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     names = args.scenes or [str(DEFAULT), *DEFAULT_SET]
     scenes = [_resolve(a, args.renders) for a in names]  # renders first, sequentially
-    label = ("TRUTH-DERIVED OBSERVATIONS (points sampled on the true mesh, 1.5 mm noise, "
-             "5 % outliers) — not the image pipeline's result"
-             if args.observations == "truth" else f"observations: {args.observations}")
+    label = (
+        "TRUTH-DERIVED OBSERVATIONS (points sampled on the true mesh, 1.5 mm noise, "
+        "5 % outliers) — not the image pipeline's result"
+        if args.observations == "truth"
+        else f"observations: {args.observations}"
+    )
     print(f"{label}; body shape: {args.shape}")
-    hdr = (f"{'scene':<14}{'rig':<12}{'frames':>7}{'MPJPE mm':>10}{'max %h':>8}{'<=1% fr':>9}"
-           f"{'seg deg':>9}{'surf mm':>9}{'s/frame':>9}  fit timing / points / source")
+    hdr = (
+        f"{'scene':<14}{'rig':<12}{'frames':>7}{'MPJPE mm':>10}{'max %h':>8}{'<=1% fr':>9}"
+        f"{'seg deg':>9}{'surf mm':>9}{'s/frame':>9}  fit timing / points / source"
+    )
     print(hdr, flush=True)
     for scene, render_wall in scenes:
         tracks = args.tracks
         if args.observations == "tracks" and tracks is None and _is_default(scene):
             tracks = default_tracks()
-        r = run_one(scene, args.frames, args.observations, args.model, args.cues, tracks,
-                    args.shape)
+        r = run_one(
+            scene, args.frames, args.observations, args.model, args.cues, tracks, args.shape
+        )
         print_row(r, scene, render_wall)
         if args.compare_flow and args.cues == "both":
-            print_row(run_one(scene, args.frames, args.observations, args.model, args.cues,
-                              tracks, args.shape, flow=False), scene, None,
-                      name="  no flow")
-        if (args.observations == "truth" and args.real != "none" and _is_default(scene)):
-            print(f"  the same scene through the REAL pipeline (tracks of python -m core "
-                  f"track, {default_tracks().relative_to(ROOT)}; cues {args.real}):",
-                  flush=True)
-            print_row(run_one(scene, args.frames, "tracks", args.model, args.real,
-                              default_tracks(), args.shape), scene, None,
-                      name="  real " + args.real)
+            print_row(
+                run_one(
+                    scene,
+                    args.frames,
+                    args.observations,
+                    args.model,
+                    args.cues,
+                    tracks,
+                    args.shape,
+                    flow=False,
+                ),
+                scene,
+                None,
+                name="  no flow",
+            )
+        if args.observations == "truth" and args.real != "none" and _is_default(scene):
+            print(
+                f"  the same scene through the REAL pipeline (tracks of python -m core "
+                f"track, {default_tracks().relative_to(ROOT)}; cues {args.real}):",
+                flush=True,
+            )
+            print_row(
+                run_one(
+                    scene,
+                    args.frames,
+                    "tracks",
+                    args.model,
+                    args.real,
+                    default_tracks(),
+                    args.shape,
+                ),
+                scene,
+                None,
+                name="  real " + args.real,
+            )
     return 0
 
 
@@ -390,24 +534,29 @@ def print_row(r: dict, scene: Path, render_wall: float | None, name: str | None 
         print(f"{name or r['scene']:<14} failed: {r['error']}", flush=True)
         return
     m = r["metrics"]
-    print(f"{name or r['scene']:<14}{r['rig']:<12}{r['frames']:>4}/{r['n_frames']:<2}"
-          f"{m['mpjpe_mm']:>10.1f}"
-          f"{m['max_joint_error_pct_height']:>8.2f}"
-          f"{100 * m['frames_within_1pct_height']:>8.0f}%"
-          f"{m['segment_orientation_rmse_deg']:>9.1f}{r['surface_mm'] or float('nan'):>9.1f}"
-          f"{r['s_per_frame']:>9.2f}  {r['size'][0]}x{r['size'][1]}; {r['fit_line']}; "
-          f"{r['pts']}; {_render_note(scene, render_wall)}")
-    print("    per joint mm: " + ", ".join(
-        f"{j} {v:.1f}" for j, v in m["per_joint_mm"].items()))
-    print("    per segment RMSE deg: " + ", ".join(
-        f"{k} {v:.1f}" for k, v in m["per_segment_rmse_deg"].items()))
+    print(
+        f"{name or r['scene']:<14}{r['rig']:<12}{r['frames']:>4}/{r['n_frames']:<2}"
+        f"{m['mpjpe_mm']:>10.1f}"
+        f"{m['max_joint_error_pct_height']:>8.2f}"
+        f"{100 * m['frames_within_1pct_height']:>8.0f}%"
+        f"{m['segment_orientation_rmse_deg']:>9.1f}{r['surface_mm'] or float('nan'):>9.1f}"
+        f"{r['s_per_frame']:>9.2f}  {r['size'][0]}x{r['size'][1]}; {r['fit_line']}; "
+        f"{r['pts']}; {_render_note(scene, render_wall)}"
+    )
+    print("    per joint mm: " + ", ".join(f"{j} {v:.1f}" for j, v in m["per_joint_mm"].items()))
+    print(
+        "    per segment RMSE deg: "
+        + ", ".join(f"{k} {v:.1f}" for k, v in m["per_segment_rmse_deg"].items())
+    )
     h = r["hidden"]
-    print(f"    limb joints (elbows, wrists, knees, ankles) where their part was observed: "
-          f"{h['seen_mm']:.1f} mm ({h['n_seen']} joint-frames); hidden (sigma of the "
-          f"placing angle > {HIDDEN_SIGMA} rad): {h['hidden_mm']:.1f} mm "
-          f"({h['n_hidden']}); hidden share: " + ", ".join(
-              f"{j} {100 * v:.0f}%" for j, v in h["hidden_share"].items() if v > 0),
-          flush=True)
+    print(
+        f"    limb joints (elbows, wrists, knees, ankles) where their part was observed: "
+        f"{h['seen_mm']:.1f} mm ({h['n_seen']} joint-frames); hidden (sigma of the "
+        f"placing angle > {HIDDEN_SIGMA} rad): {h['hidden_mm']:.1f} mm "
+        f"({h['n_hidden']}); hidden share: "
+        + ", ".join(f"{j} {100 * v:.0f}%" for j, v in h["hidden_share"].items() if v > 0),
+        flush=True,
+    )
     return 0
 
 

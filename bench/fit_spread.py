@@ -47,14 +47,25 @@ def perturbed_clicks(clicks: dict, noise_px: float, seed: int) -> dict:
     if seed == 0 or noise_px <= 0:
         return clicks
     rng = np.random.default_rng(seed)
-    joints = {j: {c: np.asarray(uv, float) + rng.normal(0.0, noise_px, 2)
-                  for c, uv in sorted(per_cam.items())}
-              for j, per_cam in sorted(clicks["joints"].items())}
+    joints = {
+        j: {
+            c: np.asarray(uv, float) + rng.normal(0.0, noise_px, 2)
+            for c, uv in sorted(per_cam.items())
+        }
+        for j, per_cam in sorted(clicks["joints"].items())
+    }
     return {**clicks, "joints": joints}
 
 
-def fit_once(scene_dir: str, tracks: str, cues: str, noise_px: float, seed: int,
-             flow_sigma_px: float | None = None, settings: dict | None = None) -> dict:
+def fit_once(
+    scene_dir: str,
+    tracks: str,
+    cues: str,
+    noise_px: float,
+    seed: int,
+    flow_sigma_px: float | None = None,
+    settings: dict | None = None,
+) -> dict:
     """One in-process fit of the scene's tracks with perturbed clicks; its figures.
     ``flow_sigma_px``: the texture flow's σ (None: ``FlowSettings``' default);
     ``settings``: :class:`SequenceSettings` fields (None: its defaults)."""
@@ -71,14 +82,25 @@ def fit_once(scene_dir: str, tracks: str, cues: str, noise_px: float, seed: int,
     flow = "auto" if flow_sigma_px is None else FlowSettings(sigma_px=flow_sigma_px)
     t0 = time.perf_counter()
     with single_blas_thread():
-        res = run_scene(scene, observations="tracks", model="complete", cues=cues,
-                        tracks=tracks, flow=flow,
-                        settings=SequenceSettings(**settings) if settings else None)
+        res = run_scene(
+            scene,
+            observations="tracks",
+            model="complete",
+            cues=cues,
+            tracks=tracks,
+            flow=flow,
+            settings=SequenceSettings(**settings) if settings else None,
+        )
     ev = evaluate_state(res.state, scene.truth)
-    return {"seed": seed, "mpjpe_mm": ev.mpjpe_mm, "diverged": ev.diverged_frames,
-            "segments_deg": ev.segment_orientation_rmse_deg,
-            "within_1pct": ev.frames_within_1pct, "per_joint_mm": ev.per_joint_mm,
-            "wall_s": time.perf_counter() - t0}
+    return {
+        "seed": seed,
+        "mpjpe_mm": ev.mpjpe_mm,
+        "diverged": ev.diverged_frames,
+        "segments_deg": ev.segment_orientation_rmse_deg,
+        "within_1pct": ev.frames_within_1pct,
+        "per_joint_mm": ev.per_joint_mm,
+        "wall_s": time.perf_counter() - t0,
+    }
 
 
 def parse_settings(items: list[str], error) -> dict:
@@ -94,12 +116,11 @@ def parse_settings(items: list[str], error) -> dict:
     for item in items:
         name, sep, value = item.partition("=")
         if not sep or name not in known:
-            error(f"--setting {item!r}: expected NAME=VALUE with NAME a SequenceSettings "
-                  "field")
+            error(f"--setting {item!r}: expected NAME=VALUE with NAME a SequenceSettings field")
         try:
             out[name] = json.loads(value)
         except json.JSONDecodeError:
-            error(f"--setting {item!r}: VALUE is not JSON (true, 0.5, \"fit\")")
+            error(f'--setting {item!r}: VALUE is not JSON (true, 0.5, "fit")')
         if isinstance(out.get(name), (list, dict)):
             error(f"--setting {item!r}: only a number, true/false, null or a string")
     return out
@@ -115,8 +136,11 @@ def scene_tracks(scene: Path) -> Path:
     path = scene / "tracks.npz"
     if not path.is_file():
         print(f"tracking {scene.name} first (python -m core track; minutes) …", flush=True)
-        subprocess.run([sys.executable, "-m", "core", "track", str(scene), "-o", str(path)],
-                       check=True, cwd=ROOT)
+        subprocess.run(
+            [sys.executable, "-m", "core", "track", str(scene), "-o", str(path)],
+            check=True,
+            cwd=ROOT,
+        )
     return path
 
 
@@ -125,27 +149,46 @@ def summary(rows: list[dict]) -> dict:
     m = np.array([r["mpjpe_mm"] for r in rows])
     joints = list(rows[0]["per_joint_mm"])
     pj = np.array([[r["per_joint_mm"][j] for j in joints] for r in rows])
-    return {"mpjpe_median_mm": float(np.median(m)), "mpjpe_min_mm": float(m.min()),
-            "mpjpe_max_mm": float(m.max()),
-            "per_joint": {j: (float(np.median(pj[:, k])), float(pj[:, k].min()),
-                              float(pj[:, k].max())) for k, j in enumerate(joints)}}
+    return {
+        "mpjpe_median_mm": float(np.median(m)),
+        "mpjpe_min_mm": float(m.min()),
+        "mpjpe_max_mm": float(m.max()),
+        "per_joint": {
+            j: (float(np.median(pj[:, k])), float(pj[:, k].min()), float(pj[:, k].max()))
+            for k, j in enumerate(joints)
+        },
+    }
 
 
 def main(argv: list[str] | None = None) -> int:
     from bench.fit import DEFAULT, RENDERS, _resolve
 
-    ap = argparse.ArgumentParser(prog="python -m bench.fit_spread",
-                                 description=__doc__.splitlines()[0])
-    ap.add_argument("scene", nargs="?", default=str(DEFAULT),
-                    help="scene folder or studio scene name (default: the sample scene)")
+    ap = argparse.ArgumentParser(
+        prog="python -m bench.fit_spread", description=__doc__.splitlines()[0]
+    )
+    ap.add_argument(
+        "scene",
+        nargs="?",
+        default=str(DEFAULT),
+        help="scene folder or studio scene name (default: the sample scene)",
+    )
     ap.add_argument("--runs", type=int, default=5, help="fits, the first unperturbed")
     ap.add_argument("--click-noise", type=float, default=0.5, help="pixels, per axis")
     ap.add_argument("--cues", default="both", choices=("texture", "contours", "both"))
     ap.add_argument("--jobs", type=int, default=2, help="fits at a time")
-    ap.add_argument("--flow-sigma", type=float, default=None,
-                    help="the texture flow's a-priori σ, pixels (default: FlowSettings')")
-    ap.add_argument("--setting", action="append", default=[], metavar="NAME=VALUE",
-                    help="a SequenceSettings field, VALUE in JSON (repeatable)")
+    ap.add_argument(
+        "--flow-sigma",
+        type=float,
+        default=None,
+        help="the texture flow's a-priori σ, pixels (default: FlowSettings')",
+    )
+    ap.add_argument(
+        "--setting",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="a SequenceSettings field, VALUE in JSON (repeatable)",
+    )
     ap.add_argument("--json", type=Path, default=None, help="write the figures here")
     args = ap.parse_args(argv)
     if args.runs < 1 or args.jobs < 1:
@@ -156,27 +199,51 @@ def main(argv: list[str] | None = None) -> int:
     settings = parse_settings(args.setting, ap.error)
     scene, _ = _resolve(args.scene, RENDERS)
     tracks = scene_tracks(scene)
-    print(f"{scene.name}: {args.runs} fits of {tracks}, cues {args.cues}, clicks moved by "
-          f"N(0, {args.click_noise} px) in runs 1..{args.runs - 1}"
-          + ("" if args.flow_sigma is None else f", flow σ {args.flow_sigma} px")
-          + "".join(f", {k} = {v!r}" for k, v in settings.items()), flush=True)
-    print(f"{'run':>3}  {'MPJPE mm':>8}  {'diverged':>8}  {'segments °':>10}  "
-          f"{'≤1 % height':>11}  {'s':>5}", flush=True)
+    print(
+        f"{scene.name}: {args.runs} fits of {tracks}, cues {args.cues}, clicks moved by "
+        f"N(0, {args.click_noise} px) in runs 1..{args.runs - 1}"
+        + ("" if args.flow_sigma is None else f", flow σ {args.flow_sigma} px")
+        + "".join(f", {k} = {v!r}" for k, v in settings.items()),
+        flush=True,
+    )
+    print(
+        f"{'run':>3}  {'MPJPE mm':>8}  {'diverged':>8}  {'segments °':>10}  "
+        f"{'≤1 % height':>11}  {'s':>5}",
+        flush=True,
+    )
     rows = []
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-        futs = [pool.submit(fit_once, str(scene), str(tracks), args.cues, args.click_noise, k,
-                            args.flow_sigma, settings) for k in range(args.runs)]
+        futs = [
+            pool.submit(
+                fit_once,
+                str(scene),
+                str(tracks),
+                args.cues,
+                args.click_noise,
+                k,
+                args.flow_sigma,
+                settings,
+            )
+            for k in range(args.runs)
+        ]
         for fut in futs:
             r = fut.result()
             rows.append(r)
-            print(f"{r['seed']:>3}  {r['mpjpe_mm']:8.1f}  {r['diverged']:8d}  "
-                  f"{r['segments_deg']:10.1f}  {100 * r['within_1pct']:10.0f}%  "
-                  f"{r['wall_s']:5.0f}", flush=True)
+            print(
+                f"{r['seed']:>3}  {r['mpjpe_mm']:8.1f}  {r['diverged']:8d}  "
+                f"{r['segments_deg']:10.1f}  {100 * r['within_1pct']:10.0f}%  "
+                f"{r['wall_s']:5.0f}",
+                flush=True,
+            )
     s = summary(rows)
-    print(f"MPJPE median {s['mpjpe_median_mm']:.1f} mm, range {s['mpjpe_min_mm']:.1f}–"
-          f"{s['mpjpe_max_mm']:.1f} mm over {len(rows)} runs")
-    print("per joint, median (min–max) mm: " + ", ".join(
-        f"{j} {a:.0f} ({b:.0f}–{c:.0f})" for j, (a, b, c) in s["per_joint"].items()))
+    print(
+        f"MPJPE median {s['mpjpe_median_mm']:.1f} mm, range {s['mpjpe_min_mm']:.1f}–"
+        f"{s['mpjpe_max_mm']:.1f} mm over {len(rows)} runs"
+    )
+    print(
+        "per joint, median (min–max) mm: "
+        + ", ".join(f"{j} {a:.0f} ({b:.0f}–{c:.0f})" for j, (a, b, c) in s["per_joint"].items())
+    )
     if args.json:
         args.json.write_text(json.dumps({"scene": scene.name, "runs": rows, **s}, indent=1))
     return 0

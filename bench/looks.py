@@ -53,12 +53,30 @@ def skin_scene(root: Path = RENDERS, name: str = "walk_skin_line3") -> tuple[Pat
     meta = tomllib.loads((DEFAULT / "scene.toml").read_text())
     src = meta["source"]
     w, h = meta["size"]
-    return render_cached(name, root / name,
-                         ["--bvh", str(MOCAP / src["bvh"]), "--rig", src["rig"],
-                          "--start", str(src["bvh_start_frame"]), "--frames", str(meta["frames"]),
-                          "--fps", str(meta["fps"]), "--size", f"{w}x{h}",
-                          "--wand-positions", "0", "--look", "skin",
-                          "--seed", str(src.get("seed", 0))])
+    return render_cached(
+        name,
+        root / name,
+        [
+            "--bvh",
+            str(MOCAP / src["bvh"]),
+            "--rig",
+            src["rig"],
+            "--start",
+            str(src["bvh_start_frame"]),
+            "--frames",
+            str(meta["frames"]),
+            "--fps",
+            str(meta["fps"]),
+            "--size",
+            f"{w}x{h}",
+            "--wand-positions",
+            "0",
+            "--look",
+            "skin",
+            "--seed",
+            str(src.get("seed", 0)),
+        ],
+    )
 
 
 def tracks_of(scene: Path, name: str) -> tuple[Path, float | None]:
@@ -86,12 +104,17 @@ def track_survival(path: Path, n_frames: int | None = None) -> dict:
     at0 = seen[0] if len(seen) else np.zeros(0, bool)
     n0 = int(at0.sum())
     through = int((seen[:, at0].all(axis=0)).sum()) if n0 else 0
-    return {"n0": n0, "through": through, "share": through / n0 if n0 else 0.0,
-            "median_per_frame": float(np.median(seen.sum(axis=1))) if len(seen) else 0.0}
+    return {
+        "n0": n0,
+        "through": through,
+        "share": through / n0 if n0 else 0.0,
+        "median_per_frame": float(np.median(seen.sum(axis=1))) if len(seen) else 0.0,
+    }
 
 
-def fit_cue(scene_dir: Path, cues: str, tracks: Path, frames: int | None,
-            model: str = "complete") -> dict:
+def fit_cue(
+    scene_dir: Path, cues: str, tracks: Path, frames: int | None, model: str = "complete"
+) -> dict:
     """One fit of a scene with the given cues, scored against the truth."""
     from core.evaluate import evaluate_state
     from core.fit_cli import _pad
@@ -101,37 +124,52 @@ def fit_cue(scene_dir: Path, cues: str, tracks: Path, frames: int | None,
     scene = load_scene(scene_dir, check_images=False)
     t0, c0 = time.perf_counter(), time.process_time()
     try:
-        res = run_scene(scene, observations="tracks", model=model, frames=frames, cues=cues,
-                        tracks=tracks)
+        res = run_scene(
+            scene, observations="tracks", model=model, frames=frames, cues=cues, tracks=tracks
+        )
     except Exception as exc:  # noqa: BLE001 — a failed configuration is a table entry
         return {"cues": cues, "error": f"{type(exc).__name__}: {exc}"}
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     st = res.state
     full = _pad(st, scene.n_frames) if st.n_frames < scene.n_frames else st
     ev = evaluate_state(full, scene.truth)
-    return {"cues": cues, "eval": ev, "wall_s": wall, "cpu_s": cpu, "n_frames": st.n_frames,
-            "diverged": int(st.quality.diverged.sum()),
-            "points": float(np.median(res.n_points)) if len(res.n_points) else 0.0,
-            "pairs": (float(np.median(res.contour_matches))
-                      if res.contour_matches is not None else float("nan")),
-            "messages": res.messages}
+    return {
+        "cues": cues,
+        "eval": ev,
+        "wall_s": wall,
+        "cpu_s": cpu,
+        "n_frames": st.n_frames,
+        "diverged": int(st.quality.diverged.sum()),
+        "points": float(np.median(res.n_points)) if len(res.n_points) else 0.0,
+        "pairs": (
+            float(np.median(res.contour_matches))
+            if res.contour_matches is not None
+            else float("nan")
+        ),
+        "messages": res.messages,
+    }
 
 
 def print_look(look: str, scene: Path, surv: dict, rows: list[dict], track_s) -> None:
-    print(f"\n{look}: {scene}  (tracker: {surv['n0']} LSM surface points at frame 0, "
-          f"{surv['through']} = {100 * surv['share']:.1f} % of them tracked through every "
-          f"frame, median {surv['median_per_frame']:.0f} points per frame"
-          + (f"; tracked now in {track_s:.0f} s" if track_s else "") + ")")
+    print(
+        f"\n{look}: {scene}  (tracker: {surv['n0']} LSM surface points at frame 0, "
+        f"{surv['through']} = {100 * surv['share']:.1f} % of them tracked through every "
+        f"frame, median {surv['median_per_frame']:.0f} points per frame"
+        + (f"; tracked now in {track_s:.0f} s" if track_s else "")
+        + ")"
+    )
     print(f"{'':30s}" + "".join(f"{r['cues']:>12s}" for r in rows))
-    lines = [("MPJPE mm", lambda r: r["eval"].mpjpe_mm),
-             ("segment orient. RMSE deg", lambda r: r["eval"].segment_orientation_rmse_deg),
-             ("max joint err % height", lambda r: r["eval"].max_joint_error_pct_height),
-             ("diverged frames (not scored)", lambda r: r["diverged"]),
-             ("frames fitted", lambda r: r["n_frames"]),
-             ("points per frame (median)", lambda r: r["points"]),
-             ("contour pairs/frame (median)", lambda r: r["pairs"]),
-             ("fit wall s", lambda r: r["wall_s"]),
-             ("fit CPU s", lambda r: r["cpu_s"])]
+    lines = [
+        ("MPJPE mm", lambda r: r["eval"].mpjpe_mm),
+        ("segment orient. RMSE deg", lambda r: r["eval"].segment_orientation_rmse_deg),
+        ("max joint err % height", lambda r: r["eval"].max_joint_error_pct_height),
+        ("diverged frames (not scored)", lambda r: r["diverged"]),
+        ("frames fitted", lambda r: r["n_frames"]),
+        ("points per frame (median)", lambda r: r["points"]),
+        ("contour pairs/frame (median)", lambda r: r["pairs"]),
+        ("fit wall s", lambda r: r["wall_s"]),
+        ("fit CPU s", lambda r: r["cpu_s"]),
+    ]
     for name, get in lines:
         cells = []
         for r in rows:
@@ -142,8 +180,9 @@ def print_look(look: str, scene: Path, surv: dict, rows: list[dict], track_s) ->
             print(f"  {r['cues']}: {r['error']}")
         else:
             pj = r["eval"].per_joint_mm
-            print(f"  {r['cues']} per joint mm: " + ", ".join(f"{j} {v:.0f}" for j, v in
-                                                         pj.items()))
+            print(
+                f"  {r['cues']} per joint mm: " + ", ".join(f"{j} {v:.0f}" for j, v in pj.items())
+            )
     print(flush=True)
 
 
@@ -177,14 +216,18 @@ def main(argv: list[str] | None = None) -> int:
     from core.fit_contours import ContourSettings
     from core.fit_scene import CONTOUR_SKIP_PARTS
 
-    print(f"contour observations: {ContourSettings()}; in the scene fits: skip_parts "
-          f"{CONTOUR_SKIP_PARTS}")
+    print(
+        f"contour observations: {ContourSettings()}; in the scene fits: skip_parts "
+        f"{CONTOUR_SKIP_PARTS}"
+    )
     seq = SequenceSettings()
-    print(f"tracked trajectories as rigid-motion observations: {seq.trajectories} (slip "
-          f"{1000 * seq.traj_slip_m:.0f} mm, Cauchy knee {seq.traj_robust:g} sigma); hidden "
-          f"parts held: {seq.hold_hidden}; silhouette limb search (contours alone): "
-          f"{seq.silhouette_search}, in frames with points too (vetoed where it takes a "
-          f"limb off its points): {seq.silhouette_search and seq.silhouette_search_points}")
+    print(
+        f"tracked trajectories as rigid-motion observations: {seq.trajectories} (slip "
+        f"{1000 * seq.traj_slip_m:.0f} mm, Cauchy knee {seq.traj_robust:g} sigma); hidden "
+        f"parts held: {seq.hold_hidden}; silhouette limb search (contours alone): "
+        f"{seq.silhouette_search}, in frames with points too (vetoed where it takes a "
+        f"limb off its points): {seq.silhouette_search and seq.silhouette_search_points}"
+    )
     print(f"load average {os.getloadavg()[0]:.1f} (2 shared cores: wall times are noisy)")
     return 0
 

@@ -51,7 +51,7 @@ ECC_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-3)
 KLT_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)
 
 
-WORKERS = {"n": 1}             # match(workers=...), set by --workers
+WORKERS = {"n": 1}  # match(workers=...), set by --workers
 
 
 def run_lsm(P: PatchPairs, upsample: bool, compiled: bool = True):
@@ -60,8 +60,17 @@ def run_lsm(P: PatchPairs, upsample: bool, compiled: bool = True):
     old = os.environ.get(lsm_kernel.ENV_OFF)
     os.environ[lsm_kernel.ENV_OFF] = "0" if compiled else "1"
     try:
-        r = match(P.template, P.search, start, start, half=HALF, template_index=np.arange(n),
-                  search_index=np.arange(n), upsample=upsample, workers=WORKERS["n"])
+        r = match(
+            P.template,
+            P.search,
+            start,
+            start,
+            half=HALF,
+            template_index=np.arange(n),
+            search_index=np.arange(n),
+            upsample=upsample,
+            workers=WORKERS["n"],
+        )
     finally:
         if old is None:
             del os.environ[lsm_kernel.ENV_OFF]
@@ -75,11 +84,12 @@ def run_ecc(P: PatchPairs):
     c = int(P.centre)
     uv = np.full((n, 2), np.nan)
     for i in range(n):
-        tmpl = P.template[i, c - HALF:c + HALF + 1, c - HALF:c + HALF + 1]
+        tmpl = P.template[i, c - HALF : c + HALF + 1, c - HALF : c + HALF + 1]
         w = np.array([[1, 0, c - HALF], [0, 1, c - HALF]], np.float32)
         try:
-            _, w = cv2.findTransformECC(tmpl, P.search[i], w, cv2.MOTION_AFFINE,
-                                        ECC_CRITERIA, None, 1)
+            _, w = cv2.findTransformECC(
+                tmpl, P.search[i], w, cv2.MOTION_AFFINE, ECC_CRITERIA, None, 1
+            )
         except cv2.error:
             continue
         uv[i] = w[:, 2] + w[:, :2] @ np.array([HALF, HALF], np.float32)
@@ -91,9 +101,15 @@ def run_klt(P: PatchPairs):
     pt = np.array([[[P.centre, P.centre]]], np.float32)
     uv = np.full((n, 2), np.nan)
     for i in range(n):
-        p, st, _ = cv2.calcOpticalFlowPyrLK(P.template[i], P.search[i], pt, None,
-                                            winSize=(2 * HALF + 1, 2 * HALF + 1), maxLevel=0,
-                                            criteria=KLT_CRITERIA)
+        p, st, _ = cv2.calcOpticalFlowPyrLK(
+            P.template[i],
+            P.search[i],
+            pt,
+            None,
+            winSize=(2 * HALF + 1, 2 * HALF + 1),
+            maxLevel=0,
+            criteria=KLT_CRITERIA,
+        )
         if st[0, 0]:
             uv[i] = p[0, 0]
     return uv, np.all(np.isfinite(uv), axis=1), None
@@ -135,9 +151,18 @@ def evaluate(n: int, seed: int, repeat: int = 5) -> list[dict]:
             d = np.linalg.norm(err[good], axis=1)
             rms = float(np.sqrt(np.mean(err[good] ** 2))) if good.any() else np.nan
             ratio = (rms / float(np.sqrt(np.mean(sig[good] ** 2)))) if sig is not None else np.nan
-            rows.append(dict(case=case, method=name, valid=float(good.mean()),
-                             mean_px=float(d.mean()) if d.size else np.nan, rms_px=rms,
-                             ratio=ratio, rate=n / dt[name], cpu_rate=n / max(dc[name], 1e-9)))
+            rows.append(
+                dict(
+                    case=case,
+                    method=name,
+                    valid=float(good.mean()),
+                    mean_px=float(d.mean()) if d.size else np.nan,
+                    rms_px=rms,
+                    ratio=ratio,
+                    rate=n / dt[name],
+                    cpu_rate=n / max(dc[name], 1e-9),
+                )
+            )
     return rows
 
 
@@ -161,9 +186,14 @@ def jit_cold_seconds() -> tuple[float, float]:
         env = dict(os.environ, NUMBA_CACHE_DIR=d)
         env.pop(lsm_kernel.ENV_OFF, None)
         for _ in range(2):
-            r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
-                               text=True, check=True, cwd=os.path.dirname(os.path.dirname(
-                                   os.path.abspath(__file__))))
+            r = subprocess.run(
+                [sys.executable, "-c", code],
+                env=env,
+                capture_output=True,
+                text=True,
+                check=True,
+                cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+            )
             out.append(float(r.stdout.split()[-1]))
     return out[0], out[1]
 
@@ -173,10 +203,17 @@ def main(argv=None) -> int:
     ap.add_argument("--n", type=int, default=2000, help="patches per case")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--repeat", type=int, default=5, help="timing: best of this many runs")
-    ap.add_argument("--workers", type=int, default=1,
-                    help="LSM threads (core.lsm.match(workers=); 0: one per core)")
-    ap.add_argument("--jit-cold", action="store_true",
-                    help="also time a cold numba compile and a cache load (fresh processes)")
+    ap.add_argument(
+        "--workers",
+        type=int,
+        default=1,
+        help="LSM threads (core.lsm.match(workers=); 0: one per core)",
+    )
+    ap.add_argument(
+        "--jit-cold",
+        action="store_true",
+        help="also time a cold numba compile and a cache load (fresh processes)",
+    )
     args = ap.parse_args(argv)
     WORKERS["n"] = args.workers
     first = first_call_seconds()
@@ -184,27 +221,44 @@ def main(argv=None) -> int:
     load0 = os.getloadavg()
     rows = evaluate(args.n, args.seed, args.repeat)
     load1 = os.getloadavg()
-    print(f"LSM vs OpenCV: {args.n} patches per case, 13x13 templates, noise sigma 2, "
-          f"OpenCV {cv2.__version__}; {os.cpu_count()} CPUs, load average (1 min) "
-          f"{load0[0]:.2f} before, {load1[0]:.2f} after; LSM workers {args.workers}")
+    print(
+        f"LSM vs OpenCV: {args.n} patches per case, 13x13 templates, noise sigma 2, "
+        f"OpenCV {cv2.__version__}; {os.cpu_count()} CPUs, load average (1 min) "
+        f"{load0[0]:.2f} before, {load1[0]:.2f} after; LSM workers {args.workers}"
+    )
     nb = lsm_kernel.numba
-    print(f"numba {nb.__version__ if nb else 'missing'}"
-          f"{'' if lsm_kernel.enabled() else ' (off: LSM numba rows run numpy)'}; first "
-          f"compiled call of this process {first:.2f} s (compile or disk-cache load)"
-          + ("" if cold is None else f"; fresh processes, empty cache: cold compile "
-             f"{cold[0]:.1f} s, then cache load {cold[1]:.2f} s"))
-    print(f"{'case':14s} {'method':13s} {'valid':>6s} {'mean|e| px':>10s} {'rms px':>8s} "
-          f"{'rms/pred':>8s} {'matches/s':>10s} {'/cpu-s':>8s}")
+    print(
+        f"numba {nb.__version__ if nb else 'missing'}"
+        f"{'' if lsm_kernel.enabled() else ' (off: LSM numba rows run numpy)'}; first "
+        f"compiled call of this process {first:.2f} s (compile or disk-cache load)"
+        + (
+            ""
+            if cold is None
+            else f"; fresh processes, empty cache: cold compile "
+            f"{cold[0]:.1f} s, then cache load {cold[1]:.2f} s"
+        )
+    )
+    print(
+        f"{'case':14s} {'method':13s} {'valid':>6s} {'mean|e| px':>10s} {'rms px':>8s} "
+        f"{'rms/pred':>8s} {'matches/s':>10s} {'/cpu-s':>8s}"
+    )
     for r in rows:
         ratio = "" if np.isnan(r["ratio"]) else f"{r['ratio']:.2f}"
-        print(f"{r['case']:14s} {r['method']:13s} {r['valid']:6.3f} {r['mean_px']:10.4f} "
-              f"{r['rms_px']:8.4f} {ratio:>8s} {r['rate']:10.0f} {r['cpu_rate']:8.0f}")
+        print(
+            f"{r['case']:14s} {r['method']:13s} {r['valid']:6.3f} {r['mean_px']:10.4f} "
+            f"{r['rms_px']:8.4f} {ratio:>8s} {r['rate']:10.0f} {r['cpu_rate']:8.0f}"
+        )
     for key, what in (("rate", "wall clock"), ("cpu_rate", "per CPU second")):
         shift = {r["method"]: r[key] for r in rows if r["case"] == "shift"}
         ecc, klt = shift["ECC affine"], shift["KLT"]
-        print(f"throughput (shift case, {what}): " + "; ".join(
-            f"{m} {shift[m]:.0f}/s = {shift[m] / ecc:.1f}x ECC loop, {shift[m] / klt:.2f}x KLT loop"
-            for m in ("LSM numba", "LSM numpy", "LSM bilinear")))
+        print(
+            f"throughput (shift case, {what}): "
+            + "; ".join(
+                f"{m} {shift[m]:.0f}/s = {shift[m] / ecc:.1f}x ECC loop, "
+                f"{shift[m] / klt:.2f}x KLT loop"
+                for m in ("LSM numba", "LSM numpy", "LSM bilinear")
+            )
+        )
     return 0
 
 

@@ -48,13 +48,13 @@ def rasterize(camera, vertices: np.ndarray, faces: np.ndarray):
     faces = np.asarray(faces, int)
     uv = camera.project(vertices)
     z = camera.to_camera(vertices)[:, 2]
-    t_uv, t_z = uv[faces], z[faces]                                   # (T, 3, 2), (T, 3)
+    t_uv, t_z = uv[faces], z[faces]  # (T, 3, 2), (T, 3)
     ok = np.all(np.isfinite(t_uv), axis=(1, 2)) & np.all(t_z > 1e-6, axis=1)
     lo = np.ceil(np.where(ok[:, None], t_uv.min(axis=1), 0.0)).astype(np.int64)
     hi = np.floor(np.where(ok[:, None], t_uv.max(axis=1), -1.0)).astype(np.int64)
     lo = np.maximum(lo, 0)
     hi = np.minimum(hi, [w - 1, h - 1])
-    span = hi - lo + 1                                                # (T, 2)
+    span = hi - lo + 1  # (T, 2)
     ok &= np.all(span > 0, axis=1)
     a, b, c = t_uv[:, 0], t_uv[:, 1], t_uv[:, 2]
     area = _cross(b - a, c - a)
@@ -67,7 +67,7 @@ def rasterize(camera, vertices: np.ndarray, faces: np.ndarray):
         ok[sel] = False
         if len(sel):
             oy, ox = np.divmod(np.arange(lim * lim), lim)
-            px = lo[sel, 0, None] + ox[None]                          # (n, lim²)
+            px = lo[sel, 0, None] + ox[None]  # (n, lim²)
             py = lo[sel, 1, None] + oy[None]
             inbox = (px <= hi[sel, 0, None]) & (py <= hi[sel, 1, None])
             p = np.stack([px, py], axis=-1).astype(float)

@@ -48,14 +48,14 @@ def closest_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndar
 
 def nearest_on_mesh(xyz: np.ndarray, vertices: np.ndarray, faces: np.ndarray, k: int = 16):
     """Nearest surface points of xyz (N, 3): (distance (N,), face (N,), bary (N, 3))."""
-    tri = vertices[faces]                                     # (T, 3, 3)
+    tri = vertices[faces]  # (T, 3, 3)
     cent = tri.mean(axis=1)
     _, cand = cKDTree(cent).query(xyz, k=k)
     n = len(xyz)
     best = np.full(n, np.inf)
     face = np.zeros(n, int)
     bary = np.zeros((n, 3))
-    for j in range(k):                                        # loop over candidates, not points
+    for j in range(k):  # loop over candidates, not points
         f = cand[:, j]
         q, bc = closest_on_triangles(xyz, tri[f, 0], tri[f, 1], tri[f, 2])
         d = np.linalg.norm(q - xyz, axis=1)

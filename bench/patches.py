@@ -35,10 +35,21 @@ class PatchPairs:
     affine: np.ndarray
 
 
-def make_pairs(n: int, seed: int = 0, size: int = 41, max_shift: float = 1.5,
-               scale=(1.0, 1.0), shear: float = 0.0, gain: float = 1.0,
-               offset: float = 0.0, noise: float = 2.0, waves: int = 40,
-               fmax: float = 0.25, mean: float = 100.0, std: float = 25.0) -> PatchPairs:
+def make_pairs(
+    n: int,
+    seed: int = 0,
+    size: int = 41,
+    max_shift: float = 1.5,
+    scale=(1.0, 1.0),
+    shear: float = 0.0,
+    gain: float = 1.0,
+    offset: float = 0.0,
+    noise: float = 2.0,
+    waves: int = 40,
+    fmax: float = 0.25,
+    mean: float = 100.0,
+    std: float = 25.0,
+) -> PatchPairs:
     """Make ``n`` textured image pairs related by a known warp plus noise.
 
     Search grey level at ``x'``: ``gain · f(A⁻¹ (x' - uv_true)) + offset + noise``,
@@ -63,7 +74,7 @@ def make_pairs(n: int, seed: int = 0, size: int = 41, max_shift: float = 1.5,
     kx, ky = 2 * np.pi * fr * np.cos(ang), 2 * np.pi * fr * np.sin(ang)
     ph = rng.uniform(0, 2 * np.pi, (n, waves))
     amp = 1.0 / np.sqrt(fr / 0.1)
-    amp *= std / np.sqrt(0.5 * np.sum(amp ** 2, axis=1, keepdims=True))
+    amp *= std / np.sqrt(0.5 * np.sum(amp**2, axis=1, keepdims=True))
     shift = rng.uniform(-max_shift, max_shift, (n, 2))
     sx, sy = rng.uniform(*scale, (2, n))
     h1, h2 = rng.uniform(-shear, shear, (2, n))
@@ -73,12 +84,15 @@ def make_pairs(n: int, seed: int = 0, size: int = 41, max_shift: float = 1.5,
     r = np.arange(size, dtype=float)
     yy, xx = np.meshgrid(r, r, indexing="ij")
 
-    def texture(x, y):                         # x, y: (n, S, S) offsets
+    def texture(x, y):  # x, y: (n, S, S) offsets
         out = np.empty(x.shape)
-        for i in range(0, n, 64):              # in chunks: (64, waves, S, S) at a time
+        for i in range(0, n, 64):  # in chunks: (64, waves, S, S) at a time
             k = slice(i, i + 64)
-            arg = (kx[k, :, None, None] * x[k, None] + ky[k, :, None, None] * y[k, None]
-                   + ph[k, :, None, None])
+            arg = (
+                kx[k, :, None, None] * x[k, None]
+                + ky[k, :, None, None] * y[k, None]
+                + ph[k, :, None, None]
+            )
             out[k] = mean + np.einsum("nw,nwij->nij", amp[k], np.cos(arg))
         return out
 

@@ -63,8 +63,9 @@ DATA = Path("../shared/data/video/pose2sim_single")
 #: With 19 × 19 patches (``--half 9``) and these: 32 of 102 through the 30 frames.
 VIDEO_SETTINGS = dict(confirm_rekey=False, depth_dev_m=0.025, occlusion_m=None)
 #: Seeds in the reference camera (cam01) at frame 0, half-resolution pixels, picked by eye.
-SEEDS_REF = np.array([[227.0, 277.0], [213.0, 330.0], [240.0, 300.0], [200.0, 300.0],
-                      [182.0, 460.0], [225.0, 468.0]])
+SEEDS_REF = np.array(
+    [[227.0, 277.0], [213.0, 330.0], [240.0, 300.0], [200.0, 300.0], [182.0, 460.0], [225.0, 468.0]]
+)
 
 
 def scale_camera(cam: Camera, s: float) -> Camera:
@@ -77,8 +78,9 @@ def scale_camera(cam: Camera, s: float) -> Camera:
     return Camera(cam.name, size, K, cam.dist.copy(), cam.R.copy(), cam.t.copy())
 
 
-def load_video(path: Path, size: tuple[int, int], n_frames: int, scale: float,
-               contrast: bool = True) -> np.ndarray:
+def load_video(
+    path: Path, size: tuple[int, int], n_frames: int, scale: float, contrast: bool = True
+) -> np.ndarray:
     """Grey frames (F, H, W) uint8, padded right/bottom to the calibrated ``size``, scaled,
     and with :func:`wallis` applied when ``contrast``."""
     cap = cv2.VideoCapture(str(path))
@@ -95,8 +97,9 @@ def load_video(path: Path, size: tuple[int, int], n_frames: int, scale: float,
             raise InputError(f"{path}: frame {g.shape[::-1]} larger than the calibration {size}")
         g = cv2.copyMakeBorder(g, 0, h - g.shape[0], 0, w - g.shape[1], cv2.BORDER_REPLICATE)
         if scale != 1.0:
-            g = cv2.resize(g, (int(round(w * scale)), int(round(h * scale))),
-                           interpolation=cv2.INTER_AREA)
+            g = cv2.resize(
+                g, (int(round(w * scale)), int(round(h * scale))), interpolation=cv2.INTER_AREA
+            )
         out.append(wallis(g) if contrast else g)
     cap.release()
     if len(out) < n_frames:
@@ -131,8 +134,15 @@ def axes_meeting_point(cams: list[Camera]) -> np.ndarray:
     return np.linalg.solve(A, b)
 
 
-def epipolar_seeds(stack: ImageStack, cams: list[Camera], ref: int, uv_ref: np.ndarray,
-                   depth=(2.5, 4.5), half: int = 10, min_score: float = 0.7) -> np.ndarray:
+def epipolar_seeds(
+    stack: ImageStack,
+    cams: list[Camera],
+    ref: int,
+    uv_ref: np.ndarray,
+    depth=(2.5, 4.5),
+    half: int = 10,
+    min_score: float = 0.7,
+) -> np.ndarray:
     """Partners (S, C, 2) of reference points: NCC along the epipolar line, then projection.
 
     The ray of each reference point (depth range ``depth``, metres from the reference
@@ -149,9 +159,17 @@ def epipolar_seeds(stack: ImageStack, cams: list[Camera], ref: int, uv_ref: np.n
     depths = np.geomspace(depth[0], depth[1], 600)
     xyz = np.reshape(origin, (-1, 1, 3)) + ray[:, None] * depths[None, :, None]  # (S, D, 3)
     p = cams[j2].project(xyz.reshape(-1, 3)).reshape(s_n, len(depths), 2)
-    nc = search(stack, stack, np.repeat(uv_ref, len(depths), 0), p.reshape(-1, 2), half=half,
-                radius=1, template_index=np.full(p.size // 2, ref),
-                search_index=np.full(p.size // 2, j2), min_score=-1.0)
+    nc = search(
+        stack,
+        stack,
+        np.repeat(uv_ref, len(depths), 0),
+        p.reshape(-1, 2),
+        half=half,
+        radius=1,
+        template_index=np.full(p.size // 2, ref),
+        search_index=np.full(p.size // 2, j2),
+        min_score=-1.0,
+    )
     score = np.where(np.isfinite(nc.score), nc.score, -2.0).reshape(s_n, len(depths))
     best = np.argmax(score, axis=1)
     good = score[np.arange(s_n), best] >= min_score
@@ -181,7 +199,7 @@ def facing(xyz: np.ndarray, towards: np.ndarray, k: int = 8) -> np.ndarray:
     if len(xyz) < 4:
         return n
     d = np.linalg.norm(xyz[:, None] - xyz[None], axis=2)
-    nb = np.argsort(d, axis=1)[:, :min(k, len(xyz))]
+    nb = np.argsort(d, axis=1)[:, : min(k, len(xyz))]
     q = xyz[nb] - xyz[nb].mean(1, keepdims=True)
     _, _, vt = np.linalg.svd(q, full_matrices=False)
     n = vt[:, -1]
@@ -190,9 +208,18 @@ def facing(xyz: np.ndarray, towards: np.ndarray, k: int = 8) -> np.ndarray:
     return n
 
 
-def check_in_camera(video_check: np.ndarray, videos: list[np.ndarray], cam_check: Camera,
-                    cams: list[Camera], xyz: np.ndarray, uv: np.ndarray, half: int = 9,
-                    min_facing: float = 0.2, max_sigma_px: float = 0.2, warp: bool = True):
+def check_in_camera(
+    video_check: np.ndarray,
+    videos: list[np.ndarray],
+    cam_check: Camera,
+    cams: list[Camera],
+    xyz: np.ndarray,
+    uv: np.ndarray,
+    half: int = 9,
+    min_facing: float = 0.2,
+    max_sigma_px: float = 0.2,
+    warp: bool = True,
+):
     """Project tracked points into the held-out camera and match them there by LSM.
 
     Per frame and point, the template is the tracking camera that measured the point
@@ -235,7 +262,7 @@ def check_in_camera(video_check: np.ndarray, videos: list[np.ndarray], cam_check
     cosang = np.array([float(c.R[2] @ cam_check.R[2]) for c in cams])
     centres = np.array([c.center for c in cams])
     for f in range(f_n):
-        seen = np.all(np.isfinite(uv[f]), 2)                       # (P, C)
+        seen = np.all(np.isfinite(uv[f]), 2)  # (P, C)
         have = np.all(np.isfinite(xyz[f]), 1) & seen.any(1)
         if have.sum() < 4:
             continue
@@ -245,8 +272,13 @@ def check_in_camera(video_check: np.ndarray, videos: list[np.ndarray], cam_check
         to_chk = cam_check.center[None] - xyz[f, k]
         cos_f = np.einsum("pi,pi->p", nrm, to_chk) / np.linalg.norm(to_chk, axis=1)
         proj = cam_check.project(xyz[f, k])
-        ok = ((cos_f >= min_facing) & (proj[:, 0] > half + 4) & (proj[:, 1] > half + 4)
-              & (proj[:, 0] < w - half - 5) & (proj[:, 1] < h - half - 5))
+        ok = (
+            (cos_f >= min_facing)
+            & (proj[:, 0] > half + 4)
+            & (proj[:, 1] > half + 4)
+            & (proj[:, 0] < w - half - 5)
+            & (proj[:, 1] < h - half - 5)
+        )
         k, proj, tmpl = k[ok], proj[ok], tmpl[ok]
         if not len(k):
             continue
@@ -262,19 +294,39 @@ def check_in_camera(video_check: np.ndarray, videos: list[np.ndarray], cam_check
             start = proj
         else:
             A = None
-            nc = search(st, st, uv_t, proj, half=half, radius=6, template_index=tmpl,
-                        search_index=sidx, min_score=0.6)
+            nc = search(
+                st,
+                st,
+                uv_t,
+                proj,
+                half=half,
+                radius=6,
+                template_index=tmpl,
+                search_index=sidx,
+                min_score=0.6,
+            )
             start = np.where(nc.ok[:, None], nc.uv, proj)
-        r = match(st, st, uv_t, start, half=half, affine=A, template_index=tmpl,
-                  search_index=sidx, max_shift_px=4.0, weight_sigma=4.0,
-                  max_sigma_px=max_sigma_px)
+        r = match(
+            st,
+            st,
+            uv_t,
+            start,
+            half=half,
+            affine=A,
+            template_index=tmpl,
+            search_index=sidx,
+            max_shift_px=4.0,
+            weight_sigma=4.0,
+            max_sigma_px=max_sigma_px,
+        )
         d = np.linalg.norm(r.uv - proj, axis=1)
         dist[f, k[r.ok]] = d[r.ok]
     return dist, tried
 
 
-def report_consistency(xyz: np.ndarray, uv: np.ndarray, cams: list[Camera], alive: np.ndarray,
-                       through: np.ndarray) -> None:
+def report_consistency(
+    xyz: np.ndarray, uv: np.ndarray, cams: list[Camera], alive: np.ndarray, through: np.ndarray
+) -> None:
     """Print the checks that need no held-out view.
 
     Reprojection residuals of the live points in the tracking cameras (pixels), the
@@ -293,20 +345,28 @@ def report_consistency(xyz: np.ndarray, uv: np.ndarray, cams: list[Camera], aliv
     through : ndarray, shape (P0,), bool
         Frame-0 points measured in every frame (the first P0 trajectories).
     """
-    res = np.concatenate([np.linalg.norm(c.project(xyz[m]) - uv[:, :, j][m], axis=1)
-                          for j, c in enumerate(cams)
-                          if (m := alive & np.isfinite(uv[:, :, j, 0])).any()])
+    res = np.concatenate(
+        [
+            np.linalg.norm(c.project(xyz[m]) - uv[:, :, j][m], axis=1)
+            for j, c in enumerate(cams)
+            if (m := alive & np.isfinite(uv[:, :, j, 0])).any()
+        ]
+    )
     acc = np.linalg.norm(xyz[2:] - 2 * xyz[1:-1] + xyz[:-2], axis=2) * 1e3
-    print(f"  reprojection in the tracking cameras: median {np.median(res):.2f} px, 95% "
-          f"{np.percentile(res, 95):.2f} px; 3-D acceleration median "
-          f"{np.nanmedian(acc):.1f} mm/frame², 95% {np.nanpercentile(acc, 95):.1f}")
+    print(
+        f"  reprojection in the tracking cameras: median {np.median(res):.2f} px, 95% "
+        f"{np.percentile(res, 95):.2f} px; 3-D acceleration median "
+        f"{np.nanmedian(acc):.1f} mm/frame², 95% {np.nanpercentile(acc, 95):.1f}"
+    )
     k = np.flatnonzero(through)
     if len(k) >= 2:
         d = np.linalg.norm(xyz[:, k, None] - xyz[:, None, k], axis=3) * 1e3
         iu = np.triu_indices(len(k), 1)
-        print(f"  the {len(k)} points tracked through: mutual distances "
-              f"(mean {np.mean(d[0][iu]):.0f} mm) vary by σ median "
-              f"{np.median(np.std(d, axis=0)[iu]):.1f} mm over the take")
+        print(
+            f"  the {len(k)} points tracked through: mutual distances "
+            f"(mean {np.mean(d[0][iu]):.0f} mm) vary by σ median "
+            f"{np.median(np.std(d, axis=0)[iu]):.1f} mm over the take"
+        )
 
 
 def draw_trajectories(frame: np.ndarray, uv: np.ndarray, path: Path, every: int = 1) -> None:
@@ -331,101 +391,179 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=DATA)
     ap.add_argument("--frames", type=int, default=100)
-    ap.add_argument("--track", default="cam01,cam02,cam04",
-                    help="tracking cameras, the first is the reference (seeds)")
+    ap.add_argument(
+        "--track",
+        default="cam01,cam02,cam04",
+        help="tracking cameras, the first is the reference (seeds)",
+    )
     ap.add_argument("--check", default="cam03")
     ap.add_argument("--scale", type=float, default=0.5)
     ap.add_argument("--step", type=int, default=2)
     ap.add_argument("--regen", type=int, default=5)
     # The studio's limits (0.15 / 0.12 px) reject every seed on this bare-skin,
     # compressed video (best seed σ 0.166 px); 0.2 lets the surface start.
-    ap.add_argument("--max-sigma", type=float, default=0.2,
-                    help="largest LSM σ of a spatial match (surface, tracking), pixels")
-    ap.add_argument("--max-sigma-temporal", type=float, default=0.2,
-                    help="largest LSM σ of a temporal match, pixels")
-    ap.add_argument("--half", type=int, default=9,
-                    help="LSM / NCC patch half width (surface, tracking, check), pixels")
-    ap.add_argument("--studio-checks", action="store_true",
-                    help="keep the tracker's key-template, occlusion and depth tests as the "
-                         "studio tunes them (default: VIDEO_SETTINGS)")
+    ap.add_argument(
+        "--max-sigma",
+        type=float,
+        default=0.2,
+        help="largest LSM σ of a spatial match (surface, tracking), pixels",
+    )
+    ap.add_argument(
+        "--max-sigma-temporal",
+        type=float,
+        default=0.2,
+        help="largest LSM σ of a temporal match, pixels",
+    )
+    ap.add_argument(
+        "--half",
+        type=int,
+        default=9,
+        help="LSM / NCC patch half width (surface, tracking, check), pixels",
+    )
+    ap.add_argument(
+        "--studio-checks",
+        action="store_true",
+        help="keep the tracker's key-template, occlusion and depth tests as the "
+        "studio tunes them (default: VIDEO_SETTINGS)",
+    )
     ap.add_argument("--png", type=Path, default=Path("out/realvideo/trajectories.png"))
     a = ap.parse_args(argv)
     t0 = time.perf_counter()
     allc = {c.name: c for c in read_qca(a.data / "calibration/Calib.qca.txt")}
     x0 = axes_meeting_point(list(allc.values()))
-    print(f"optical axes meet at {np.round(x0, 3)} m; projected minus principal point, px:",
-          ", ".join(f"{n} {np.round(c.project(x0[None])[0] - c.K[:2, 2], 1)}"
-                    for n, c in allc.items()))
+    print(
+        f"optical axes meet at {np.round(x0, 3)} m; projected minus principal point, px:",
+        ", ".join(
+            f"{n} {np.round(c.project(x0[None])[0] - c.K[:2, 2], 1)}" for n, c in allc.items()
+        ),
+    )
     names = a.track.split(",")
     if a.check in names or any(n not in allc for n in names + [a.check]):
-        raise InputError(f"{a.data}: --track {a.track} / --check {a.check} must be distinct "
-                         f"cameras among {sorted(allc)}")
+        raise InputError(
+            f"{a.data}: --track {a.track} / --check {a.check} must be distinct "
+            f"cameras among {sorted(allc)}"
+        )
     cams = [scale_camera(allc[n], a.scale) for n in names]
     cchk = scale_camera(allc[a.check], a.scale)
-    vids = {n: load_video(a.data / f"videos/{n}.mp4", allc[n].size, a.frames, a.scale)
-            for n in names + [a.check]}
-    print(f"loaded {a.frames} frames x {len(vids)} cameras at {vids[names[0]].shape[1:][::-1]} "
-          f"px in {time.perf_counter() - t0:.1f} s")
+    vids = {
+        n: load_video(a.data / f"videos/{n}.mp4", allc[n].size, a.frames, a.scale)
+        for n in names + [a.check]
+    }
+    print(
+        f"loaded {a.frames} frames x {len(vids)} cameras at {vids[names[0]].shape[1:][::-1]} "
+        f"px in {time.perf_counter() - t0:.1f} s"
+    )
     st0 = ImageStack([vids[n][0] for n in names])
     seeds = epipolar_seeds(st0, cams, 0, SEEDS_REF)
     print(f"seeds: {len(seeds)} of {len(SEEDS_REF)} matched along the epipolar lines")
     t1 = time.perf_counter()
-    surf = measure_surface(st0, cams, seeds, ref=0, step=a.step, half=a.half,
-                           max_sigma_px=a.max_sigma)
+    surf = measure_surface(
+        st0, cams, seeds, ref=0, step=a.step, half=a.half, max_sigma_px=a.max_sigma
+    )
     seen = np.isfinite(surf.uv[..., 0])
-    print(f"surface at frame 0: {len(surf)} points ({time.perf_counter() - t1:.1f} s); "
-          "seen per camera " + ", ".join(f"{n} {int(s)}" for n, s in zip(names, seen.sum(0),
-                                                                           strict=True)))
+    print(
+        f"surface at frame 0: {len(surf)} points ({time.perf_counter() - t1:.1f} s); "
+        "seen per camera "
+        + ", ".join(f"{n} {int(s)}" for n, s in zip(names, seen.sum(0), strict=True))
+    )
     if len(surf) == 0:
-        print("no surface point at frame 0 (seed matches rejected; try a larger --max-sigma):"
-              " nothing to track")
+        print(
+            "no surface point at frame 0 (seed matches rejected; try a larger --max-sigma):"
+            " nothing to track"
+        )
         return 1
     t2 = time.perf_counter()
     log: list = []
-    tr = track(lambda i: [vids[n][i] for n in names], cams, surf, a.frames, 60.0,
-               step=a.step, half=a.half, regen_every=a.regen, log=log,
-               spatial_sigma_px=a.max_sigma, max_sigma_px=a.max_sigma_temporal,
-               **({} if a.studio_checks else VIDEO_SETTINGS))
+    tr = track(
+        lambda i: [vids[n][i] for n in names],
+        cams,
+        surf,
+        a.frames,
+        60.0,
+        step=a.step,
+        half=a.half,
+        regen_every=a.regen,
+        log=log,
+        spatial_sigma_px=a.max_sigma,
+        max_sigma_px=a.max_sigma_temporal,
+        **({} if a.studio_checks else VIDEO_SETTINGS),
+    )
     dt = time.perf_counter() - t2
     alive = tr.alive
     p0 = len(surf)
     through = alive[:, :p0].all(0)
-    print(f"tracking: {a.frames} frames in {dt:.1f} s ({(a.frames - 1) / dt:.2f} frames/s); "
-          f"frame-0 points alive in every frame {int(through.sum())} / {p0} "
-          f"({100 * through.mean():.1f} %); live at the last frame {int(alive[-1].sum())} "
-          f"(incl. regenerated; {tr.xyz.shape[1]} trajectories in all)")
+    print(
+        f"tracking: {a.frames} frames in {dt:.1f} s ({(a.frames - 1) / dt:.2f} frames/s); "
+        f"frame-0 points alive in every frame {int(through.sum())} / {p0} "
+        f"({100 * through.mean():.1f} %); live at the last frame {int(alive[-1].sum())} "
+        f"(incl. regenerated; {tr.xyz.shape[1]} trajectories in all)"
+    )
     report_consistency(tr.xyz, tr.uv, cams, alive, through)
     # held-out check: per point, the tracking camera nearest in angle to the check camera
-    dist0, _ = check_in_camera(vids[a.check], [vids[n] for n in names], cchk, cams,
-                               tr.xyz, tr.uv, half=a.half, max_sigma_px=a.max_sigma,
-                               warp=False)
+    dist0, _ = check_in_camera(
+        vids[a.check],
+        [vids[n] for n in names],
+        cchk,
+        cams,
+        tr.xyz,
+        tr.uv,
+        half=a.half,
+        max_sigma_px=a.max_sigma,
+        warp=False,
+    )
     d0 = dist0[np.isfinite(dist0)]
-    print(f"check in {a.check} from the identity warp (NCC start where it scores >= 0.6): "
-          f"{d0.size} point-frames matched" + (f", median {np.median(d0):.2f} px, 95% "
-                                               f"{np.percentile(d0, 95):.2f} px (half res)"
-                                               if d0.size else ""))
-    dist, tried = check_in_camera(vids[a.check], [vids[n] for n in names], cchk, cams,
-                                  tr.xyz, tr.uv, half=a.half, max_sigma_px=a.max_sigma)
+    print(
+        f"check in {a.check} from the identity warp (NCC start where it scores >= 0.6): "
+        f"{d0.size} point-frames matched"
+        + (
+            f", median {np.median(d0):.2f} px, 95% {np.percentile(d0, 95):.2f} px (half res)"
+            if d0.size
+            else ""
+        )
+    )
+    dist, tried = check_in_camera(
+        vids[a.check],
+        [vids[n] for n in names],
+        cchk,
+        cams,
+        tr.xyz,
+        tr.uv,
+        half=a.half,
+        max_sigma_px=a.max_sigma,
+    )
     d = dist[np.isfinite(dist)]
     d_full = d / a.scale
-    print(f"check in {a.check} from the tangent plane's warp: {d.size} point-frames matched "
-          f"of {int(tried.sum())} facing it "
-          f"(of {int(alive.sum())} live point-frames; {int(np.isfinite(dist).any(0).sum())} "
-          "points checked in some frame)")
+    print(
+        f"check in {a.check} from the tangent plane's warp: {d.size} point-frames matched "
+        f"of {int(tried.sum())} facing it "
+        f"(of {int(alive.sum())} live point-frames; {int(np.isfinite(dist).any(0).sum())} "
+        "points checked in some frame)"
+    )
     if d.size:
-        print(f"  |projection - LSM match|: median {np.median(d):.2f} px, 95% "
-              f"{np.percentile(d, 95):.2f} px at half resolution "
-              f"(= {np.median(d_full):.2f} / {np.percentile(d_full, 95):.2f} px full resolution)")
+        print(
+            f"  |projection - LSM match|: median {np.median(d):.2f} px, 95% "
+            f"{np.percentile(d, 95):.2f} px at half resolution "
+            f"(= {np.median(d_full):.2f} / {np.percentile(d_full, 95):.2f} px full resolution)"
+        )
         dt_ = dist[:, :p0][:, through]
         dd = dt_[np.isfinite(dt_)]
         if dd.size:
-            print(f"  frame-0 points tracked through: median {np.median(dd):.2f} px, "
-                  f"95% {np.percentile(dd, 95):.2f} px (half res), {dd.size} point-frames")
+            print(
+                f"  frame-0 points tracked through: median {np.median(dd):.2f} px, "
+                f"95% {np.percentile(dd, 95):.2f} px (half res), {dd.size} point-frames"
+            )
         per_f = [f"{np.nanmedian(r):.2f}" if np.isfinite(r).any() else "-" for r in dist]
         print("  median per 10th frame: " + " ".join(per_f[::10]))
     draw_trajectories(vids[names[0]][a.frames - 1], tr.uv[:, :, 0], a.png)
-    np.savez_compressed(a.png.with_suffix(".npz"), xyz=tr.xyz, uv=tr.uv, start=tr.start,
-                        check_dist_px=dist, cameras=np.array(names), check=a.check)
+    np.savez_compressed(
+        a.png.with_suffix(".npz"),
+        xyz=tr.xyz,
+        uv=tr.uv,
+        start=tr.start,
+        check_dist_px=dist,
+        cameras=np.array(names),
+        check=a.check,
+    )
     print(f"wrote {a.png} and {a.png.with_suffix('.npz')}; total {time.perf_counter() - t0:.1f} s")
     return 0
 

@@ -95,19 +95,33 @@ FPS = 60.0
 #: visibility index (≥ 0.2) alone — adding the motion ranking lost the arms within 5
 #: frames on this take (``--compare-selection`` prints it) — relinearised 8 times per
 #: frame, contour ↔ rim pairs up to 20 px apart (fast arm swings at 60 fps).
-CONTOUR_CFG = ContourTrackSettings(select=True, observability=False, iterations=8,
-                                   max_dist_px=20.0)
+CONTOUR_CFG = ContourTrackSettings(select=True, observability=False, iterations=8, max_dist_px=20.0)
 #: Seeds for the LSM surface in the reference camera, as (joint a, joint b, weight of b):
 #: points between clicked joints on the back, the buttocks/thighs and the upper arms.
-SEED_PAIRS = (("neck", "pelvis", 0.3), ("neck", "pelvis", 0.55), ("l_shoulder", "r_hip", 0.5),
-              ("r_shoulder", "l_hip", 0.5), ("l_hip", "l_knee", 0.4), ("r_hip", "r_knee", 0.4),
-              ("l_shoulder", "l_elbow", 0.4), ("r_shoulder", "r_elbow", 0.4),
-              ("l_knee", "l_ankle", 0.35), ("r_knee", "r_ankle", 0.35))
+SEED_PAIRS = (
+    ("neck", "pelvis", 0.3),
+    ("neck", "pelvis", 0.55),
+    ("l_shoulder", "r_hip", 0.5),
+    ("r_shoulder", "l_hip", 0.5),
+    ("l_hip", "l_knee", 0.4),
+    ("r_hip", "r_knee", 0.4),
+    ("l_shoulder", "l_elbow", 0.4),
+    ("r_shoulder", "r_elbow", 0.4),
+    ("l_knee", "l_ankle", 0.35),
+    ("r_knee", "r_ankle", 0.35),
+)
 
 
 # -- fits ---------------------------------------------------------------------------------
-def texture_tracks(grey: dict, cams: list[Camera], clicks: dict, n_frames: int, scale: float,
-                   cache: Path, ref: int = 1):
+def texture_tracks(
+    grey: dict,
+    cams: list[Camera],
+    clicks: dict,
+    n_frames: int,
+    scale: float,
+    cache: Path,
+    ref: int = 1,
+):
     """LSM surface points at frame 0 tracked through ``n_frames`` (cached in ``cache``).
 
     Returns ``(xyz (F, P, 3) metres, sigma_xyz (F, P, 3) metres, info dict)``.
@@ -125,8 +139,13 @@ def texture_tracks(grey: dict, cams: list[Camera], clicks: dict, n_frames: int, 
     t0 = time.perf_counter()
     j = clicks["joints"]
     ref_name = names[ref]
-    uv_ref = np.array([(1 - w) * j[a][ref_name] + w * j[b][ref_name] for a, b, w in SEED_PAIRS
-                       if ref_name in j.get(a, {}) and ref_name in j.get(b, {})])
+    uv_ref = np.array(
+        [
+            (1 - w) * j[a][ref_name] + w * j[b][ref_name]
+            for a, b, w in SEED_PAIRS
+            if ref_name in j.get(a, {}) and ref_name in j.get(b, {})
+        ]
+    )
     uv_ref = (uv_ref + 0.5) * scale - 0.5
     st0 = ImageStack([grey[n][0] for n in names])
     seeds = epipolar_seeds(st0, cams, ref, uv_ref)
@@ -134,18 +153,23 @@ def texture_tracks(grey: dict, cams: list[Camera], clicks: dict, n_frames: int, 
         raise InputError("no LSM seed matched along the epipolar lines")
     surf = measure_surface(st0, cams, seeds, ref=ref, step=2)
     t1 = time.perf_counter()
-    tr = track(lambda i: [grey[n][i] for n in names], cams, surf, n_frames, FPS, step=2,
-               regen_every=5)
+    tr = track(
+        lambda i: [grey[n][i] for n in names], cams, surf, n_frames, FPS, step=2, regen_every=5
+    )
     t2 = time.perf_counter()
     alive = tr.alive
-    info = {"seeds": int(len(seeds)), "seed_candidates": int(len(uv_ref)),
-            "surface_points": int(len(surf)), "surface_s": t1 - t0, "tracking_s": t2 - t1,
-            "alive_per_frame_median": float(np.median(alive.sum(axis=1))),
-            "frame0_through": int(alive[:, :len(surf)].all(axis=0).sum()),
-            "trajectories": int(tr.xyz.shape[1])}
+    info = {
+        "seeds": int(len(seeds)),
+        "seed_candidates": int(len(uv_ref)),
+        "surface_points": int(len(surf)),
+        "surface_s": t1 - t0,
+        "tracking_s": t2 - t1,
+        "alive_per_frame_median": float(np.median(alive.sum(axis=1))),
+        "frame0_through": int(alive[:, : len(surf)].all(axis=0).sum()),
+        "trajectories": int(tr.xyz.shape[1]),
+    }
     cache.parent.mkdir(parents=True, exist_ok=True)
-    np.savez_compressed(cache, xyz=tr.xyz, sigma_xyz=tr.sigma_xyz, key=key,
-                        info=json.dumps(info))
+    np.savez_compressed(cache, xyz=tr.xyz, sigma_xyz=tr.sigma_xyz, key=key, info=json.dumps(info))
     return tr.xyz, tr.sigma_xyz, info
 
 
@@ -163,8 +187,9 @@ def frame_points(xyz: np.ndarray, sigma_xyz: np.ndarray):
     return out
 
 
-def fused_fit(state_tex, theta_con: np.ndarray, root_con: np.ndarray, cams: list[Camera],
-              contours: list, cfg):
+def fused_fit(
+    state_tex, theta_con: np.ndarray, root_con: np.ndarray, cams: list[Camera], contours: list, cfg
+):
     """Texture fit refined with contours; its diverged frames take the contour track's
     pose (the texture fit kept only a prediction there), then are refined likewise."""
     import copy
@@ -186,15 +211,20 @@ def _outline(img: np.ndarray, mask: np.ndarray, colour, thick: int = 1) -> None:
     cv2.drawContours(img, cs, -1, colour, thick, cv2.LINE_AA)
 
 
-def draw_check(rgb: np.ndarray, person: np.ndarray, bodies: dict, path: Path,
-               zoom: int = 2) -> None:
+def draw_check(
+    rgb: np.ndarray, person: np.ndarray, bodies: dict, path: Path, zoom: int = 2
+) -> None:
     """The held-out image with the person's mask (green, tinted) and each fitted body's
     outline (colours per label), written as PNG."""
     img = rgb.copy()
     img[person] = (0.6 * img[person] + 0.4 * np.array([0, 255, 0])).astype(np.uint8)
     img = cv2.resize(img, None, fx=zoom, fy=zoom, interpolation=cv2.INTER_LINEAR)
-    big = lambda m: cv2.resize(m.astype(np.uint8), None, fx=zoom, fy=zoom,  # noqa: E731
-                               interpolation=cv2.INTER_NEAREST)
+
+    def big(m):
+        return cv2.resize(
+            m.astype(np.uint8), None, fx=zoom, fy=zoom, interpolation=cv2.INTER_NEAREST
+        )
+
     _outline(img, big(person), (0, 200, 0), 1)
     y = 18
     for label, (mask, colour) in bodies.items():
@@ -215,8 +245,16 @@ def draw_masks(rgb: dict, masks: dict, frames: list[int], path: Path) -> None:
             m = masks[name][f]
             img[m] = (0.5 * img[m] + 0.5 * np.array([255, 0, 0])).astype(np.uint8)
             _outline(img, m, (255, 255, 0), 1)
-            cv2.putText(img, f"{name} f{f}", (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45,
-                        (255, 255, 255), 1, cv2.LINE_AA)
+            cv2.putText(
+                img,
+                f"{name} f{f}",
+                (6, 16),
+                cv2.FONT_HERSHEY_SIMPLEX,
+                0.45,
+                (255, 255, 255),
+                1,
+                cv2.LINE_AA,
+            )
             tiles.append(img)
         rows.append(np.hstack(tiles))
     w = min(r.shape[1] for r in rows)
@@ -245,8 +283,9 @@ def reference_camera(cams: list[Camera]) -> int:
     return ref
 
 
-def run_config(names: list[str], check: str, allc: dict, clicks: dict, video: dict,
-               fg: dict, a, nf: int) -> dict:
+def run_config(
+    names: list[str], check: str, allc: dict, clicks: dict, video: dict, fg: dict, a, nf: int
+) -> dict:
     """Initialise, fit three ways and check in the held-out camera; prints a table.
 
     ``video[name] = (grey (F, h, w) at a.scale, rgb (F, h', w', 3) at a.mask_scale)``,
@@ -270,9 +309,11 @@ def run_config(names: list[str], check: str, allc: dict, clicks: dict, video: di
     cam_chk = scale_camera(allc[check], a.mask_scale)
     t0 = time.perf_counter()
     init = initialise(clicks, cams_full, model=a.model, gross_px=a.gross_px, path=str(a.clicks))
-    print(f"clicks: {len(init.clicks.names)} joints, reprojection RMS median "
-          f"{np.median(init.clicks.rms_px):.1f} px (full resolution); initial posture joint "
-          f"RMSE {1000 * init.joint_rmse_m:.1f} mm ({time.perf_counter() - t0:.1f} s)")
+    print(
+        f"clicks: {len(init.clicks.names)} joints, reprojection RMS median "
+        f"{np.median(init.clicks.rms_px):.1f} px (full resolution); initial posture joint "
+        f"RMSE {1000 * init.joint_rmse_m:.1f} mm ({time.perf_counter() - t0:.1f} s)"
+    )
     for m in init.clicks.messages():
         print(f"  note: {m}")
     # the person's masks: foreground components near the clicked joints
@@ -280,34 +321,46 @@ def run_config(names: list[str], check: str, allc: dict, clicks: dict, video: di
     for n in names + [check]:
         cam = cam_chk if n == check else cams_q[names.index(n)]
         masks[n] = keep_in_region(fg[n], person_region(cam, init.clicks.xyz))
-    contours = [[occluding_contours(masks[n][f], spacing=2.0) for n in names]
-                for f in range(nf)]
+    contours = [[occluding_contours(masks[n][f], spacing=2.0) for n in names] for f in range(nf)]
     n_con = np.array([sum(len(c) for per_cam in fc for c in per_cam) for fc in contours])
     h, w = masks[check].shape[1:]
-    print("person area " + ", ".join(f"{n} {100 * masks[n].mean():.1f} %" for n in masks)
-          + f"; contour points per frame (fitting cameras) median {int(np.median(n_con))}")
+    print(
+        "person area "
+        + ", ".join(f"{n} {100 * masks[n].mean():.1f} %" for n in masks)
+        + f"; contour points per frame (fitting cameras) median {int(np.median(n_con))}"
+    )
     person = masks[check]
     results = {}
 
     # texture only
     ref = reference_camera(cams_full)
-    xyz, sxyz, info = texture_tracks({n: video[n][0] for n in names}, cams_t, clicks, nf,
-                                     a.scale, out / "tracks.npz", ref=ref)
+    xyz, sxyz, info = texture_tracks(
+        {n: video[n][0] for n in names}, cams_t, clicks, nf, a.scale, out / "tracks.npz", ref=ref
+    )
     obs = frame_points(xyz, sxyz)
     npts = np.array([len(o.xyz) for o in obs])
-    print(f"LSM (reference {names[ref]}): {info['seeds']} of {info['seed_candidates']} seeds, "
-          f"{info['surface_points']} surface points at frame 0 ({info['surface_s']:.1f} s); "
-          f"tracking {info['tracking_s'] / nf:.2f} s/frame; 3-D points per frame median "
-          f"{int(np.median(npts))} (max {npts.max()}); frame-0 points through all frames "
-          f"{info['frame0_through']}")
+    print(
+        f"LSM (reference {names[ref]}): {info['seeds']} of {info['seed_candidates']} seeds, "
+        f"{info['surface_points']} surface points at frame 0 ({info['surface_s']:.1f} s); "
+        f"tracking {info['tracking_s'] / nf:.2f} s/frame; 3-D points per frame median "
+        f"{int(np.median(npts))} (max {npts.max()}); frame-0 points through all frames "
+        f"{info['frame0_through']}"
+    )
     t0 = time.perf_counter()
-    res = fit_sequence(obs, init, SequenceSettings(), fps=FPS, source_scene=str(a.data),
-                       metaball_model=a.model)
+    res = fit_sequence(
+        obs, init, SequenceSettings(), fps=FPS, source_scene=str(a.data), metaball_model=a.model
+    )
     t_tex = (time.perf_counter() - t0) / nf
     st_tex = res.state
     div_tex = st_tex.quality.diverged
-    results["texture only"] = (st_tex.s, st_tex.metaballs, st_tex.theta, st_tex.root_xyz,
-                               t_tex, f"{int(div_tex.sum())} diverged (pose held)")
+    results["texture only"] = (
+        st_tex.s,
+        st_tex.metaballs,
+        st_tex.theta,
+        st_tex.root_xyz,
+        t_tex,
+        f"{int(div_tex.sum())} diverged (pose held)",
+    )
 
     # contours only: shape from frame 0's silhouettes, EKF with per-part camera selection
     rays_q = [camera_rays(c) for c in cams_q]
@@ -317,12 +370,21 @@ def run_config(names: list[str], check: str, allc: dict, clicks: dict, video: di
         from core.fit_contours import ContourSettings
 
         names = np.array(init.skeleton.bone_names)[init.metaballs.bone]
-        sig_c = np.where(np.isin(names, ContourSettings().shape_center_parts), a.center_sigma,
-                         np.nan)
+        sig_c = np.where(
+            np.isin(names, ContourSettings().shape_center_parts), a.center_sigma, np.nan
+        )
     balls_c, th0, rt0, rms0 = fit_shape_to_contours(
-        init.skeleton, init.s, init.metaballs, init.theta, init.root_xyz, cams_q, contours[0],
-        ContourTrackSettings(q_sigma_theta=0.05, q_sigma_root=0.01), rays=rays_q,
-        center_prior_m=sig_c)
+        init.skeleton,
+        init.s,
+        init.metaballs,
+        init.theta,
+        init.root_xyz,
+        cams_q,
+        contours[0],
+        ContourTrackSettings(q_sigma_theta=0.05, q_sigma_root=0.01),
+        rays=rays_q,
+        center_prior_m=sig_c,
+    )
     t_shape = time.perf_counter() - t0
     t0 = time.perf_counter()
     variants = {"contours only": CONTOUR_CFG}
@@ -336,37 +398,55 @@ def run_config(names: list[str], check: str, allc: dict, clicks: dict, video: di
         th, rt = np.array([t.theta for t in tracks]), np.array([t.root for t in tracks])
         n_upd = sum(t.updated for t in tracks)
         use = np.array([t.use for t in tracks])  # (F, P, C) cameras used per part
-        results[label] = (init.s, balls_c, th, rt, spf,
-                          f"{nf - n_upd} not updated; {use.sum(axis=2).mean():.2f} cameras "
-                          "per part")
+        results[label] = (
+            init.s,
+            balls_c,
+            th,
+            rt,
+            spf,
+            f"{nf - n_upd} not updated; {use.sum(axis=2).mean():.2f} cameras per part",
+        )
         if label == "contours only":
             th_c, rt_c, t_con = th, rt, spf
-            print(f"contour shape at frame 0: RMS {rms0:.2f} px ({t_shape:.1f} s); contour "
-                  f"EKF matches per frame median {int(np.median([t.n_matches for t in tracks]))}"
-                  f", residual RMS median {np.nanmedian([t.rms_px for t in tracks]):.2f} px")
+            print(
+                f"contour shape at frame 0: RMS {rms0:.2f} px ({t_shape:.1f} s); contour "
+                f"EKF matches per frame median {int(np.median([t.n_matches for t in tracks]))}"
+                f", residual RMS median {np.nanmedian([t.rms_px for t in tracks]):.2f} px"
+            )
 
     # texture + contours: the point-fit poses as measurements in the contour EKF ...
     t0 = time.perf_counter()
     q_pts = np.hstack([st_tex.theta, st_tex.root_xyz])
     q_pts[div_tex | (res.n_points == 0)] = np.nan  # no points: e.g. the clicked frame's pose
     q_sig = np.hstack([st_tex.quality.theta_sigma, np.full((nf, 3), 0.01)])
-    tr_f, n_used = track_fused(init.skeleton, init.s, balls_c, th0, rt0, cams_q, contours,
-                               q_pts, q_sig, CONTOUR_CFG)
+    tr_f, n_used = track_fused(
+        init.skeleton, init.s, balls_c, th0, rt0, cams_q, contours, q_pts, q_sig, CONTOUR_CFG
+    )
     t_ekf = (time.perf_counter() - t0) / nf + t_tex
     results["texture + contours"] = (
-        init.s, balls_c, np.array([t.theta for t in tr_f]), np.array([t.root for t in tr_f]),
-        t_ekf, f"point-fit pose used in {int(np.sum(n_used > 0))} frames, "
-               f"{np.mean(n_used[n_used > 0]) if n_used.any() else 0:.0f} of "
-               f"{q_pts.shape[1]} components")
+        init.s,
+        balls_c,
+        np.array([t.theta for t in tr_f]),
+        np.array([t.root for t in tr_f]),
+        t_ekf,
+        f"point-fit pose used in {int(np.sum(n_used > 0))} frames, "
+        f"{np.mean(n_used[n_used > 0]) if n_used.any() else 0:.0f} of "
+        f"{q_pts.shape[1]} components",
+    )
     # ... and each point-fit frame refined with its contours (diverged: contour pose)
     t0 = time.perf_counter()
     cfg = replace(CONTOUR_CFG, iterations=10, sigma_px=1.5, huber_px=3.0)
     st_fu, _ = fused_fit(st_tex, th_c, rt_c, cams_q, contours, cfg)
     t_fu = (time.perf_counter() - t0) / nf + t_tex
     n_ref = int(np.sum(np.isfinite(st_fu.contour_rms_px)))
-    results["texture, refined"] = (st_fu.s, st_fu.metaballs, st_fu.theta, st_fu.root_xyz,
-                                   t_fu, f"{n_ref} of {nf} refined; "
-                                   f"{int(div_tex.sum())} from the contour track")
+    results["texture, refined"] = (
+        st_fu.s,
+        st_fu.metaballs,
+        st_fu.theta,
+        st_fu.root_xyz,
+        t_fu,
+        f"{n_ref} of {nf} refined; {int(div_tex.sum())} from the contour track",
+    )
 
     # check in the held-out camera
     rays_chk = camera_rays(cam_chk)
@@ -377,23 +457,38 @@ def run_config(names: list[str], check: str, allc: dict, clicks: dict, video: di
         ious[label] = mask_iou(bodies[label], person)
         shifted[label] = shift_iou(bodies[label], person, max_shift_px=16)
     t_chk = (time.perf_counter() - t0) / (nf * len(results))
-    init_body = body_masks(init.skeleton, init.s, init.metaballs, init.theta[None],
-                           init.root_xyz[None], cam_chk, rays=rays_chk)
-    print(f"held-out {check} ({w}x{h} px), {nf} frames; the clicked pose at frame 0: IoU "
-          f"{float(mask_iou(init_body[0], person[0])):.3f}")
-    print(f"{'fit':20s} {'IoU mean':>8s} {'median':>6s} {'p10':>6s}  {'frame 0':>7s} "
-          f"{'last':>6s}  {'shifted mean':>12s} {'(du, dv) px':>11s}  {'jerk mm':>7s} "
-          f"{'s/frame':>7s}  notes")
+    init_body = body_masks(
+        init.skeleton,
+        init.s,
+        init.metaballs,
+        init.theta[None],
+        init.root_xyz[None],
+        cam_chk,
+        rays=rays_chk,
+    )
+    print(
+        f"held-out {check} ({w}x{h} px), {nf} frames; the clicked pose at frame 0: IoU "
+        f"{float(mask_iou(init_body[0], person[0])):.3f}"
+    )
+    print(
+        f"{'fit':20s} {'IoU mean':>8s} {'median':>6s} {'p10':>6s}  {'frame 0':>7s} "
+        f"{'last':>6s}  {'shifted mean':>12s} {'(du, dv) px':>11s}  {'jerk mm':>7s} "
+        f"{'s/frame':>7s}  notes"
+    )
     idx = [init.skeleton.joint_index(j) for j in METRIC_JOINTS]
     for label, (s_, _, th, rt, spf, flags) in results.items():
         i = ious[label]
         sh, si = shifted[label]
         xj = joint_positions(init.skeleton, th, rt, s_)[:, idx]
         acc = 1000 * np.median(np.linalg.norm(np.diff(xj, 2, axis=0), axis=2))
-        print(f"{label:20s} {_stats(i)}  {i[0]:7.3f} {i[-1]:6.3f}  {np.nanmean(si):12.3f} "
-              f"{str(tuple(int(x) for x in sh)):>11s}  {acc:7.1f} {spf:7.2f}  {flags}")
-    print("(shifted: IoU after one image shift fitted over all frames, quarter-resolution px; "
-          "jerk: median |second difference| of the 14 metric joints per frame, mm)")
+        print(
+            f"{label:20s} {_stats(i)}  {i[0]:7.3f} {i[-1]:6.3f}  {np.nanmean(si):12.3f} "
+            f"{str(tuple(int(x) for x in sh)):>11s}  {acc:7.1f} {spf:7.2f}  {flags}"
+        )
+    print(
+        "(shifted: IoU after one image shift fitted over all frames, quarter-resolution px; "
+        "jerk: median |second difference| of the 14 metric joints per frame, mm)"
+    )
     steps = list(range(0, nf, max(1, nf // 10)))
     print("IoU per frame       " + " ".join(f"{f:5d}" for f in steps))
     for label in results:
@@ -401,27 +496,44 @@ def run_config(names: list[str], check: str, allc: dict, clicks: dict, video: di
     for label in results:
         if label != "texture only":
             win = ious[label] - ious["texture only"]
-            print(f"{label} vs texture only: better in {int(np.sum(win > 0))} of {nf} frames, "
-                  f"mean difference {np.nanmean(win):+.3f}")
-    print(f"speed: texture fit {t_tex:.2f} s/frame ({int(np.median(npts))} points/frame; "
-          f"LSM tracking {info['tracking_s'] / nf:.2f} s/frame at {cams_t[0].size[0]}x"
-          f"{cams_t[0].size[1]}); contour EKF {t_con:.2f} s/frame, with the point-fit poses "
-          f"{t_ekf - t_tex:.2f} s/frame, refinement {t_fu - t_tex:.2f} s/frame "
-          f"({int(np.median(n_con))} contour points, 3 cameras at {w}x{h}); check render "
-          f"{1000 * t_chk:.0f} ms/frame")
+            print(
+                f"{label} vs texture only: better in {int(np.sum(win > 0))} of {nf} frames, "
+                f"mean difference {np.nanmean(win):+.3f}"
+            )
+    print(
+        f"speed: texture fit {t_tex:.2f} s/frame ({int(np.median(npts))} points/frame; "
+        f"LSM tracking {info['tracking_s'] / nf:.2f} s/frame at {cams_t[0].size[0]}x"
+        f"{cams_t[0].size[1]}); contour EKF {t_con:.2f} s/frame, with the point-fit poses "
+        f"{t_ekf - t_tex:.2f} s/frame, refinement {t_fu - t_tex:.2f} s/frame "
+        f"({int(np.median(n_con))} contour points, 3 cameras at {w}x{h}); check render "
+        f"{1000 * t_chk:.0f} ms/frame"
+    )
 
     picks = [f for f in (int(x) for x in a.overlay_frames.split(",")) if 0 <= f < nf]
-    colours = {"texture only": (60, 120, 255), "contours only": (255, 160, 0),
-               "texture + contours": (255, 0, 0), "texture, refined": (200, 0, 200),
-               "contours, motion-ranked": (0, 200, 200), "contours, all fused": (255, 255, 0)}
+    colours = {
+        "texture only": (60, 120, 255),
+        "contours only": (255, 160, 0),
+        "texture + contours": (255, 0, 0),
+        "texture, refined": (200, 0, 200),
+        "contours, motion-ranked": (0, 200, 200),
+        "contours, all fused": (255, 255, 0),
+    }
     for f in picks:
-        draw_check(video[check][1][f], person[f],
-                   {f"{k} IoU {ious[k][f]:.2f}": (bodies[k][f], colours[k]) for k in results},
-                   out / f"check_{check}_f{f:03d}.png")
-    draw_masks({n: video[n][1] for n in sorted(masks)}, {n: masks[n] for n in sorted(masks)},
-               picks, out / "masks_4cams.png")
-    np.savez_compressed(out / "iou.npz", **{k.replace(" ", "_").replace("+", "and"): v
-                                           for k, v in ious.items()})
+        draw_check(
+            video[check][1][f],
+            person[f],
+            {f"{k} IoU {ious[k][f]:.2f}": (bodies[k][f], colours[k]) for k in results},
+            out / f"check_{check}_f{f:03d}.png",
+        )
+    draw_masks(
+        {n: video[n][1] for n in sorted(masks)},
+        {n: masks[n] for n in sorted(masks)},
+        picks,
+        out / "masks_4cams.png",
+    )
+    np.savez_compressed(
+        out / "iou.npz", **{k.replace(" ", "_").replace("+", "and"): v for k, v in ious.items()}
+    )
     print(f"wrote {len(picks)} overlays check_{check}_f*.png and masks_4cams.png to {out}")
     return ious
 
@@ -431,27 +543,45 @@ def main(argv=None) -> int:
     ap.add_argument("--data", type=Path, default=DATA)
     ap.add_argument("--clicks", type=Path, default=CLICKS)
     ap.add_argument("--frames", type=int, default=100, help="frames to fit")
-    ap.add_argument("--bg-frames", type=int, default=100,
-                    help="frames the background models are estimated from")
-    ap.add_argument("--configs", default=f"{','.join(FIT_CAMS)}:{CHECK_CAM}",
-                    help="';'-separated FIT,CAMS:CHECK configurations, e.g. "
-                         "'cam02,cam03,cam04:cam01;cam01,cam02,cam04:cam03'")
+    ap.add_argument(
+        "--bg-frames", type=int, default=100, help="frames the background models are estimated from"
+    )
+    ap.add_argument(
+        "--configs",
+        default=f"{','.join(FIT_CAMS)}:{CHECK_CAM}",
+        help="';'-separated FIT,CAMS:CHECK configurations, e.g. "
+        "'cam02,cam03,cam04:cam01;cam01,cam02,cam04:cam03'",
+    )
     ap.add_argument("--scale", type=float, default=0.5, help="LSM tracking resolution")
-    ap.add_argument("--mask-scale", type=float, default=0.25,
-                    help="resolution of masks, contours and the check")
+    ap.add_argument(
+        "--mask-scale", type=float, default=0.25, help="resolution of masks, contours and the check"
+    )
     ap.add_argument("--model", choices=("simplified", "complete"), default="simplified")
-    ap.add_argument("--gross-px", type=float, default=20.0,
-                    help="click consistency threshold, full-resolution pixels")
-    ap.add_argument("--no-empty", action="store_true",
-                    help="do not repair the backgrounds with the empty-scene photos")
+    ap.add_argument(
+        "--gross-px",
+        type=float,
+        default=20.0,
+        help="click consistency threshold, full-resolution pixels",
+    )
+    ap.add_argument(
+        "--no-empty",
+        action="store_true",
+        help="do not repair the backgrounds with the empty-scene photos",
+    )
     ap.add_argument("--out", type=Path, default=REPO / "out" / "realvideo_fit")
-    ap.add_argument("--compare-selection", action="store_true",
-                    help="also track contours with motion-ranked camera selection and with "
-                         "all cameras fused")
+    ap.add_argument(
+        "--compare-selection",
+        action="store_true",
+        help="also track contours with motion-ranked camera selection and with all cameras fused",
+    )
     ap.add_argument("--overlay-frames", default="0,30,60,99")
-    ap.add_argument("--center-sigma", type=float, default=None,
-                    help="free the trunk's, head's and legs' metaball centres in the shape "
-                         "from frame 0's silhouettes, with this σ, metres (default: held)")
+    ap.add_argument(
+        "--center-sigma",
+        type=float,
+        default=None,
+        help="free the trunk's, head's and legs' metaball centres in the shape "
+        "from frame 0's silhouettes, with this σ, metres (default: held)",
+    )
     a = ap.parse_args(argv)
     t_all = time.perf_counter()
     calib = a.data / "calibration" / "Calib.qca.txt"
@@ -462,10 +592,16 @@ def main(argv=None) -> int:
     for spec in a.configs.split(";"):
         fit_s, _, check = spec.partition(":")
         names = fit_s.split(",")
-        if (not check or check in names or len(set(names)) != len(names)
-                or any(n not in allc for n in names + [check])):
-            raise InputError(f"{calib}: --configs '{spec}' must name distinct fitting cameras "
-                             f"and one held-out camera among {sorted(allc)}")
+        if (
+            not check
+            or check in names
+            or len(set(names)) != len(names)
+            or any(n not in allc for n in names + [check])
+        ):
+            raise InputError(
+                f"{calib}: --configs '{spec}' must name distinct fitting cameras "
+                f"and one held-out camera among {sorted(allc)}"
+            )
         configs.append((names, check))
     nf = int(a.frames)
     if nf < 2:
@@ -477,8 +613,9 @@ def main(argv=None) -> int:
     n_read = max(nf, a.bg_frames)
     video, fg = {}, {}
     for n in used:
-        grey, rgb = read_video(a.data / "videos" / f"{n}.mp4", allc[n].size, n_read, a.scale,
-                               a.mask_scale)
+        grey, rgb = read_video(
+            a.data / "videos" / f"{n}.mp4", allc[n].size, n_read, a.scale, a.mask_scale
+        )
         video[n] = (grey[:nf], rgb[:nf])
         model = fit_background(rgb)
         empty = read_empty_scene(a.data, n, allc[n].size, a.mask_scale)
@@ -486,10 +623,12 @@ def main(argv=None) -> int:
             model = with_reference(model, rgb, empty)
         fg[n] = np.stack([model.foreground(f, threshold=6.0) for f in rgb[:nf]])
     t_fg = time.perf_counter() - t0
-    print(f"video: {n_read} frames x {len(used)} cameras decoded, background models "
-          f"{'with' if not a.no_empty else 'without'} the empty-scene photos, foreground of "
-          f"{nf} frames: {t_fg:.0f} s ({1000 * t_fg / (n_read * len(used)):.0f} ms per "
-          f"camera-frame)")
+    print(
+        f"video: {n_read} frames x {len(used)} cameras decoded, background models "
+        f"{'with' if not a.no_empty else 'without'} the empty-scene photos, foreground of "
+        f"{nf} frames: {t_fg:.0f} s ({1000 * t_fg / (n_read * len(used)):.0f} ms per "
+        f"camera-frame)"
+    )
     for names, check in configs:
         run_config(names, check, allc, clicks, video, fg, a, nf)
     print(f"\ntotal {time.perf_counter() - t_all:.0f} s")

@@ -52,8 +52,9 @@ def load_clicks(path: Path, cameras: list[str]) -> dict:
     return {"frame": int(data.get("frame", 0)), "joints": joints}
 
 
-def read_video(path: Path, size: tuple[int, int], n_frames: int, grey_scale: float | None,
-               colour_scale: float) -> tuple[np.ndarray | None, np.ndarray]:
+def read_video(
+    path: Path, size: tuple[int, int], n_frames: int, grey_scale: float | None, colour_scale: float
+) -> tuple[np.ndarray | None, np.ndarray]:
     """Decode one camera once: Wallis-filtered grey frames and RGB frames.
 
     Frames narrower than the calibrated ``size`` (cam01/cam02: 1080 of 1088 px) are
@@ -76,16 +77,20 @@ def read_video(path: Path, size: tuple[int, int], n_frames: int, grey_scale: flo
         if not ok:
             break
         if f.shape[0] > h or f.shape[1] > w:
-            raise InputError(f"{path}: frame {f.shape[1]}x{f.shape[0]} is larger than the "
-                             f"calibration {w}x{h}")
+            raise InputError(
+                f"{path}: frame {f.shape[1]}x{f.shape[0]} is larger than the calibration {w}x{h}"
+            )
         f = cv2.copyMakeBorder(f, 0, h - f.shape[0], 0, w - f.shape[1], cv2.BORDER_REPLICATE)
         if grey_scale is not None:
-            g = cv2.resize(cv2.cvtColor(f, cv2.COLOR_BGR2GRAY),
-                           (round(w * grey_scale), round(h * grey_scale)),
-                           interpolation=cv2.INTER_AREA)
+            g = cv2.resize(
+                cv2.cvtColor(f, cv2.COLOR_BGR2GRAY),
+                (round(w * grey_scale), round(h * grey_scale)),
+                interpolation=cv2.INTER_AREA,
+            )
             grey.append(wallis(g))
-        c = cv2.resize(f, (round(w * colour_scale), round(h * colour_scale)),
-                       interpolation=cv2.INTER_AREA)
+        c = cv2.resize(
+            f, (round(w * colour_scale), round(h * colour_scale)), interpolation=cv2.INTER_AREA
+        )
         rgb.append(cv2.cvtColor(c, cv2.COLOR_BGR2RGB))
     cap.release()
     if len(rgb) < n_frames:
@@ -93,8 +98,9 @@ def read_video(path: Path, size: tuple[int, int], n_frames: int, grey_scale: flo
     return (np.stack(grey) if grey_scale is not None else None), np.stack(rgb)
 
 
-def read_empty_scene(data: Path, name: str, size: tuple[int, int],
-                     scale: float) -> np.ndarray | None:
+def read_empty_scene(
+    data: Path, name: str, size: tuple[int, int], scale: float
+) -> np.ndarray | None:
     """The calibration photo of camera ``name`` (``calibration/extrinsics/<name>_ext.png``)
     registered to the video frames, RGB at ``scale``; None when absent.
 
@@ -121,8 +127,9 @@ def read_empty_scene(data: Path, name: str, size: tuple[int, int],
 
 
 # -- foreground ---------------------------------------------------------------------------
-def person_region(camera: Camera, xyz: np.ndarray, grow: tuple[float, float] = (0.6, 0.25)
-                  ) -> tuple[int, int, int, int]:
+def person_region(
+    camera: Camera, xyz: np.ndarray, grow: tuple[float, float] = (0.6, 0.25)
+) -> tuple[int, int, int, int]:
     """Image box ``(u0, v0, u1, v1)`` around 3-D joints ``xyz`` (K, 3) projected into
     ``camera``, widened by ``grow`` (fractions of the box's width, height; at least a
     tenth of its larger side) on each side."""
@@ -144,7 +151,7 @@ def keep_in_region(masks: np.ndarray, box: tuple[int, int, int, int]) -> np.ndar
         n, lab = cv2.connectedComponents(m.astype(np.uint8), connectivity=8)
         if n <= 1:
             continue
-        hit = np.unique(lab[v0:v1 + 1, u0:u1 + 1])
+        hit = np.unique(lab[v0 : v1 + 1, u0 : u1 + 1])
         keep = np.zeros(n, bool)
         keep[hit[hit > 0]] = True
         out[f] = keep[lab]

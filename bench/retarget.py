@@ -54,9 +54,15 @@ def _source_bvh(frames):
     import bpy
 
     path = SHARED / "mocap" / "02_01.bvh"
-    bpy.ops.import_anim.bvh(filepath=str(path), global_scale=0.056444, frame_start=1,
-                            use_fps_scale=False, rotate_mode="NATIVE", axis_forward="-Z",
-                            axis_up="Y")
+    bpy.ops.import_anim.bvh(
+        filepath=str(path),
+        global_scale=0.056444,
+        frame_start=1,
+        use_fps_scale=False,
+        rotate_mode="NATIVE",
+        axis_forward="-Z",
+        axis_up="Y",
+    )
     arm = bpy.context.active_object
     last = int(arm.animation_data.action.frame_range[1])
     last = min(last, frames) if frames else last
@@ -83,8 +89,9 @@ def main(argv=None) -> int:
     p.add_argument("--source", choices=("truth", "bvh"), default=None)
     p.add_argument("--frames", type=int, default=240)
     args = p.parse_args(argv)
-    source = args.source or ("truth" if (REPO / "sample_scenes" / "walk_line3" /
-                                         "truth.npz").is_file() else "bvh")
+    source = args.source or (
+        "truth" if (REPO / "sample_scenes" / "walk_line3" / "truth.npz").is_file() else "bvh"
+    )
     bpy.ops.wm.read_factory_settings(use_empty=True)
     addon_utils.enable("rigify", default_set=True)
     src, rng, label = (_source_truth if source == "truth" else _source_bvh)(args.frames)
@@ -94,7 +101,8 @@ def main(argv=None) -> int:
     targets = {}
     if (SHARED / "characters" / "makehuman_cmu_mb.blend").is_file():
         targets["a. MakeHuman (A-pose)"] = pipeline.load_character(
-            SHARED / "characters" / "makehuman_cmu_mb.blend")
+            SHARED / "characters" / "makehuman_cmu_mb.blend"
+        )
     t0 = time.perf_counter()
     gen = generate_rigify_human("rigify_generated", location=(4.5, 0.0, 0.0), face=True)
     t_gen = time.perf_counter() - t0
@@ -105,15 +113,26 @@ def main(argv=None) -> int:
     targets["b'. Rigify human meta-rig"] = meta
     mix = copy_rig(meta, "mixamo_rig")
     mix.location = (3.0, 0.0, 0.0)
-    rename_and_reroll(mix, {SCHEMES["rigify_metarig"][c]: "mixamorig:" + SCHEMES["mixamo"][c]
-                            for c in SCHEMES["mixamo"]}, roll_deg=90.0, seed=5)
+    rename_and_reroll(
+        mix,
+        {
+            SCHEMES["rigify_metarig"][c]: "mixamorig:" + SCHEMES["mixamo"][c]
+            for c in SCHEMES["mixamo"]
+        },
+        roll_deg=90.0,
+        seed=5,
+    )
     targets["c. Mixamo names, rolls ±90°"] = mix
 
     print(f"source: {label}")
-    print(f"Rigify rig generated from the human meta-rig in {t_gen:.1f} s "
-          f"({len(gen.data.bones)} bones; the DEF bones are measured, the FK controls keyed)")
-    head = (f"{'target':30s} {'mapped':>6s} {'dir max°':>9s} {'dir mean°':>9s} "
-            f"{'A→B→A max°':>11s} {'root max %h':>11s} {'scale':>6s} {'s':>5s}")
+    print(
+        f"Rigify rig generated from the human meta-rig in {t_gen:.1f} s "
+        f"({len(gen.data.bones)} bones; the DEF bones are measured, the FK controls keyed)"
+    )
+    head = (
+        f"{'target':30s} {'mapped':>6s} {'dir max°':>9s} {'dir mean°':>9s} "
+        f"{'A→B→A max°':>11s} {'root max %h':>11s} {'scale':>6s} {'s':>5s}"
+    )
     print(head)
     print("-" * len(head))
     worst = {"dir": 0.0, "rt": 0.0, "root": 0.0}
@@ -127,8 +146,10 @@ def main(argv=None) -> int:
         same = {b: b for b in res_b.pairs.values()}
         err_rt = direction_errors_deg(src, back, frames, same)
         root = root_path_error(src, tgt, frames, res.scale) / rig_height(tgt) * 100.0
-        print(f"{name:30s} {len(res.pairs):6d} {err.max():9.4f} {err.mean():9.4f} "
-              f"{err_rt.max():11.4f} {root.max():11.4f} {res.scale:6.3f} {dt:5.1f}")
+        print(
+            f"{name:30s} {len(res.pairs):6d} {err.max():9.4f} {err.mean():9.4f} "
+            f"{err_rt.max():11.4f} {root.max():11.4f} {res.scale:6.3f} {dt:5.1f}"
+        )
         worst["dir"] = max(worst["dir"], err.max())
         worst["rt"] = max(worst["rt"], err_rt.max())
         worst["root"] = max(worst["root"], root.max())
@@ -138,12 +159,15 @@ def main(argv=None) -> int:
         if name.startswith("b."):
             continue  # constraint-driven rig: not supported yet
         res_l = rt.retarget(src, tgt, take="bench_lock", foot_lock=True)
-        sk = ", ".join(f"{side}: {b:.1f} -> {a:.1f} mm" for side, (b, a) in
-                       res_l.foot_skate_mm.items())
+        sk = ", ".join(
+            f"{side}: {b:.1f} -> {a:.1f} mm" for side, (b, a) in res_l.foot_skate_mm.items()
+        )
         print(f"  {name:30s} {sk}")
     ok = worst["dir"] < 1.0 and worst["rt"] < 0.5 and worst["root"] < 1.0
-    print(f"worst: direction {worst['dir']:.4f}° (< 1), round trip {worst['rt']:.4f}° (< 0.5), "
-          f"root {worst['root']:.4f} % of height (< 1): {'PASS' if ok else 'FAIL'}")
+    print(
+        f"worst: direction {worst['dir']:.4f}° (< 1), round trip {worst['rt']:.4f}° (< 0.5), "
+        f"root {worst['root']:.4f} % of height (< 1): {'PASS' if ok else 'FAIL'}"
+    )
     return 0 if ok else 1
 
 

@@ -25,9 +25,11 @@ from core.scene import load_scene
 from core.surface import concat, measure_surface, seeds_from_clicks
 from core.surface_seed import grow_from_jumps
 
-LIMBS = {f"{s}_{k}": (f"{s}_{a}", f"{s}_{b}", f"{s}_{c}") for s in "lr"
-         for k, (a, b, c) in (("arm", ("shoulder", "elbow", "wrist")),
-                              ("leg", ("hip", "knee", "ankle")))}
+LIMBS = {
+    f"{s}_{k}": (f"{s}_{a}", f"{s}_{b}", f"{s}_{c}")
+    for s in "lr"
+    for k, (a, b, c) in (("arm", ("shoulder", "elbow", "wrist")), ("leg", ("hip", "knee", "ankle")))
+}
 
 
 def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -36,8 +38,9 @@ def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray
     return np.linalg.norm(p - (a + u[:, None] * ab), axis=1)
 
 
-def limb_counts(xyz: np.ndarray, joints: np.ndarray, names: list, reach_m: float = 0.07,
-                end_m: float = 0.15) -> dict:
+def limb_counts(
+    xyz: np.ndarray, joints: np.ndarray, names: list, reach_m: float = 0.07, end_m: float = 0.15
+) -> dict:
     """Points (N, 3) within ``reach_m`` of each limb's two bones (the last one extended by
     ``end_m`` for the hand or foot), world metres."""
     out = {}
@@ -52,16 +55,19 @@ def limb_counts(xyz: np.ndarray, joints: np.ndarray, names: list, reach_m: float
 def _describe(label: str, xyz: np.ndarray, V: np.ndarray, faces: np.ndarray, joints, names):
     d = nearest_on_mesh(xyz, V, faces)[0]
     limbs = limb_counts(xyz, joints, names)
-    print(f"  {label:<28} {len(xyz):6d} points, to the true mesh median "
-          f"{1000 * np.median(d):.2f} mm, 95th {1000 * np.percentile(d, 95):.1f} mm; "
-          + ", ".join(f"{k} {v}" for k, v in limbs.items()))
+    print(
+        f"  {label:<28} {len(xyz):6d} points, to the true mesh median "
+        f"{1000 * np.median(d):.2f} mm, 95th {1000 * np.percentile(d, 95):.1f} mm; "
+        + ", ".join(f"{k} {v}" for k, v in limbs.items())
+    )
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scene", default="sample_scenes/walk_line3")
-    ap.add_argument("--tracks", nargs="*", default=[],
-                    help="tracks.npz files of the scene to count per frame")
+    ap.add_argument(
+        "--tracks", nargs="*", default=[], help="tracks.npz files of the scene to count per frame"
+    )
     args = ap.parse_args(argv)
     sc = load_scene(args.scene)
     cams = sc.calibration()
@@ -69,18 +75,21 @@ def main(argv=None) -> int:
     joints, names = truth_joints(sc.truth)
     imgs = [sc.image(c, 0) for c in sc.cameras]
     t0 = time.perf_counter()
-    grown = measure_surface(imgs, cams, seeds_from_clicks(sc.clicks(), sc.cameras, 5),
-                            max_depth_dev_m=0.01)
+    grown = measure_surface(
+        imgs, cams, seeds_from_clicks(sc.clicks(), sc.cameras, 5), max_depth_dev_m=0.01
+    )
     t1 = time.perf_counter()
-    jump = grow_from_jumps(imgs, cams, grown.ref, grown.xyz, grown.uv[:, grown.ref],
-                           max_depth_dev_m=0.01)
+    jump = grow_from_jumps(
+        imgs, cams, grown.ref, grown.xyz, grown.uv[:, grown.ref], max_depth_dev_m=0.01
+    )
     t2 = time.perf_counter()
     both = grown if jump is None else concat(grown, jump)
     print(f"frame 0 of {args.scene}:")
     _describe(f"growth alone ({t1 - t0:.1f} s)", grown.xyz, V[0], faces, joints[0], names)
     if jump is not None:
-        _describe(f"epipolar seeds' growth ({t2 - t1:.1f} s)", jump.xyz, V[0], faces,
-                  joints[0], names)
+        _describe(
+            f"epipolar seeds' growth ({t2 - t1:.1f} s)", jump.xyz, V[0], faces, joints[0], names
+        )
     _describe("together (core track)", both.xyz, V[0], faces, joints[0], names)
     for path in args.tracks:
         frames = observations_from_tracks(Path(path), sc.n_frames)
@@ -93,8 +102,11 @@ def main(argv=None) -> int:
             far.append(int((nearest_on_mesh(fp.xyz, V[f], faces)[0] > 0.02).sum()))
         for k, v in rows.items():
             print(f"  {k:<6} " + " ".join(f"{x:d}" for x in v))
-        print("  far    " + " ".join(f"{x:d}" for x in far)
-              + f"  (total {sum(far)} of {sum(len(fp.xyz) for fp in frames)} point-frames)")
+        print(
+            "  far    "
+            + " ".join(f"{x:d}" for x in far)
+            + f"  (total {sum(far)} of {sum(len(fp.xyz) for fp in frames)} point-frames)"
+        )
     return 0
 
 

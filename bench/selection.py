@@ -49,14 +49,27 @@ ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_SCENES = ("dance_line3", "dance_ortho3", "pirouette_line3", "pirouette_ortho3")
 
 #: Daz-friendly CMU joint -> the CMU (MotionBuilder) name the studio character uses.
-DAZ_TO_CMU = {"hip": "Hips", "abdomen": "LowerBack", "chest": "Spine", "neck": "Neck",
-              "head": "Head"}
+DAZ_TO_CMU = {
+    "hip": "Hips",
+    "abdomen": "LowerBack",
+    "chest": "Spine",
+    "neck": "Neck",
+    "head": "Head",
+}
 for _s, _S in (("l", "Left"), ("r", "Right")):
-    DAZ_TO_CMU.update({f"{_s}Collar": f"{_S}Shoulder", f"{_s}Shldr": f"{_S}Arm",
-                       f"{_s}ForeArm": f"{_S}ForeArm", f"{_s}Hand": f"{_S}Hand",
-                       f"{_s}Mid1": f"{_S}FingerBase", f"{_s}Mid2": f"{_S}HandIndex1",
-                       f"{_s}Thigh": f"{_S}UpLeg",
-                       f"{_s}Shin": f"{_S}Leg", f"{_s}Foot": f"{_S}Foot"})
+    DAZ_TO_CMU.update(
+        {
+            f"{_s}Collar": f"{_S}Shoulder",
+            f"{_s}Shldr": f"{_S}Arm",
+            f"{_s}ForeArm": f"{_S}ForeArm",
+            f"{_s}Hand": f"{_S}Hand",
+            f"{_s}Mid1": f"{_S}FingerBase",
+            f"{_s}Mid2": f"{_S}HandIndex1",
+            f"{_s}Thigh": f"{_S}UpLeg",
+            f"{_s}Shin": f"{_S}Leg",
+            f"{_s}Foot": f"{_S}Foot",
+        }
+    )
 
 #: Pirouette scenes: name -> (rig, first BVH frame).
 PIROUETTE_SCENES = {"pirouette_line3": ("line3", 120), "pirouette_ortho3": ("orthogonal3", 120)}
@@ -65,9 +78,12 @@ PIROUETTE_SCENES = {"pirouette_line3": ("line3", 120), "pirouette_ortho3": ("ort
 def renamed_bvh(src: Path, dst: Path) -> Path:
     """Copy of the BVH ``src`` with Daz-friendly joint names replaced (:data:`DAZ_TO_CMU`)."""
     text = src.read_text()
-    out = re.sub(r"^(\s*(?:ROOT|JOINT)\s+)(\S+)",
-                 lambda m: m.group(1) + DAZ_TO_CMU.get(m.group(2), m.group(2)), text,
-                 flags=re.M)
+    out = re.sub(
+        r"^(\s*(?:ROOT|JOINT)\s+)(\S+)",
+        lambda m: m.group(1) + DAZ_TO_CMU.get(m.group(2), m.group(2)),
+        text,
+        flags=re.M,
+    )
     dst.parent.mkdir(parents=True, exist_ok=True)
     dst.write_text(out)
     return dst
@@ -105,11 +121,26 @@ def scene_dir(name: str, fps: float | None = None) -> Path:
     else:
         clip, rig, start = STUDIO_SCENES[name]
         bvh = MOCAP / clip
-    return render_cached(out.name, out,
-                         ["--bvh", str(bvh), "--rig", rig, "--start", str(start),
-                          "--frames", str(round(FRAMES * fps / FPS)), "--fps", f"{fps:g}",
-                          "--size", SIZE,
-                          "--wand-positions", "0"])[0]
+    return render_cached(
+        out.name,
+        out,
+        [
+            "--bvh",
+            str(bvh),
+            "--rig",
+            rig,
+            "--start",
+            str(start),
+            "--frames",
+            str(round(FRAMES * fps / FPS)),
+            "--fps",
+            f"{fps:g}",
+            "--size",
+            SIZE,
+            "--wand-positions",
+            "0",
+        ],
+    )[0]
 
 
 def scene_contours(scene, n_frames: int, spacing: float = 2.0):
@@ -149,8 +180,9 @@ def truth_visibility(scene, frames) -> np.ndarray:
         centers, axes, radii, bone = body_render(state, f)
         vpart = model_vertex_parts(scene.truth["vertices"][f], centers, axes, radii, bone)
         for c, cam in enumerate(cams):
-            ref, full = mesh_visibility(cam, scene.truth["vertices"][f], scene.truth["faces"],
-                                        vpart, P)
+            ref, full = mesh_visibility(
+                cam, scene.truth["vertices"][f], scene.truth["faces"], vpart, P
+            )
             out[i, :, c] = np.where(full >= MIN_AREA_PX, ref, np.nan)
     return out
 
@@ -184,33 +216,60 @@ def _fit_rows(scene, nf: int, lost_mm: float, vis_frames, ref_vi):
     from core.fit_contours import ContourSettings
     from core.fit_scene import run_scene as fit_run
 
-    truth = {k: (v[:nf] if getattr(v, "ndim", 0) and v.shape[0] == scene.n_frames else v)
-             for k, v in scene.truth.items()}
+    truth = {
+        k: (v[:nf] if getattr(v, "ndim", 0) and v.shape[0] == scene.n_frames else v)
+        for k, v in scene.truth.items()
+    }
     cams = [c.name for c in scene.calibration()]
     rows = []
     for select, ranked, label in METHODS:
         t0 = time.process_time()
-        res = fit_run(scene, observations="tracks", cues="contours", frames=nf,
-                      contour_settings=ContourSettings(select=select, rank_motion=ranked))
+        res = fit_run(
+            scene,
+            observations="tracks",
+            cues="contours",
+            frames=nf,
+            contour_settings=ContourSettings(select=select, rank_motion=ranked),
+        )
         dt = (time.process_time() - t0) / nf
         st = res.state
         ev = evaluate_state(st, truth)
         parts = st.skeleton.bone_names
-        use = np.array([[[c in st.quality.cameras[f].get(p, ()) for c in cams] for p in parts]
-                        for f in vis_frames])
+        use = np.array(
+            [
+                [[c in st.quality.cameras[f].get(p, ()) for c in cams] for p in parts]
+                for f in vis_frames
+            ]
+        )
         hidden_used, seen_unused = camera_agreement(use, ref_vi)
         diverged = np.asarray(st.quality.diverged, bool)
         curve = np.where(diverged, np.nan, ev.curves["mpjpe_mm"])
-        rows.append({"scene": scene.root.name, "method": label, "mpjpe_mm": ev.mpjpe_mm,
-                     "seg_rmse_deg": ev.segment_orientation_rmse_deg,
-                     "diverged": int(diverged.sum()), "lost": int((curve > lost_mm).sum()),
-                     "s_per_frame": dt, "curve": curve, "diverged_mask": diverged,
-                     "hidden_used": hidden_used, "seen_unused": seen_unused})
+        rows.append(
+            {
+                "scene": scene.root.name,
+                "method": label,
+                "mpjpe_mm": ev.mpjpe_mm,
+                "seg_rmse_deg": ev.segment_orientation_rmse_deg,
+                "diverged": int(diverged.sum()),
+                "lost": int((curve > lost_mm).sum()),
+                "s_per_frame": dt,
+                "curve": curve,
+                "diverged_mask": diverged,
+                "hidden_used": hidden_used,
+                "seen_unused": seen_unused,
+            }
+        )
     return rows
 
 
-def run_scene(name: str, n_frames: int, lost_mm: float = 100.0, settings: dict | None = None,
-              fps: float | None = None, tracker: str = "ekf"):
+def run_scene(
+    name: str,
+    n_frames: int,
+    lost_mm: float = 100.0,
+    settings: dict | None = None,
+    fps: float | None = None,
+    tracker: str = "ekf",
+):
     """Track one scene with selection and fused; returns a list of result dicts.
 
     ``fps``: the scene's frame rate (see :func:`scene_dir`); None for the studio's 25.
@@ -229,8 +288,10 @@ def run_scene(name: str, n_frames: int, lost_mm: float = 100.0, settings: dict |
     if tracker == "fit":
         vis_frames = list(range(0, nf, 5))
         ref_vi = truth_visibility(scene, vis_frames)
-        print(f"\n{name}: {len(cams)} cameras, {nf} frames; the sequence fit with contours "
-              "alone", flush=True)
+        print(
+            f"\n{name}: {len(cams)} cameras, {nf} frames; the sequence fit with contours alone",
+            flush=True,
+        )
         return _fit_rows(scene, nf, lost_mm, vis_frames, ref_vi)
     t0 = time.process_time()
     contours = scene_contours(scene, nf)
@@ -239,9 +300,17 @@ def run_scene(name: str, n_frames: int, lost_mm: float = 100.0, settings: dict |
     rays = [camera_rays(c) for c in cams]
     tight = ContourTrackSettings(q_sigma_theta=0.01, q_sigma_root=0.002)
     t0 = time.process_time()
-    balls, th0, rt0, rms = fit_shape_to_contours(init.skeleton, init.s, init.metaballs,
-                                                 init.theta, init.root_xyz, cams, contours[0],
-                                                 tight, rays=rays)
+    balls, th0, rt0, rms = fit_shape_to_contours(
+        init.skeleton,
+        init.s,
+        init.metaballs,
+        init.theta,
+        init.root_xyz,
+        cams,
+        contours[0],
+        tight,
+        rays=rays,
+    )
     t_shape = time.process_time() - t0
     txyz, names = truth_joints(scene.truth)
     txyz = txyz[:nf]
@@ -250,9 +319,12 @@ def run_scene(name: str, n_frames: int, lost_mm: float = 100.0, settings: dict |
     t0 = time.process_time()
     ref_vi = truth_visibility(scene, vis_frames)
     t_vis = time.process_time() - t0
-    print(f"\n{name}: {len(cams)} cameras, {nf} frames; contours {t_seg:.0f} s CPU; shape "
-          f"fitted to frame 0 (RMS {rms:.2f} px, {t_shape:.0f} s CPU); truth visibility of "
-          f"{len(vis_frames)} frames {t_vis:.0f} s CPU", flush=True)
+    print(
+        f"\n{name}: {len(cams)} cameras, {nf} frames; contours {t_seg:.0f} s CPU; shape "
+        f"fitted to frame 0 (RMS {rms:.2f} px, {t_shape:.0f} s CPU); truth visibility of "
+        f"{len(vis_frames)} frames {t_vis:.0f} s CPU",
+        flush=True,
+    )
     rows = []
     for select, ranked, label in METHODS:
         cfg = ContourTrackSettings(select=select, observability=ranked, **(settings or {}))
@@ -267,52 +339,86 @@ def run_scene(name: str, n_frames: int, lost_mm: float = 100.0, settings: dict |
         lost = ev.curves["mpjpe_mm"] > lost_mm
         use = np.array([out[f].use for f in vis_frames])
         hidden_used, seen_unused = camera_agreement(use, ref_vi)
-        rows.append({"scene": scene.root.name, "method": label, "mpjpe_mm": ev.mpjpe_mm,
-                     "seg_rmse_deg": ev.segment_orientation_rmse_deg,
-                     "diverged": int(diverged.sum()), "lost": int(lost.sum()),
-                     "s_per_frame": dt, "curve": ev.curves["mpjpe_mm"], "track": out,
-                     "diverged_mask": diverged, "hidden_used": hidden_used,
-                     "seen_unused": seen_unused,
-                     "searched": sum(len(t.searched) for t in out) / nf})
+        rows.append(
+            {
+                "scene": scene.root.name,
+                "method": label,
+                "mpjpe_mm": ev.mpjpe_mm,
+                "seg_rmse_deg": ev.segment_orientation_rmse_deg,
+                "diverged": int(diverged.sum()),
+                "lost": int(lost.sum()),
+                "s_per_frame": dt,
+                "curve": ev.curves["mpjpe_mm"],
+                "track": out,
+                "diverged_mask": diverged,
+                "hidden_used": hidden_used,
+                "seen_unused": seen_unused,
+                "searched": sum(len(t.searched) for t in out) / nf,
+            }
+        )
     return rows
 
 
 #: Compared camera choices, as (select, rank by predicted motion, label): the paper's
 #: selection (visibility ≥ 0.2, cameras ranked by the part's predicted contour motion),
 #: the visibility test alone, and every camera fused.
-METHODS = ((True, True, "per-part selection"), (True, False, "selection, VI only"),
-           (False, False, "all fused"))
+METHODS = (
+    (True, True, "per-part selection"),
+    (True, False, "selection, VI only"),
+    (False, False, "all fused"),
+)
 
 
 def print_rows(rows, lost_mm: float) -> None:
-    print(f"{'scene':24s} {'cameras':20s} {'MPJPE mm':>9s} {'seg RMSE deg':>12s} "
-          f"{'diverged':>8s} {f'>{lost_mm:g} mm':>8s} {'s/frame':>7s} {'hid.used':>8s} "
-          f"{'seen.unused':>11s}   MPJPE per 5 frames")
+    print(
+        f"{'scene':24s} {'cameras':20s} {'MPJPE mm':>9s} {'seg RMSE deg':>12s} "
+        f"{'diverged':>8s} {f'>{lost_mm:g} mm':>8s} {'s/frame':>7s} {'hid.used':>8s} "
+        f"{'seen.unused':>11s}   MPJPE per 5 frames"
+    )
     for r in rows:
         curve = " ".join(f"{e:4.0f}" for e in r["curve"][::5])
-        print(f"{r['scene']:24s} {r['method']:20s} {r['mpjpe_mm']:9.1f} {r['seg_rmse_deg']:12.1f} "
-              f"{r['diverged']:8d} {r['lost']:8d} {r['s_per_frame']:7.2f} "
-              f"{r['hidden_used']:8.2f} {r['seen_unused']:11.2f}   {curve}", flush=True)
+        print(
+            f"{r['scene']:24s} {r['method']:20s} {r['mpjpe_mm']:9.1f} {r['seg_rmse_deg']:12.1f} "
+            f"{r['diverged']:8d} {r['lost']:8d} {r['s_per_frame']:7.2f} "
+            f"{r['hidden_used']:8.2f} {r['seen_unused']:11.2f}   {curve}",
+            flush=True,
+        )
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--scenes", default=",".join(DEFAULT_SCENES),
-                    help="comma-separated scene names (bench.fit.STUDIO_SCENES or pirouette_*)")
+    ap.add_argument(
+        "--scenes",
+        default=",".join(DEFAULT_SCENES),
+        help="comma-separated scene names (bench.fit.STUDIO_SCENES or pirouette_*)",
+    )
     ap.add_argument("--frames", type=int, default=50, help="frames per scene")
-    ap.add_argument("--lost-mm", type=float, default=100.0,
-                    help="a frame with MPJPE above this counts as lost (truth check)")
-    ap.add_argument("--fps", type=float, default=None,
-                    help="render the scenes' 2 s at this frame rate (default: the studio's 25); "
-                         "--frames counts frames at this rate")
-    ap.add_argument("--tracker", choices=("ekf", "fit"), default="ekf",
-                    help="the contour EKF (default) or the sequence fit with contours alone")
+    ap.add_argument(
+        "--lost-mm",
+        type=float,
+        default=100.0,
+        help="a frame with MPJPE above this counts as lost (truth check)",
+    )
+    ap.add_argument(
+        "--fps",
+        type=float,
+        default=None,
+        help="render the scenes' 2 s at this frame rate (default: the studio's 25); "
+        "--frames counts frames at this rate",
+    )
+    ap.add_argument(
+        "--tracker",
+        choices=("ekf", "fit"),
+        default="ekf",
+        help="the contour EKF (default) or the sequence fit with contours alone",
+    )
     args = ap.parse_args(argv)
     rows = []
     for name in args.scenes.split(","):
-        rows += run_scene(name.strip(), args.frames, args.lost_mm, fps=args.fps,
-                          tracker=args.tracker)
-        print_rows(rows[-len(METHODS):], args.lost_mm)
+        rows += run_scene(
+            name.strip(), args.frames, args.lost_mm, fps=args.fps, tracker=args.tracker
+        )
+        print_rows(rows[-len(METHODS) :], args.lost_mm)
     load = " ".join(f"{x:.2f}" for x in os.getloadavg())
     print(f"\nAll scenes (load average {load}):")
     print_rows(rows, args.lost_mm)

@@ -72,9 +72,18 @@ def seen_vertices(vertices: np.ndarray, faces: np.ndarray, cameras, min_views: i
     return views >= min_views
 
 
-def surface_distances(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray, s: np.ndarray,
-                      balls: Metaballs, vertices: np.ndarray, faces: np.ndarray,
-                      per_ball: int = 150, vertex_step: int = 2, seed: int = 0) -> dict:
+def surface_distances(
+    skel: Skeleton,
+    theta: np.ndarray,
+    root_xyz: np.ndarray,
+    s: np.ndarray,
+    balls: Metaballs,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    per_ball: int = 150,
+    vertex_step: int = 2,
+    seed: int = 0,
+) -> dict:
     """Distances between the metaball surface of one pose and a triangle mesh.
 
     Parameters
@@ -103,8 +112,14 @@ def surface_distances(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray, s
     return {"ball_to_mesh": d_bm, "mesh_to_ball": d_mb, "ball_bone": bone, "vertex_idx": vi}
 
 
-def shape_table(scene_dir: Path, fit_frames: list[int], eval_frames: list[int],
-                n_points: int, models: tuple[str, ...], vis_step: int | None):
+def shape_table(
+    scene_dir: Path,
+    fit_frames: list[int],
+    eval_frames: list[int],
+    n_points: int,
+    models: tuple[str, ...],
+    vis_step: int | None,
+):
     from bench.visibility import compare
     from core.evaluate import sample_mesh_surface
     from core.scene import load_scene
@@ -119,65 +134,92 @@ def shape_table(scene_dir: Path, fit_frames: list[int], eval_frames: list[int],
     faces = np.asarray(scene.truth["faces"], int)
     verts = scene.truth["vertices"]
     rng = np.random.default_rng(0)
-    pts = [sample_frame(verts[f].astype(float), faces, cams, n_points, rng)[0]
-           for f in fit_frames]
+    pts = [sample_frame(verts[f].astype(float), faces, cams, n_points, rng)[0] for f in fit_frames]
     mesh_pts = [sample_mesh_surface(verts[f], faces, MESH_POINTS, rng) for f in fit_frames]
-    print(f"\nShape on {scene.name}: truth poses; fitted to truth-derived surface points of "
-          f"frames {fit_frames} ({', '.join(str(len(p)) for p in pts)} points seen by 2 "
-          f"cameras, 1.5 mm noise, 5 % outliers); distances on frames {eval_frames}")
+    print(
+        f"\nShape on {scene.name}: truth poses; fitted to truth-derived surface points of "
+        f"frames {fit_frames} ({', '.join(str(len(p)) for p in pts)} points seen by 2 "
+        f"cameras, 1.5 mm noise, 5 % outliers); distances on frames {eval_frames}"
+    )
     seen = {f: seen_vertices(verts[f], faces, cams) for f in eval_frames}
-    print(f"{'model':11s} {'shape':9s} {'M':>3s} {'ball->mesh mm':>14s} {'mesh->ball mm':>14s} "
-          f"{'symmetric':>9s} {'seen mesh':>9s} {'fit s':>6s}  note")
+    print(
+        f"{'model':11s} {'shape':9s} {'M':>3s} {'ball->mesh mm':>14s} {'mesh->ball mm':>14s} "
+        f"{'symmetric':>9s} {'seen mesh':>9s} {'fit s':>6s}  note"
+    )
     results = {}
     for model in models:
         template = make_metaballs(skel, model, s)
         t0 = time.perf_counter()
-        fit = fit_shape(skel, template, s, state.theta[fit_frames], state.root_xyz[fit_frames],
-                        pts, cams)
+        fit = fit_shape(
+            skel, template, s, state.theta[fit_frames], state.root_xyz[fit_frames], pts, cams
+        )
         t_fit = time.perf_counter() - t0
         # the model's capacity: the same fit with the whole true mesh as its data
         t0 = time.perf_counter()
-        floor = fit_shape(skel, template, s, state.theta[fit_frames],
-                          state.root_xyz[fit_frames], mesh_pts, cams,
-                          settings=_capacity_settings())
+        floor = fit_shape(
+            skel,
+            template,
+            s,
+            state.theta[fit_frames],
+            state.root_xyz[fit_frames],
+            mesh_pts,
+            cams,
+            settings=_capacity_settings(),
+        )
         t_floor = time.perf_counter() - t0
-        for label, balls in (("template", template), ("fitted", fit.metaballs),
-                             ("mesh", floor.metaballs)):
+        for label, balls in (
+            ("template", template),
+            ("fitted", fit.metaballs),
+            ("mesh", floor.metaballs),
+        ):
             bm, mb, sn = [], [], []
             for f in eval_frames:
-                d = surface_distances(skel, state.theta[f], state.root_xyz[f], s, balls,
-                                      verts[f], faces)
+                d = surface_distances(
+                    skel, state.theta[f], state.root_xyz[f], s, balls, verts[f], faces
+                )
                 bm.append(d["ball_to_mesh"])
                 mb.append(d["mesh_to_ball"])
                 sn.append(seen[f][d["vertex_idx"]])
             bm, mb, sn = 1e3 * np.concatenate(bm), 1e3 * np.concatenate(mb), np.concatenate(sn)
             note = {"fitted": fit.message, "mesh": f"capacity: {floor.message}"}.get(label, "")
             tf = {"fitted": f"{t_fit:6.1f}", "mesh": f"{t_floor:6.1f}"}.get(label, f"{'':6s}")
-            print(f"{model:11s} {label:9s} {len(balls):3d} {bm.mean():8.1f} ({np.median(bm):4.1f})"
-                  f" {mb.mean():8.1f} ({np.median(mb):4.1f}) {0.5 * (bm.mean() + mb.mean()):9.1f}"
-                  f" {mb[sn].mean():9.1f} {tf}  {note}")
+            print(
+                f"{model:11s} {label:9s} {len(balls):3d} {bm.mean():8.1f} ({np.median(bm):4.1f})"
+                f" {mb.mean():8.1f} ({np.median(mb):4.1f}) {0.5 * (bm.mean() + mb.mean()):9.1f}"
+                f" {mb[sn].mean():9.1f} {tf}  {note}"
+            )
             results[(model, label)] = balls
-    print("   (mean, median in brackets; symmetric = the average of both directions; seen mesh ="
-          " mesh -> ball over the vertices two cameras see; 'mesh' = fitted to the whole true"
-          f" mesh, {MESH_POINTS} points by area per frame, no noise: what the model can reach)")
+    print(
+        "   (mean, median in brackets; symmetric = the average of both directions; seen mesh ="
+        " mesh -> ball over the vertices two cameras see; 'mesh' = fitted to the whole true"
+        f" mesh, {MESH_POINTS} points by area per frame, no noise: what the model can reach)"
+    )
     if vis_step is None:
         return results
     vis_frames = range(0, scene.n_frames, vis_step)
-    print(f"\nVisibility index vs the true mesh, frames {list(vis_frames)} x {len(cams)} cameras "
-          f"(truth poses)")
-    print(f"{'model':11s} {'shape':9s} {'mesh labels':11s} {'our render':10s} {'mean |dVI|':>10s} "
-          f"{'VI>=0.2 agree':>14s} {'n':>5s}   worst parts")
+    print(
+        f"\nVisibility index vs the true mesh, frames {list(vis_frames)} x {len(cams)} cameras "
+        f"(truth poses)"
+    )
+    print(
+        f"{'model':11s} {'shape':9s} {'mesh labels':11s} {'our render':10s} {'mean |dVI|':>10s} "
+        f"{'VI>=0.2 agree':>14s} {'n':>5s}   worst parts"
+    )
     for (model, label), balls in results.items():
         st = _with_balls(state, balls)
         for labels, surface in (("segments", "lone"), ("model", "lone"), ("model", "blend")):
             r = compare(st, scene.truth, cams, vis_frames, labels=labels, surface=surface)
             worst = sorted(r["per_part"].items(), key=lambda kv: -kv[1])[:3]
-            print(f"{model:11s} {label:9s} {labels:11s} {surface:10s} {r['mean_abs_diff']:10.3f} "
-                  f"{100 * r['decision_agreement']:13.1f}% {r['n']:5d}   "
-                  + ", ".join(f"{k} {v:.3f}" for k, v in worst))
-    print("   mesh labels: 'segments' = nearest bone segment (the earlier reference), 'model' ="
-          " the model's own part boundaries; our render: 'lone' = each metaball's lone"
-          " ellipsoid (as core.contour_obs renders now), 'blend' = core.metaballs.render_radii")
+            print(
+                f"{model:11s} {label:9s} {labels:11s} {surface:10s} {r['mean_abs_diff']:10.3f} "
+                f"{100 * r['decision_agreement']:13.1f}% {r['n']:5d}   "
+                + ", ".join(f"{k} {v:.3f}" for k, v in worst)
+            )
+    print(
+        "   mesh labels: 'segments' = nearest bone segment (the earlier reference), 'model' ="
+        " the model's own part boundaries; our render: 'lone' = each metaball's lone"
+        " ellipsoid (as core.contour_obs renders now), 'blend' = core.metaballs.render_radii"
+    )
     return results
 
 
@@ -199,9 +241,14 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     fit_frames = [int(v) for v in args.fit_frames.split(",")]
     eval_frames = [int(v) for v in args.eval_frames.split(",")]
-    shape_table(args.scene, fit_frames, eval_frames, args.points,
-                tuple(args.models.split(",")),
-                None if args.no_visibility else args.vis_step)
+    shape_table(
+        args.scene,
+        fit_frames,
+        eval_frames,
+        args.points,
+        tuple(args.models.split(",")),
+        None if args.no_visibility else args.vis_step,
+    )
     return 0
 
 

@@ -59,10 +59,14 @@ def _contour_distance(pred_mask, true_mask):
 def studio(scene_dir: Path) -> None:
     scene = load_scene(scene_dir)
     truth = scene.truth_masks()
-    print(f"\n1. Studio scene {scene.name}: {len(scene.cameras)} cameras, {scene.n_frames} frames, "
-          f"{scene.image_size[0]}x{scene.image_size[1]}")
-    print(f"{'camera':8s} {'ours IoU mean/min':>18s} {'contour px':>11s} {'ms/frame':>9s}   "
-          f"{'MOG2 IoU mean/min':>18s} {'ms/frame':>9s}")
+    print(
+        f"\n1. Studio scene {scene.name}: {len(scene.cameras)} cameras, {scene.n_frames} frames, "
+        f"{scene.image_size[0]}x{scene.image_size[1]}"
+    )
+    print(
+        f"{'camera':8s} {'ours IoU mean/min':>18s} {'contour px':>11s} {'ms/frame':>9s}   "
+        f"{'MOG2 IoU mean/min':>18s} {'ms/frame':>9s}"
+    )
     for c, cam in enumerate(scene.cameras):
         frames = np.array([scene.image(cam, i, color=True) for i in range(scene.n_frames)])
         t0 = time.perf_counter()
@@ -79,8 +83,10 @@ def studio(scene_dir: Path) -> None:
         mog_masks = [mog.apply(f, learningRate=0) == 255 for f in frames]
         mog_ms = 1e3 * (time.perf_counter() - t0) / (2 * len(frames))
         mog_ious = [_iou(m, truth[c, i]) for i, m in enumerate(mog_masks)]
-        print(f"{cam:8s} {np.mean(ious):8.3f} / {np.min(ious):.3f} {cdist:11.2f} {ours_ms:9.1f}   "
-              f"{np.mean(mog_ious):8.3f} / {np.min(mog_ious):.3f} {mog_ms:9.1f}")
+        print(
+            f"{cam:8s} {np.mean(ious):8.3f} / {np.min(ious):.3f} {cdist:11.2f} {ours_ms:9.1f}   "
+            f"{np.mean(mog_ious):8.3f} / {np.min(mog_ious):.3f} {mog_ms:9.1f}"
+        )
 
 
 def visibility(scene_dir: Path, fit: Path | None) -> None:
@@ -95,8 +101,10 @@ def visibility(scene_dir: Path, fit: Path | None) -> None:
         state, _ = truth_to_state(scene.truth, scene.fps)
         label = "truth pose with the template metaball shape (no fit given)"
     frames = range(0, scene.n_frames, 5)
-    print(f"\n2. Visibility index vs the true mesh ({label}), {len(frames)} frames x "
-          f"{len(scene.cameras)} cameras")
+    print(
+        f"\n2. Visibility index vs the true mesh ({label}), {len(frames)} frames x "
+        f"{len(scene.cameras)} cameras"
+    )
     for outer, how in ((False, "whole ellipsoids"), (True, "outer surface only")):
         # outer: a part's area ignoring occlusion leaves out its surface buried inside a
         # larger kinematic neighbour (core.model_render.render_parts(outer_only=True))
@@ -104,10 +112,12 @@ def visibility(scene_dir: Path, fit: Path | None) -> None:
         r = compare(state, scene.truth, scene.calibration(), frames, outer_only=outer)
         dt = time.perf_counter() - t0
         worst = sorted(r["per_part"].items(), key=lambda kv: -kv[1])[:5]
-        print(f"   {how:18s}: mean |VI ours - VI truth| = {r['mean_abs_diff']:.3f} over "
-              f"{r['n']} part-views; VI >= 0.2 decision agrees in "
-              f"{100 * r['decision_agreement']:.1f} %; {dt:.1f} s; worst parts: "
-              + ", ".join(f"{k} {v:.3f}" for k, v in worst))
+        print(
+            f"   {how:18s}: mean |VI ours - VI truth| = {r['mean_abs_diff']:.3f} over "
+            f"{r['n']} part-views; VI >= 0.2 decision agrees in "
+            f"{100 * r['decision_agreement']:.1f} %; {dt:.1f} s; worst parts: "
+            + ", ".join(f"{k} {v:.3f}" for k, v in worst)
+        )
 
 
 def contour_tracking(scene_dir: Path, n_frames: int) -> None:
@@ -133,9 +143,17 @@ def contour_tracking(scene_dir: Path, n_frames: int) -> None:
     t0 = time.perf_counter()
     # the clicked joints are good to a few mm: hold the pose tightly while fitting shape
     tight = ContourTrackSettings(q_sigma_theta=0.01, q_sigma_root=0.002)
-    balls, th0, rt0, rms = fit_shape_to_contours(init.skeleton, init.s, init.metaballs,
-                                                 init.theta, init.root_xyz, cams, contours[0],
-                                                 tight, rays=rays)
+    balls, th0, rt0, rms = fit_shape_to_contours(
+        init.skeleton,
+        init.s,
+        init.metaballs,
+        init.theta,
+        init.root_xyz,
+        cams,
+        contours[0],
+        tight,
+        rays=rays,
+    )
     t_shape = time.perf_counter() - t0
     names = [str(n) for n in scene.truth["joint_names"]]
     idx = [JOINTS.index(j) for j in METRIC_JOINTS]
@@ -143,23 +161,38 @@ def contour_tracking(scene_dir: Path, n_frames: int) -> None:
     truth = scene.truth["joints_xyz"][:nf][:, tidx]
     j0 = joint_positions(init.skeleton, init.theta, init.root_xyz, init.s)[idx]
     e0 = 1e3 * np.linalg.norm(j0 - truth[0], axis=1).mean()
-    print(f"\n3. Contour tracking on {scene.name}, {nf} frames, contours from our foreground "
-          f"({t_seg:.0f} s); clicked pose MPJPE {e0:.1f} mm; shape fitted to frame 0 "
-          f"silhouettes (RMS {rms:.2f} px, {t_shape:.1f} s)")
-    print(f"   {'cameras':22s} {'MPJPE mm per 5 frames':>40s} {'mean':>6s} {'not updated':>11s} "
-          f"{'s/frame':>7s}")
+    print(
+        f"\n3. Contour tracking on {scene.name}, {nf} frames, contours from our foreground "
+        f"({t_seg:.0f} s); clicked pose MPJPE {e0:.1f} mm; shape fitted to frame 0 "
+        f"silhouettes (RMS {rms:.2f} px, {t_shape:.1f} s)"
+    )
+    print(
+        f"   {'cameras':22s} {'MPJPE mm per 5 frames':>40s} {'mean':>6s} {'not updated':>11s} "
+        f"{'s/frame':>7s}"
+    )
     for select, label in ((True, "per-part selection"), (False, "all fused")):
         t0 = time.perf_counter()
-        out = track_contours(init.skeleton, init.s, balls, th0, rt0, cams, contours,
-                             ContourTrackSettings(select=select))
+        out = track_contours(
+            init.skeleton,
+            init.s,
+            balls,
+            th0,
+            rt0,
+            cams,
+            contours,
+            ContourTrackSettings(select=select),
+        )
         dt = (time.perf_counter() - t0) / nf
         th = np.array([t.theta for t in out])
         rt = np.array([t.root for t in out])
-        err = 1e3 * np.linalg.norm(joint_positions(init.skeleton, th, rt, init.s)[:, idx]
-                                   - truth, axis=2).mean(axis=1)
+        err = 1e3 * np.linalg.norm(
+            joint_positions(init.skeleton, th, rt, init.s)[:, idx] - truth, axis=2
+        ).mean(axis=1)
         curve = " ".join(f"{e:5.0f}" for e in err[::5])
-        print(f"   {label:22s} {curve:>40s} {err.mean():6.1f} "
-              f"{sum(not t.updated for t in out):11d} {dt:7.2f}")
+        print(
+            f"   {label:22s} {curve:>40s} {err.mean():6.1f} "
+            f"{sum(not t.updated for t in out):11d} {dt:7.2f}"
+        )
 
 
 def fuse(scene_dir: Path, fit: Path) -> None:
@@ -183,11 +216,15 @@ def fuse(scene_dir: Path, fit: Path) -> None:
     dt = (time.perf_counter() - t0) / state.n_frames
     a = evaluate_state(state, scene.truth)
     b = evaluate_state(ref, scene.truth)
-    print(f"\n3b. Points + contours ({fit}): MPJPE {a.mpjpe_mm:.1f} -> {b.mpjpe_mm:.1f} mm, "
-          f"segment orientation {a.segment_orientation_rmse_deg:.1f} -> "
-          f"{b.segment_orientation_rmse_deg:.1f} deg ({dt:.1f} s/frame)")
-    print("   per joint mm: " + ", ".join(
-        f"{k} {a.per_joint_mm[k]:.0f}->{b.per_joint_mm[k]:.0f}" for k in a.per_joint_mm))
+    print(
+        f"\n3b. Points + contours ({fit}): MPJPE {a.mpjpe_mm:.1f} -> {b.mpjpe_mm:.1f} mm, "
+        f"segment orientation {a.segment_orientation_rmse_deg:.1f} -> "
+        f"{b.segment_orientation_rmse_deg:.1f} deg ({dt:.1f} s/frame)"
+    )
+    print(
+        "   per joint mm: "
+        + ", ".join(f"{k} {a.per_joint_mm[k]:.0f}->{b.per_joint_mm[k]:.0f}" for k in a.per_joint_mm)
+    )
 
 
 def real_video(out: Path, scale: float = 0.25) -> None:
@@ -218,13 +255,18 @@ def real_video(out: Path, scale: float = 0.25) -> None:
         for i in (0, len(frames) // 2, len(frames) - 1):
             tiles.append(draw_contours(frames[i], occluding_contours(masks[i])))
         rows.append(cv2.resize(np.hstack(tiles), (3 * 270, 480)))
-        print(f"  {path.stem}: {frames.shape[0]} frames {frames.shape[2]}x{frames.shape[1]}, "
-              f"background {t_bg:.1f} s, foreground {t_fg:.1f} ms/frame, "
-              f"mean foreground {100 * area:.1f} % of the image")
+        print(
+            f"  {path.stem}: {frames.shape[0]} frames {frames.shape[2]}x{frames.shape[1]}, "
+            f"background {t_bg:.1f} s, foreground {t_fg:.1f} ms/frame, "
+            f"mean foreground {100 * area:.1f} % of the image"
+        )
     out.mkdir(parents=True, exist_ok=True)
     png = out / "silhouettes_pose2sim.png"
-    grid = np.vstack([np.hstack(rows[:2]), np.hstack(rows[2:4])]) if len(rows) == 4 else \
-        np.vstack(rows)
+    grid = (
+        np.vstack([np.hstack(rows[:2]), np.hstack(rows[2:4])])
+        if len(rows) == 4
+        else np.vstack(rows)
+    )
     cv2.imwrite(str(png), cv2.cvtColor(grid, cv2.COLOR_RGB2BGR))
     print(f"  wrote {png}")
 
@@ -236,18 +278,23 @@ def main(argv=None) -> int:
     ap.add_argument("--fit", type=Path, default=None, help="fitted state of --scene")
     ap.add_argument("--skip-video", action="store_true", help="leave out the real video")
     ap.add_argument("--track-frames", type=int, default=25, help="frames of contour tracking")
-    ap.add_argument("--fuse", action="store_true",
-                    help="also fuse contours into a point fit (needs --fit)")
-    ap.add_argument("--selection-scenes", default=None,
-                    help="only run bench.selection on these comma-separated scenes "
-                         "(e.g. dance_line3,dance_ortho3,pirouette_line3,pirouette_ortho3): "
-                         "per-part camera selection vs all cameras fused")
+    ap.add_argument(
+        "--fuse", action="store_true", help="also fuse contours into a point fit (needs --fit)"
+    )
+    ap.add_argument(
+        "--selection-scenes",
+        default=None,
+        help="only run bench.selection on these comma-separated scenes "
+        "(e.g. dance_line3,dance_ortho3,pirouette_line3,pirouette_ortho3): "
+        "per-part camera selection vs all cameras fused",
+    )
     args = ap.parse_args(argv)
     if args.selection_scenes:
         from bench.selection import main as selection_main
 
-        return selection_main(["--scenes", args.selection_scenes,
-                               "--frames", str(args.track_frames)])
+        return selection_main(
+            ["--scenes", args.selection_scenes, "--frames", str(args.track_frames)]
+        )
     studio(args.scene)
     visibility(args.scene, args.fit)
     contour_tracking(args.scene, args.track_frames)

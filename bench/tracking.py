@@ -46,7 +46,7 @@ def material_truth(xyz, start, vertices, faces):
     """True positions (F, P, 3) of the material points under each trajectory's start."""
     F, P = vertices.shape[0], len(start)
     out = np.full((F, P, 3), np.nan)
-    for s in np.unique(start):                       # loop over start frames, not points
+    for s in np.unique(start):  # loop over start frames, not points
         idx = np.flatnonzero(start == s)
         p0 = xyz[s, idx]
         ok = np.all(np.isfinite(p0), axis=1)
@@ -56,8 +56,7 @@ def material_truth(xyz, start, vertices, faces):
     return out
 
 
-def truth_views(cameras, vertices, faces, xyz, start, tol_m=0.01, min_cos=0.2,
-                per_face=6, seed=0):
+def truth_views(cameras, vertices, faces, xyz, start, tol_m=0.01, min_cos=0.2, per_face=6, seed=0):
     """Cameras that truly see each tracked material point: (F, P, C) bool.
 
     The material point under each trajectory's start (as :func:`material_truth`) is
@@ -76,8 +75,9 @@ def truth_views(cameras, vertices, faces, xyz, start, tol_m=0.01, min_cos=0.2,
     have = np.flatnonzero(face >= 0)
     seen = np.zeros((F, P, len(cameras)), bool)
     for f in range(F):
-        pts = np.vstack([vertices[f], np.einsum("tkj,tjd->tkd", w, vertices[f][faces])
-                         .reshape(-1, 3)])
+        pts = np.vstack(
+            [vertices[f], np.einsum("tkj,tjd->tkd", w, vertices[f][faces]).reshape(-1, 3)]
+        )
         tri = vertices[f][faces[face[have]]]
         p = np.einsum("pk,pkd->pd", bary[have], tri)
         nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
@@ -87,15 +87,17 @@ def truth_views(cameras, vertices, faces, xyz, start, tol_m=0.01, min_cos=0.2,
             z = np.full(ht * wd, np.inf)
             uv = np.rint(cam.project(pts)).astype(int)
             ins = (uv[:, 0] >= 0) & (uv[:, 0] < wd) & (uv[:, 1] >= 0) & (uv[:, 1] < ht)
-            np.minimum.at(z, uv[ins, 1] * wd + uv[ins, 0],
-                          np.linalg.norm(pts[ins] - cam.center, axis=1))
+            np.minimum.at(
+                z, uv[ins, 1] * wd + uv[ins, 0], np.linalg.norm(pts[ins] - cam.center, axis=1)
+            )
             q = np.rint(cam.project(p)).astype(int)
             inq = (q[:, 0] >= 0) & (q[:, 0] < wd) & (q[:, 1] >= 0) & (q[:, 1] < ht)
             v = cam.center - p
             d = np.linalg.norm(v, axis=1)
             cosang = np.einsum("pd,pd->p", nrm, v) / d
-            zq = np.where(inq, z[np.clip(q[:, 1], 0, ht - 1) * wd + np.clip(q[:, 0], 0, wd - 1)],
-                          -np.inf)
+            zq = np.where(
+                inq, z[np.clip(q[:, 1], 0, ht - 1) * wd + np.clip(q[:, 0], 0, wd - 1)], -np.inf
+            )
             seen[f, have, j] = inq & (d <= zq + tol_m) & (cosang > min_cos)
     return seen
 
@@ -109,7 +111,7 @@ def through_with_gaps(measured, alive, max_gap):
     """
     run = np.zeros(measured.shape[1], int)
     longest = np.zeros(measured.shape[1], int)
-    for m in measured:                               # loop over frames, points batched
+    for m in measured:  # loop over frames, points batched
         run = np.where(m, 0, run + 1)
         longest = np.maximum(longest, run)
     return measured[0] & measured[-1] & alive.all(axis=0) & (longest <= max_gap)
@@ -123,7 +125,7 @@ def loss_breakdown(log, m0, stay_vis, views):
     """
     F, p0 = m0.shape
     lost = ~m0.all(axis=0)
-    first = np.argmax(~m0, axis=0)                   # first unmeasured frame
+    first = np.argmax(~m0, axis=0)  # first unmeasured frame
     code = np.full(p0, -1, np.int8)
     occ_wrong = np.zeros(p0, bool)
     for f in range(1, F):
@@ -133,22 +135,29 @@ def loss_breakdown(log, m0, stay_vis, views):
         code[k] = log[f - 1]["reason"][k]
         occ = log[f - 1]["occ"][k]
         occ_wrong[k] = np.any(occ & views[f, k], axis=1)
-    print(f"why frame-0 points were lost (the step that first lost each; frames "
-          f"{int(first[lost].min()) if lost.any() else '-'}-"
-          f"{int(first[lost].max()) if lost.any() else '-'}):")
-    for name, sel in (("all lost", lost), ("lost, seen by >= 2 cameras in every frame",
-                                           lost & stay_vis)):
+    print(
+        f"why frame-0 points were lost (the step that first lost each; frames "
+        f"{int(first[lost].min()) if lost.any() else '-'}-"
+        f"{int(first[lost].max()) if lost.any() else '-'}):"
+    )
+    for name, sel in (
+        ("all lost", lost),
+        ("lost, seen by >= 2 cameras in every frame", lost & stay_vis),
+    ):
         t = tally(code[sel])
         other = int(sel.sum()) - sum(t.values())
         items = ", ".join(f"{k} {v}" for k, v in t.items() if v) + (
-            f", (unrecorded) {other}" if other else "")
+            f", (unrecorded) {other}" if other else ""
+        )
         print(f"  {name} ({int(sel.sum())}): {items}")
     sel = lost & stay_vis
     if sel.any():
-        print(f"  of those always-visible lost points, {int((occ_wrong & sel).sum())} had a "
-              f"camera skipped by the occlusion test that the truth sees at that frame; "
-              f"frames where they were first lost: "
-              f"{np.bincount(first[sel], minlength=F).tolist()}")
+        print(
+            f"  of those always-visible lost points, {int((occ_wrong & sel).sum())} had a "
+            f"camera skipped by the occlusion test that the truth sees at that frame; "
+            f"frames where they were first lost: "
+            f"{np.bincount(first[sel], minlength=F).tolist()}"
+        )
 
 
 def inject(xyz, frac, rng):
@@ -175,25 +184,48 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=None)
     ap.add_argument("--compare-frames", type=int, default=12)
     ap.add_argument("--compare-radius", type=int, default=3)
-    ap.add_argument("--predict", choices=("ekf", "linear"), default="ekf",
-                    help="prediction of the main tracking run")
-    ap.add_argument("--no-anchor", action="store_true",
-                    help="no re-anchoring on key templates (frame-to-frame matching only)")
-    ap.add_argument("--max-dormant", type=int, default=None,
-                    help="frames a lost point stays dormant for re-acquisition "
-                         "(default: core.tracking.track's)")
-    ap.add_argument("--track-kw", default="{}",
-                    help='more keyword arguments of core.tracking.track as JSON, e.g. '
-                         '\'{"agree_px": 0.3}\'')
-    ap.add_argument("--surface-depth-dev", type=float, default=0.01,
-                    help="drop frame-0 points farther than this in depth from their "
-                         "neighbours' median before tracking, metres (0: keep all)")
-    ap.add_argument("--gap", type=int, default=5,
-                    help="longest flagged gap of the bridged survival figure, frames")
-    ap.add_argument("--steps", action="store_true",
-                    help="print the tracker's counts of every frame step")
-    ap.add_argument("--no-compare", action="store_true",
-                    help="skip the EKF-vs-linear prediction comparison")
+    ap.add_argument(
+        "--predict",
+        choices=("ekf", "linear"),
+        default="ekf",
+        help="prediction of the main tracking run",
+    )
+    ap.add_argument(
+        "--no-anchor",
+        action="store_true",
+        help="no re-anchoring on key templates (frame-to-frame matching only)",
+    )
+    ap.add_argument(
+        "--max-dormant",
+        type=int,
+        default=None,
+        help="frames a lost point stays dormant for re-acquisition "
+        "(default: core.tracking.track's)",
+    )
+    ap.add_argument(
+        "--track-kw",
+        default="{}",
+        help="more keyword arguments of core.tracking.track as JSON, e.g. '{\"agree_px\": 0.3}'",
+    )
+    ap.add_argument(
+        "--surface-depth-dev",
+        type=float,
+        default=0.01,
+        help="drop frame-0 points farther than this in depth from their "
+        "neighbours' median before tracking, metres (0: keep all)",
+    )
+    ap.add_argument(
+        "--gap",
+        type=int,
+        default=5,
+        help="longest flagged gap of the bridged survival figure, frames",
+    )
+    ap.add_argument(
+        "--steps", action="store_true", help="print the tracker's counts of every frame step"
+    )
+    ap.add_argument(
+        "--no-compare", action="store_true", help="skip the EKF-vs-linear prediction comparison"
+    )
     args = ap.parse_args(argv)
     sc = load_scene(args.scene)
     cams = sc.calibration()
@@ -204,16 +236,21 @@ def main(argv=None) -> int:
     surf = measure_surface([sc.image(c, 0) for c in sc.cameras], cams, seeds)
     ts = time.perf_counter() - t0
     d, _, _ = nearest_on_mesh(surf.xyz, V[0], faces)
-    print(f"surface frame 0: {len(surf)} points from {len(seeds)} seeds in {ts:.1f} s; "
-          f"distance to true mesh median {1000 * np.median(d):.2f} mm, "
-          f"95% {1000 * np.percentile(d, 95):.2f} mm")
+    print(
+        f"surface frame 0: {len(surf)} points from {len(seeds)} seeds in {ts:.1f} s; "
+        f"distance to true mesh median {1000 * np.median(d):.2f} mm, "
+        f"95% {1000 * np.percentile(d, 95):.2f} mm"
+    )
     if args.surface_depth_dev > 0:
-        out = depth_outliers(surf.xyz, np.mean([c.center for c in cams], axis=0),
-                             args.surface_depth_dev)
+        out = depth_outliers(
+            surf.xyz, np.mean([c.center for c in cams], axis=0), args.surface_depth_dev
+        )
         surf, d = subset(surf, ~out), d[~out]
-        print(f"  without depth outliers (> {1000 * args.surface_depth_dev:.0f} mm from the "
-              f"median of 8 neighbours; the points tracked): {len(surf)} points, median "
-              f"{1000 * np.median(d):.2f} mm, 95% {1000 * np.percentile(d, 95):.2f} mm")
+        print(
+            f"  without depth outliers (> {1000 * args.surface_depth_dev:.0f} mm from the "
+            f"median of 8 neighbours; the points tracked): {len(surf)} points, median "
+            f"{1000 * np.median(d):.2f} mm, 95% {1000 * np.percentile(d, 95):.2f} mm"
+        )
 
     def frames(i):
         return [sc.image(c, i) for c in sc.cameras]
@@ -235,95 +272,155 @@ def main(argv=None) -> int:
     stay_vis = vis2.all(axis=0)
     print(f"tracking {nf} frames ({args.predict} prediction, {kw}), {p0} frame-0 points:")
     print(f"  strict, measured in every frame: {100 * strict.mean():.1f} %")
-    print(f"  bridged, identity kept to the last frame (measured there) with flagged gaps "
-          f"of <= {args.gap} frames: {100 * bridged.mean():.1f} %")
-    print(f"  truth visibility (true mesh z-buffer, facing cos > 0.2): seen by >= 2 cameras "
-          f"in every frame {100 * stay_vis.mean():.1f} % (the ceiling of the strict figure); "
-          f"among these, strict {100 * strict[stay_vis].mean():.1f} %, bridged "
-          f"{100 * bridged[stay_vis].mean():.1f} %")
+    print(
+        f"  bridged, identity kept to the last frame (measured there) with flagged gaps "
+        f"of <= {args.gap} frames: {100 * bridged.mean():.1f} %"
+    )
+    print(
+        f"  truth visibility (true mesh z-buffer, facing cos > 0.2): seen by >= 2 cameras "
+        f"in every frame {100 * stay_vis.mean():.1f} % (the ceiling of the strict figure); "
+        f"among these, strict {100 * strict[stay_vis].mean():.1f} %, bridged "
+        f"{100 * bridged[stay_vis].mean():.1f} %"
+    )
     ceil_b = through_with_gaps(vis2, np.ones_like(vis2), args.gap)
-    print(f"  truth: seen by >= 2 cameras in the first and last frame with runs of fewer "
-          f"than 2 views of <= {args.gap} frames {100 * ceil_b.mean():.1f} % (the ceiling of "
-          f"the bridged figure); among these, bridged {100 * bridged[ceil_b].mean():.1f} %")
-    print("  the same truth ceiling for other longest gaps: " + ", ".join(
-        f"{g} frames {100 * through_with_gaps(vis2, np.ones_like(vis2), g).mean():.1f} %"
-        for g in (0, 2, 5, 10, 20, nf)))
+    print(
+        f"  truth: seen by >= 2 cameras in the first and last frame with runs of fewer "
+        f"than 2 views of <= {args.gap} frames {100 * ceil_b.mean():.1f} % (the ceiling of "
+        f"the bridged figure); among these, bridged {100 * bridged[ceil_b].mean():.1f} %"
+    )
+    print(
+        "  the same truth ceiling for other longest gaps: "
+        + ", ".join(
+            f"{g} frames {100 * through_with_gaps(vis2, np.ones_like(vis2), g).mean():.1f} %"
+            for g in (0, 2, 5, 10, 20, nf)
+        )
+    )
     miss = ceil_b & ~bridged
     first = np.argmax(~m0, axis=0)
     again = (m0 & (np.arange(nf)[:, None] >= first[None])).any(axis=0) & miss
-    print(f"  of the {int(miss.sum())} points under the bridged ceiling not bridged: "
-          f"{int((miss & ~again).sum())} never measured again after their first loss, "
-          f"{int((again & ~m0[-1]).sum())} measured again but not at the last frame, "
-          f"{int((again & m0[-1]).sum())} measured again with a longer gap")
-    print(f"  live at last frame {int(alive[-1].sum())} = "
-          f"{100 * alive[-1].sum() / alive[0].sum():.1f} % of the first ({int(alive[0].sum())})")
+    print(
+        f"  of the {int(miss.sum())} points under the bridged ceiling not bridged: "
+        f"{int((miss & ~again).sum())} never measured again after their first loss, "
+        f"{int((again & ~m0[-1]).sum())} measured again but not at the last frame, "
+        f"{int((again & m0[-1]).sum())} measured again with a longer gap"
+    )
+    print(
+        f"  live at last frame {int(alive[-1].sum())} = "
+        f"{100 * alive[-1].sum() / alive[0].sum():.1f} % of the first ({int(alive[0].sum())})"
+    )
     back = alive[:, :p0].all(axis=0) & ~strict
-    print(f"re-acquisition: {sum(s.get('reacquired_dormant', 0) for s in log)} re-acquisitions "
-          f"of dormant points in all; {int(back.sum())} frame-0 points have a position in "
-          f"every frame only with bridged frames ({int((alive[:, :p0] & ~m0).sum())} bridged "
-          f"point-frames); re-anchored temporal matches {sum(s.get('anchored', 0) for s in log)} "
-          f"of {sum(s.get('temporal_ok', 0) for s in log)}")
-    print(f"speed: {(nf - 1) / dt:.3f} frames/s wall, {(nf - 1) / dc:.3f} frames per CPU "
-          f"second, with {int(alive.sum(axis=1).mean())} points per frame on average (load "
-          f"average {os.getloadavg()[0]:.1f})")
+    print(
+        f"re-acquisition: {sum(s.get('reacquired_dormant', 0) for s in log)} re-acquisitions "
+        f"of dormant points in all; {int(back.sum())} frame-0 points have a position in "
+        f"every frame only with bridged frames ({int((alive[:, :p0] & ~m0).sum())} bridged "
+        f"point-frames); re-anchored temporal matches {sum(s.get('anchored', 0) for s in log)} "
+        f"of {sum(s.get('temporal_ok', 0) for s in log)}"
+    )
+    print(
+        f"speed: {(nf - 1) / dt:.3f} frames/s wall, {(nf - 1) / dc:.3f} frames per CPU "
+        f"second, with {int(alive.sum(axis=1).mean())} points per frame on average (load "
+        f"average {os.getloadavg()[0]:.1f})"
+    )
     loss_breakdown(log, m0, stay_vis, views)
     if args.steps:
-        keys = ("live_before", "measured", "coasting", "coast_predicted", "dormant",
-                "reacquired_dormant", "regenerated", "jump_seeded", "depth_outliers",
-                "depth_retried")
+        keys = (
+            "live_before",
+            "measured",
+            "coasting",
+            "coast_predicted",
+            "dormant",
+            "reacquired_dormant",
+            "regenerated",
+            "jump_seeded",
+            "depth_outliers",
+            "depth_retried",
+        )
         for i, st in enumerate(log):
-            print(f"  step {i}->{i + 1}: " + ", ".join(f"{k} {st[k]}" for k in keys if k in st)
-                  + (f"; re-acquisition {st['reacquire_stats']}" if st.get("reacquire_stats")
-                     else ""))
+            print(
+                f"  step {i}->{i + 1}: "
+                + ", ".join(f"{k} {st[k]}" for k in keys if k in st)
+                + (f"; re-acquisition {st['reacquire_stats']}" if st.get("reacquire_stats") else "")
+            )
     P = tr.xyz.shape[1]
-    rej = [np.pad(s_["depth_rejected"], ((0, P - len(s_["depth_rejected"])), (0, 0)),
-                  constant_values=np.nan) for s_ in log if "depth_rejected" in s_]
+    rej = [
+        np.pad(
+            s_["depth_rejected"],
+            ((0, P - len(s_["depth_rejected"])), (0, 0)),
+            constant_values=np.nan,
+        )
+        for s_ in log
+        if "depth_rejected" in s_
+    ]
     if len(rej) == nf - 1:
         rej = np.concatenate([np.full((1, P, 3), np.nan), np.stack(rej)])
         tru = material_truth(np.where(np.isfinite(rej), rej, tr.xyz), tr.start, V[:nf], faces)
         e = np.linalg.norm(rej - tru, axis=2)
         e = e[np.isfinite(e)]
         if e.size:
-            print(f"  points dropped by the depth test: {e.size} point-frames, their error "
-                  f"median {1000 * np.median(e):.2f} mm, 95% {1000 * np.percentile(e, 95):.2f} "
-                  f"mm, {100 * np.mean(e < 0.005):.0f} % within 5 mm")
+            print(
+                f"  points dropped by the depth test: {e.size} point-frames, their error "
+                f"median {1000 * np.median(e):.2f} mm, 95% {1000 * np.percentile(e, 95):.2f} "
+                f"mm, {100 * np.mean(e < 0.005):.0f} % within 5 mm"
+            )
     flt = filter_trajectories(tr.xyz[:, :p0], sc.fps)
     hit = flt.removed | flt.truncated
-    print(f"  trajectory filters (not applied to the survival figures): they would hit "
-          f"{int((hit & strict).sum())} of the {int(strict.sum())} strict survivors, "
-          f"{int((hit & bridged & ~strict).sum())} of the {int((bridged & ~strict).sum())} "
-          f"bridged-only ones")
+    print(
+        f"  trajectory filters (not applied to the survival figures): they would hit "
+        f"{int((hit & strict).sum())} of the {int(strict.sum())} strict survivors, "
+        f"{int((hit & bridged & ~strict).sum())} of the {int((bridged & ~strict).sum())} "
+        f"bridged-only ones"
+    )
     truth = material_truth(tr.xyz, tr.start, V[:nf], faces)
     err = np.linalg.norm(tr.xyz - truth, axis=2)
-    for name, sel in (("all tracked", np.isfinite(err)), ("measured only", tr.measured),
-                      ("bridged only", np.isfinite(err) & ~tr.measured)):
+    for name, sel in (
+        ("all tracked", np.isfinite(err)),
+        ("measured only", tr.measured),
+        ("bridged only", np.isfinite(err) & ~tr.measured),
+    ):
         e = err[sel]
         if e.size == 0:
             continue
-        print(f"tracked 3-D vs material truth, {name}: median {1000 * np.median(e):.2f} mm, "
-              f"95% {1000 * np.percentile(e, 95):.2f} mm over {e.size} point-frames")
+        print(
+            f"tracked 3-D vs material truth, {name}: median {1000 * np.median(e):.2f} mm, "
+            f"95% {1000 * np.percentile(e, 95):.2f} mm over {e.size} point-frames"
+        )
     ncmp = min(args.compare_frames, nf)
     for pred in () if args.no_compare else ("ekf", "linear"):
         log: list = []
         # the first step has no velocity for either predictor: both get the wide box
         # there, then the same small fixed box; counted from frame 2 on
-        tc = track(frames, cams, surf, ncmp, sc.fps, predict=pred, adaptive=False,
-                   ncc_radius=args.compare_radius, first_radius=14,
-                   regen_every=0, log=log, **kw)
+        tc = track(
+            frames,
+            cams,
+            surf,
+            ncmp,
+            sc.fps,
+            predict=pred,
+            adaptive=False,
+            ncc_radius=args.compare_radius,
+            first_radius=14,
+            regen_every=0,
+            log=log,
+            **kw,
+        )
         seen = sum(s.get("seen", 0) for s in log[2:])
         ok = sum(s.get("temporal_ok", 0) for s in log[2:])
-        print(f"prediction {pred:6s} at a fixed {2 * args.compare_radius + 1} px box, "
-              f"{ncmp} frames: temporal matches ok {100 * ok / max(seen, 1):.1f} % "
-              f"(frames 2-{ncmp - 1}), frame-0 points measured in every frame "
-              f"{100 * tc.measured[:, :p0].all(axis=0).mean():.1f} %")
+        print(
+            f"prediction {pred:6s} at a fixed {2 * args.compare_radius + 1} px box, "
+            f"{ncmp} frames: temporal matches ok {100 * ok / max(seen, 1):.1f} % "
+            f"(frames 2-{ncmp - 1}), frame-0 points measured in every frame "
+            f"{100 * tc.measured[:, :p0].all(axis=0).mean():.1f} %"
+        )
     rng = np.random.default_rng(0)
     full = alive.all(axis=0)
     xyz_all, n_good = inject(tr.xyz[:, full], 0.05, rng)
     res = filter_trajectories(xyz_all, sc.fps)
     hit = res.removed | res.truncated
-    print(f"filters with {xyz_all.shape[1] - n_good} injected false trajectories: "
-          f"{100 * hit[n_good:].mean():.1f} % of false removed/truncated, "
-          f"{100 * hit[:n_good].mean():.1f} % of good ones hit")
+    print(
+        f"filters with {xyz_all.shape[1] - n_good} injected false trajectories: "
+        f"{100 * hit[n_good:].mean():.1f} % of false removed/truncated, "
+        f"{100 * hit[:n_good].mean():.1f} % of good ones hit"
+    )
     return 0
 
 

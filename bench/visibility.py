@@ -62,7 +62,8 @@ def vertex_parts(skel: Skeleton, vertices: np.ndarray, joints: dict[str, np.ndar
     a, b = _segments(skel, joints)
     ab = b - a
     t = np.einsum("vbk,bk->vb", vertices[:, None] - a[None], ab) / np.maximum(
-        np.einsum("bk,bk->b", ab, ab), 1e-12)
+        np.einsum("bk,bk->b", ab, ab), 1e-12
+    )
     closest = a[None] + np.clip(t, 0, 1)[..., None] * ab[None]
     d = np.linalg.norm(vertices[:, None] - closest, axis=2)
     return np.argmin(d, axis=1)
@@ -82,8 +83,9 @@ def body_render(state, frame: int, surface: str = "lone"):
     if surface not in ("blend", "lone"):
         raise ValueError(f"unknown surface {surface!r}")
     skel, balls = state.skeleton, state.metaballs
-    centers, axes, radii, bone = body_ellipsoids(skel, state.theta[frame],
-                                                 state.root_xyz[frame], state.s, balls)
+    centers, axes, radii, bone = body_ellipsoids(
+        skel, state.theta[frame], state.root_xyz[frame], state.s, balls
+    )
     if surface == "blend":
         pose = forward(skel, state.theta[frame][None], state.root_xyz[frame][None], state.s)
         radii = render_radii(skel, pose, balls, state.s)
@@ -116,8 +118,15 @@ def mesh_visibility(camera, vertices, faces, vpart, n_parts):
     return part_visibility(pix, depth, part, n_parts)
 
 
-def compare(state, truth: dict, cameras, frames, labels: str = "model",
-            surface: str = "lone", outer_only: bool = False):
+def compare(
+    state,
+    truth: dict,
+    cameras,
+    frames,
+    labels: str = "model",
+    surface: str = "lone",
+    outer_only: bool = False,
+):
     """Mean |VI_ours - VI_ref| and the agreement of the VI ≥ 0.2 decision.
 
     ``labels``: how the true mesh is split into parts, ``"model"`` or ``"segments"``
@@ -139,8 +148,9 @@ def compare(state, truth: dict, cameras, frames, labels: str = "model",
     rays = [camera_rays(c) for c in cameras]
     # a part's surface is buried inside a kinematic neighbour at least as large (the
     # neck and clavicles inside the chest, a wrist inside the forearm), not the other way
-    vol = np.bincount(state.metaballs.bone, weights=np.prod(state.metaballs.radii, axis=1),
-                      minlength=n_parts)[:n_parts]
+    vol = np.bincount(
+        state.metaballs.bone, weights=np.prod(state.metaballs.radii, axis=1), minlength=n_parts
+    )[:n_parts]
     adj = neighbour_parts(skel.bone_parent) & (vol[None, :] >= vol[:, None])
     diffs, agree, per_part = [], [], [[] for _ in range(n_parts)]
     for f in frames:
@@ -148,10 +158,18 @@ def compare(state, truth: dict, cameras, frames, labels: str = "model",
         if labels == "model":
             vpart = model_vertex_parts(truth["vertices"][f], centers, axes, radii, bone)
         for cam, r in zip(cameras, rays, strict=True):
-            ref, full = mesh_visibility(cam, truth["vertices"][f], truth["faces"], vpart,
-                                        n_parts)
-            ours = render_parts(cam, centers, axes, radii, bone, n_parts, rays=r,
-                                outer_only=outer_only, buried_by=adj)
+            ref, full = mesh_visibility(cam, truth["vertices"][f], truth["faces"], vpart, n_parts)
+            ours = render_parts(
+                cam,
+                centers,
+                axes,
+                radii,
+                bone,
+                n_parts,
+                rays=r,
+                outer_only=outer_only,
+                buried_by=adj,
+            )
             vi = ours.visibility_index
             scored = (full >= MIN_AREA_PX) & np.isfinite(vi) & np.isfinite(ref)
             d = np.abs(vi - ref)[scored]
@@ -163,6 +181,5 @@ def compare(state, truth: dict, cameras, frames, labels: str = "model",
         "mean_abs_diff": float(np.mean(diffs)),
         "decision_agreement": float(np.mean(agree)),
         "n": len(diffs),
-        "per_part": {skel.bone_names[k]: float(np.mean(v)) for k, v in enumerate(per_part)
-                     if v},
+        "per_part": {skel.bone_names[k]: float(np.mean(v)) for k, v in enumerate(per_part) if v},
     }

@@ -66,9 +66,9 @@ def member_table(skel: Skeleton, balls: Metaballs, members: str = "neighbours"):
     valid = np.zeros((nb, k), dtype=bool)
     for b, v in enumerate(lists):
         if len(v):
-            table[b, :len(v)] = v
-            table[b, len(v):] = v[0]
-            valid[b, :len(v)] = True
+            table[b, : len(v)] = v
+            table[b, len(v) :] = v[0]
+            valid[b, : len(v)] = True
     return table, valid
 
 
@@ -105,8 +105,15 @@ class Attractor:
     inv_g: np.ndarray
 
 
-def attractor(x: np.ndarray, idx: np.ndarray, valid: np.ndarray, Rw: np.ndarray,
-              cw: np.ndarray, radii: np.ndarray, g_min: float = 2.0) -> Attractor:
+def attractor(
+    x: np.ndarray,
+    idx: np.ndarray,
+    valid: np.ndarray,
+    Rw: np.ndarray,
+    cw: np.ndarray,
+    radii: np.ndarray,
+    g_min: float = 2.0,
+) -> Attractor:
     """Log field, its gradient and the signed distance of points to their part's surface.
 
     Parameters
@@ -117,16 +124,35 @@ def attractor(x: np.ndarray, idx: np.ndarray, valid: np.ndarray, Rw: np.ndarray,
     x = np.asarray(x, float)
     if field_kernel.enabled():
         N, K = idx.shape
-        out = Attractor(L=np.empty(N), grad=np.empty((N, 3)), p=np.empty((N, K)),
-                        y=np.empty((N, K, 3)), q=np.empty((N, K, 3)), gx=np.empty((N, K, 3)),
-                        dist=np.empty(N), inv_g=np.empty(N))
+        out = Attractor(
+            L=np.empty(N),
+            grad=np.empty((N, 3)),
+            p=np.empty((N, K)),
+            y=np.empty((N, K, 3)),
+            q=np.empty((N, K, 3)),
+            gx=np.empty((N, K, 3)),
+            dist=np.empty(N),
+            inv_g=np.empty(N),
+        )
         if field_kernel.run(
-                attractor_kernel.attractor_terms,
-                np.ascontiguousarray(x), np.ascontiguousarray(idx, dtype=np.int64),
-                np.ascontiguousarray(valid, dtype=np.bool_),
-                np.ascontiguousarray(Rw, dtype=float), np.ascontiguousarray(cw, dtype=float),
-                np.ascontiguousarray(radii, dtype=float), float(g_min), LN_T, out.L,
-                out.grad, out.p, out.y, out.q, out.gx, out.dist, out.inv_g):
+            attractor_kernel.attractor_terms,
+            np.ascontiguousarray(x),
+            np.ascontiguousarray(idx, dtype=np.int64),
+            np.ascontiguousarray(valid, dtype=np.bool_),
+            np.ascontiguousarray(Rw, dtype=float),
+            np.ascontiguousarray(cw, dtype=float),
+            np.ascontiguousarray(radii, dtype=float),
+            float(g_min),
+            LN_T,
+            out.L,
+            out.grad,
+            out.p,
+            out.y,
+            out.q,
+            out.gx,
+            out.dist,
+            out.inv_g,
+        ):
             return out
     R = Rw[idx]  # (N, K, 3, 3)
     y = np.matmul((x[:, None, :] - cw[idx])[..., None, :], R)[..., 0, :]  # Rᵀ (x − c)
@@ -149,9 +175,19 @@ def attractor(x: np.ndarray, idx: np.ndarray, valid: np.ndarray, Rw: np.ndarray,
     return Attractor(L=L, grad=grad, p=p, y=y, q=q, gx=gx, dist=dist, inv_g=inv_g)
 
 
-def attractor_jacobians(skel: Skeleton, pose: Pose, balls: Metaballs, s: np.ndarray,
-                        x: np.ndarray, idx: np.ndarray, att: Attractor, radii: np.ndarray,
-                        anc: np.ndarray, shape: bool = False, frame: int = 0):
+def attractor_jacobians(
+    skel: Skeleton,
+    pose: Pose,
+    balls: Metaballs,
+    s: np.ndarray,
+    x: np.ndarray,
+    idx: np.ndarray,
+    att: Attractor,
+    radii: np.ndarray,
+    anc: np.ndarray,
+    shape: bool = False,
+    frame: int = 0,
+):
     """Jacobians of ``L`` (not yet divided by ``|∇L|``) at fixed world points.
 
     Moving metaball m by a rotation ``δθ_k`` about ``ω_k`` through ``p_k`` changes
@@ -177,27 +213,46 @@ def attractor_jacobians(skel: Skeleton, pose: Pose, balls: Metaballs, s: np.ndar
     has = skel.dof_group >= 0
     onehot[np.nonzero(has)[0], skel.dof_group[has]] = 1.0
     dc = np.einsum("mk,ki,kg->mig", ball_anc.astype(float), off_world, onehot)  # (M, 3, G)
-    Rb, _ = bone_frames(skel, Pose(pose.R[frame:frame + 1], pose.p[frame:frame + 1],
-                                   pose.R_parent[frame:frame + 1]))
+    Rb, _ = bone_frames(
+        skel,
+        Pose(
+            pose.R[frame : frame + 1], pose.p[frame : frame + 1], pose.R_parent[frame : frame + 1]
+        ),
+    )
     Rb = Rb[0]
     own = np.einsum("mij,mj->mi", Rb[balls.bone], balls.center0)
     sel = np.nonzero(balls.group >= 0)[0]
     dc[sel, :, balls.group[sel]] += own[sel]
     N, K = idx.shape
     J_theta, J_s = np.empty((N, skel.n_dof)), np.empty((N, skel.n_groups))
-    if not (field_kernel.enabled() and field_kernel.run(
+    if not (
+        field_kernel.enabled()
+        and field_kernel.run(
             attractor_kernel.pose_jacobians,
-            np.ascontiguousarray(x, dtype=float), np.ascontiguousarray(idx, dtype=np.int64),
-            att.p, att.gx, np.ascontiguousarray(ball_anc),
-            np.ascontiguousarray(pose.axes[frame]), np.ascontiguousarray(pose.p[frame]), dc,
-            J_theta, J_s)):
+            np.ascontiguousarray(x, dtype=float),
+            np.ascontiguousarray(idx, dtype=np.int64),
+            att.p,
+            att.gx,
+            np.ascontiguousarray(ball_anc),
+            np.ascontiguousarray(pose.axes[frame]),
+            np.ascontiguousarray(pose.p[frame]),
+            dc,
+            J_theta,
+            J_s,
+        )
+    ):
         pg = att.p[..., None] * att.gx  # (N, K, 3): p_m ∇(−2 d_m)
         G = np.matmul(np.swapaxes(ball_anc[idx].astype(float), 1, 2), pg)  # (N, n, 3)
         w = pose.axes[frame]  # (n, 3)
         d = np.asarray(x, float)[:, None, :] - pose.p[frame][None]  # (N, n, 3)
-        wxd = np.stack([w[None, :, 1] * d[..., 2] - w[None, :, 2] * d[..., 1],
-                        w[None, :, 2] * d[..., 0] - w[None, :, 0] * d[..., 2],
-                        w[None, :, 0] * d[..., 1] - w[None, :, 1] * d[..., 0]], axis=-1)
+        wxd = np.stack(
+            [
+                w[None, :, 1] * d[..., 2] - w[None, :, 2] * d[..., 1],
+                w[None, :, 2] * d[..., 0] - w[None, :, 0] * d[..., 2],
+                w[None, :, 0] * d[..., 1] - w[None, :, 1] * d[..., 0],
+            ],
+            axis=-1,
+        )
         J_theta = -np.sum(G * wxd, axis=-1)  # Σ_{m below k} p_m ∇(−2 d_m) · ω_k × (x − p_k)
         J_s = -np.matmul(pg.reshape(N, 1, 3 * K), dc[idx].reshape(N, 3 * K, -1))[:, 0]
     if not shape:
@@ -205,14 +260,22 @@ def attractor_jacobians(skel: Skeleton, pose: Pose, balls: Metaballs, s: np.ndar
     scale = np.where(balls.group >= 0, np.asarray(s, float)[np.maximum(balls.group, 0)], 1.0)
     J_radii, J_centres = np.empty((N, K, 3)), np.empty((N, K, 3))
     if field_kernel.enabled() and field_kernel.run(
-            attractor_kernel.shape_jacobians,
-            np.ascontiguousarray(idx, dtype=np.int64), att.p, att.y, att.q,
-            np.ascontiguousarray(balls.rot, dtype=float),
-            np.ascontiguousarray(radii, dtype=float), scale, J_radii, J_centres):
+        attractor_kernel.shape_jacobians,
+        np.ascontiguousarray(idx, dtype=np.int64),
+        att.p,
+        att.y,
+        att.q,
+        np.ascontiguousarray(balls.rot, dtype=float),
+        np.ascontiguousarray(radii, dtype=float),
+        scale,
+        J_radii,
+        J_centres,
+    ):
         return J_theta, J_root, J_s, J_radii, J_centres
-    J_radii = 4.0 * att.p[..., None] * att.y ** 2 / radii[idx] ** 3
-    J_centres = 4.0 * (att.p * scale[idx])[..., None] * np.matmul(
-        balls.rot[idx], att.q[..., None])[..., 0]
+    J_radii = 4.0 * att.p[..., None] * att.y**2 / radii[idx] ** 3
+    J_centres = (
+        4.0 * (att.p * scale[idx])[..., None] * np.matmul(balls.rot[idx], att.q[..., None])[..., 0]
+    )
     return J_theta, J_root, J_s, J_radii, J_centres
 
 

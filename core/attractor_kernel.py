@@ -22,8 +22,9 @@ from .lsm_kernel_jit import jit
 
 
 @jit()
-def attractor_terms(x, idx, valid, Rw, cw, radii, g_min, LN_T,
-                    L, grad, p, y, q, gx, dist, inv_g):  # pragma: no cover - compiled
+def attractor_terms(
+    x, idx, valid, Rw, cw, radii, g_min, LN_T, L, grad, p, y, q, gx, dist, inv_g
+):  # pragma: no cover - compiled
     """Fill the arrays of :class:`core.attractor.Attractor` (shapes as there)."""
     N, K = idx.shape
     a = np.empty(K)
@@ -39,11 +40,13 @@ def attractor_terms(x, idx, valid, Rw, cw, radii, g_min, LN_T,
                 y[n, j, k] = yk
                 q[n, j, k] = yk / radii[m, k] ** 2
             for i in range(3):
-                gx[n, j, i] = -4.0 * (Rw[m, i, 0] * q[n, j, 0] + Rw[m, i, 1] * q[n, j, 1]
-                                      + Rw[m, i, 2] * q[n, j, 2])
+                gx[n, j, i] = -4.0 * (
+                    Rw[m, i, 0] * q[n, j, 0] + Rw[m, i, 1] * q[n, j, 1] + Rw[m, i, 2] * q[n, j, 2]
+                )
             if valid[n, j]:
-                a[j] = -2.0 * (y[n, j, 0] * q[n, j, 0] + y[n, j, 1] * q[n, j, 1]
-                               + y[n, j, 2] * q[n, j, 2])
+                a[j] = -2.0 * (
+                    y[n, j, 0] * q[n, j, 0] + y[n, j, 1] * q[n, j, 1] + y[n, j, 2] * q[n, j, 2]
+                )
                 if a[j] > top:
                     top = a[j]
             else:
@@ -71,8 +74,9 @@ def attractor_terms(x, idx, valid, Rw, cw, radii, g_min, LN_T,
 
 
 @jit()
-def pose_jacobians(x, idx, p, gx, ball_anc, axes, pivots, dc,
-                   J_theta, J_s):  # pragma: no cover - compiled
+def pose_jacobians(
+    x, idx, p, gx, ball_anc, axes, pivots, dc, J_theta, J_s
+):  # pragma: no cover - compiled
     """Fill ``J_theta`` (N, n) and ``J_s`` (N, G) of :func:`core.attractor.attractor_jacobians`.
 
     ``ball_anc`` (M, n) bool: DOF k moves metaball m; ``axes``, ``pivots`` (n, 3) the
@@ -103,13 +107,17 @@ def pose_jacobians(x, idx, p, gx, ball_anc, axes, pivots, dc,
             d1 = x[n, 1] - pivots[k, 1]
             d2 = x[n, 2] - pivots[k, 2]
             w0, w1, w2 = axes[k, 0], axes[k, 1], axes[k, 2]
-            J_theta[n, k] = -(G[k, 0] * (w1 * d2 - w2 * d1) + G[k, 1] * (w2 * d0 - w0 * d2)
-                              + G[k, 2] * (w0 * d1 - w1 * d0))
+            J_theta[n, k] = -(
+                G[k, 0] * (w1 * d2 - w2 * d1)
+                + G[k, 1] * (w2 * d0 - w0 * d2)
+                + G[k, 2] * (w0 * d1 - w1 * d0)
+            )
 
 
 @jit()
-def shape_jacobians(idx, p, y, q, rot, radii, scale, J_radii,
-                    J_centres):  # pragma: no cover - compiled
+def shape_jacobians(
+    idx, p, y, q, rot, radii, scale, J_radii, J_centres
+):  # pragma: no cover - compiled
     """Fill ``J_radii`` and ``J_centres`` (N, K, 3) of
     :func:`core.attractor.attractor_jacobians` (``rot`` (M, 3, 3) the metaballs' rest
     rotations, ``scale`` (M,) their scale coefficients)."""
@@ -121,5 +129,8 @@ def shape_jacobians(idx, p, y, q, rot, radii, scale, J_radii,
                 J_radii[n, j, k] = 4.0 * p[n, j] * y[n, j, k] ** 2 / radii[m, k] ** 3
             c = 4.0 * (p[n, j] * scale[m])
             for i in range(3):
-                J_centres[n, j, i] = c * (rot[m, i, 0] * q[n, j, 0] + rot[m, i, 1] * q[n, j, 1]
-                                          + rot[m, i, 2] * q[n, j, 2])
+                J_centres[n, j, i] = c * (
+                    rot[m, i, 0] * q[n, j, 0]
+                    + rot[m, i, 1] * q[n, j, 1]
+                    + rot[m, i, 2] * q[n, j, 2]
+                )

@@ -86,10 +86,16 @@ class BackgroundModel:
         chroma = np.sqrt(np.einsum("hwc,hwc->hw", cd, cd)) / self.sigma
         return dist, chroma, alpha
 
-    def foreground(self, image: np.ndarray, threshold: float = 5.0,
-                   shadow_range: tuple[float, float] = (0.45, 0.95),
-                   shadow_chroma: float = 4.0, shadow_texture: float = 0.04,
-                   min_area_frac: float = 0.1, clean_px: int = 1) -> np.ndarray:
+    def foreground(
+        self,
+        image: np.ndarray,
+        threshold: float = 5.0,
+        shadow_range: tuple[float, float] = (0.45, 0.95),
+        shadow_chroma: float = 4.0,
+        shadow_texture: float = 0.04,
+        min_area_frac: float = 0.1,
+        clean_px: int = 1,
+    ) -> np.ndarray:
         """Foreground mask of one image, ``(H, W)`` bool (see the module docstring)."""
         if image.shape[:2] != self.shape:
             raise InputError(
@@ -117,8 +123,9 @@ def _as_rgb(image: np.ndarray) -> np.ndarray:
     return image
 
 
-def clean_mask(mask: np.ndarray, clean_px: int = 1, min_area_frac: float = 0.1,
-               max_hole_frac: float = 0.005) -> np.ndarray:
+def clean_mask(
+    mask: np.ndarray, clean_px: int = 1, min_area_frac: float = 0.1, max_hole_frac: float = 0.005
+) -> np.ndarray:
     """Open, close, fill small holes and drop small components of a boolean mask (H, W).
 
     Holes smaller than ``max_hole_frac`` of their component's area are texture that
@@ -148,11 +155,17 @@ def clean_mask(mask: np.ndarray, clean_px: int = 1, min_area_frac: float = 0.1,
     return m.astype(bool)
 
 
-def fit_background(frames: np.ndarray, empty: np.ndarray | None = None, iterations: int = 2,
-                   threshold: float = 5.0, min_sigma: float = 2.0,
-                   max_frames: int = 40, min_known_frac: float = 0.05,
-                   min_mode_frames: int = 3,
-                   exclude: np.ndarray | None = None) -> BackgroundModel:
+def fit_background(
+    frames: np.ndarray,
+    empty: np.ndarray | None = None,
+    iterations: int = 2,
+    threshold: float = 5.0,
+    min_sigma: float = 2.0,
+    max_frames: int = 40,
+    min_known_frac: float = 0.05,
+    min_mode_frames: int = 3,
+    exclude: np.ndarray | None = None,
+) -> BackgroundModel:
     """Estimate a camera's background.
 
     Parameters
@@ -195,8 +208,9 @@ def fit_background(frames: np.ndarray, empty: np.ndarray | None = None, iteratio
     if exclude is not None and not use_empty:
         exclude = np.asarray(exclude, bool)
         if exclude.shape != src.shape[:3]:
-            raise InputError(f"exclude masks of shape {exclude.shape} do not match the frames "
-                             f"{src.shape[:3]}")
+            raise InputError(
+                f"exclude masks of shape {exclude.shape} do not match the frames {src.shape[:3]}"
+            )
     else:
         exclude = None
     if len(src) > max_frames:
@@ -206,8 +220,9 @@ def fit_background(frames: np.ndarray, empty: np.ndarray | None = None, iteratio
     stack = src.astype(np.float32)
     if use_empty:
         colour = np.median(stack, axis=0)
-        return BackgroundModel(colour, _inlier_sigma(stack, colour, min_sigma),
-                               np.ones(colour.shape[:2], bool))
+        return BackgroundModel(
+            colour, _inlier_sigma(stack, colour, min_sigma), np.ones(colour.shape[:2], bool)
+        )
     mode, mode_n = _mode_colour(stack)
     if exclude is None:
         colour = mode
@@ -234,7 +249,7 @@ def fit_background(frames: np.ndarray, empty: np.ndarray | None = None, iteratio
         colour[known] = new
         sigma = _inlier_sigma(stack, colour, min_sigma, weights=bg)
     by_mode = ~known & (mode_n >= min_mode_frames)
-    if exclude is not None:      # the person's pixels' mode is not the background
+    if exclude is not None:  # the person's pixels' mode is not the background
         by_mode &= np.sum(~exclude, axis=0) >= min_mode_frames
     colour[by_mode] = mode[by_mode]
     known |= by_mode
@@ -279,8 +294,7 @@ def _mode_colour(stack: np.ndarray, bins: int = 32) -> tuple[np.ndarray, np.ndar
     return colour, np.take_along_axis(near, best[..., None], axis=2)[..., 0]
 
 
-def _inlier_sigma(stack, colour, min_sigma, weights=None, k: float = 4.0,
-                  min_tol: float = 12.0):
+def _inlier_sigma(stack, colour, min_sigma, weights=None, k: float = 4.0, min_tol: float = 12.0):
     """Per-pixel noise level (H, W) of the colour distance, from background frames only.
 
     The camera-wide level ``g`` (the median distance over all pixels and frames —
@@ -307,9 +321,16 @@ def _inlier_sigma(stack, colour, min_sigma, weights=None, k: float = 4.0,
     return np.maximum(sigma, min_sigma).astype(np.float32)
 
 
-def with_reference(model: BackgroundModel, frames: np.ndarray, reference: np.ndarray,
-                   tol: float = 20.0, min_support: float = 0.1, min_diff: float = 25.0,
-                   sigma_floor: float = 4.0, open_px: int = 2) -> BackgroundModel:
+def with_reference(
+    model: BackgroundModel,
+    frames: np.ndarray,
+    reference: np.ndarray,
+    tol: float = 20.0,
+    min_support: float = 0.1,
+    min_diff: float = 25.0,
+    sigma_floor: float = 4.0,
+    open_px: int = 2,
+) -> BackgroundModel:
     """Repair a temporal-median background with an image of the empty scene.
 
     A person who holds one pose for more than half of the take burns into the median
@@ -337,8 +358,10 @@ def with_reference(model: BackgroundModel, frames: np.ndarray, reference: np.nda
     """
     ref = _as_rgb(np.asarray(reference)).astype(np.float32)
     if ref.shape[:2] != model.shape:
-        raise InputError(f"reference image of size {ref.shape[1]}x{ref.shape[0]} does not "
-                         f"match the background model {model.shape[1]}x{model.shape[0]}")
+        raise InputError(
+            f"reference image of size {ref.shape[1]}x{ref.shape[0]} does not "
+            f"match the background model {model.shape[1]}x{model.shape[0]}"
+        )
     frames = np.asarray(frames)
     if frames.ndim == 3:
         frames = np.repeat(frames[..., None], 3, axis=3)

@@ -23,15 +23,16 @@ def cholesky_solve(N: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray
         d = np.sqrt(np.where(s > 1e-12, s, 1.0))
         L[:, j, j] = d
         if j + 1 < k:
-            low = N[:, j + 1:, j] - np.einsum("nik,nk->ni", L[:, j + 1:, :j], L[:, j, :j])
-            L[:, j + 1:, j] = low / d[:, None]
+            low = N[:, j + 1 :, j] - np.einsum("nik,nk->ni", L[:, j + 1 :, :j], L[:, j, :j])
+            L[:, j + 1 :, j] = low / d[:, None]
     y = np.empty_like(B)
     for j in range(k):
         y[:, j] = (B[:, j] - np.einsum("nk,nkm->nm", L[:, j, :j], y[:, :j])) / L[:, j, j, None]
     x = np.empty_like(B)
     for j in range(k - 1, -1, -1):
-        x[:, j] = (y[:, j] - np.einsum("nk,nkm->nm", L[:, j + 1:, j], x[:, j + 1:])) / L[:, j, j,
-                                                                                       None]
+        x[:, j] = (y[:, j] - np.einsum("nk,nkm->nm", L[:, j + 1 :, j], x[:, j + 1 :])) / L[
+            :, j, j, None
+        ]
     return x, ok
 
 
@@ -45,13 +46,12 @@ def spd_inverse(N: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     ok = np.isfinite(N).all(axis=(1, 2))
     r = 1.0 / np.sqrt(np.maximum(np.einsum("nii->ni", N), 1e-30))
     r[~ok] = 1.0
-    scale = r[:, :, None] @ r[:, None, :]          # (outer products: fast small loops)
+    scale = r[:, :, None] @ r[:, None, :]  # (outer products: fast small loops)
     Ns = N * scale
     Ns[~ok] = np.eye(k)
     try:
         L = np.linalg.cholesky(Ns)
-        Li = np.linalg.solve(L, np.broadcast_to(np.eye(k), N.shape)) if n < 64 else \
-            lower_inverse(L)
+        Li = np.linalg.solve(L, np.broadcast_to(np.eye(k), N.shape)) if n < 64 else lower_inverse(L)
         inv = np.matmul(Li.transpose(0, 2, 1), Li)
         pd = np.all(np.einsum("nii->ni", L) > 1e-6, axis=1)
     except np.linalg.LinAlgError:
@@ -65,7 +65,7 @@ def lower_inverse(L: np.ndarray) -> np.ndarray:
     n, k, _ = L.shape
     X = np.zeros_like(L)
     for i in range(k):
-        rhs = -(L[:, i:i + 1, :i] @ X[:, :i, :])[:, 0] if i else np.zeros((n, k))
+        rhs = -(L[:, i : i + 1, :i] @ X[:, :i, :])[:, 0] if i else np.zeros((n, k))
         rhs[:, i] += 1.0
         X[:, i, :] = rhs / L[:, i, i, None]
     return X
@@ -73,8 +73,10 @@ def lower_inverse(L: np.ndarray) -> np.ndarray:
 
 # -- the matcher ----------------------------------------------------------------------
 
-def line_update(Ninv: np.ndarray, A: np.ndarray, normal: np.ndarray, d: np.ndarray,
-                 uv: np.ndarray, w: float):
+
+def line_update(
+    Ninv: np.ndarray, A: np.ndarray, normal: np.ndarray, d: np.ndarray, uv: np.ndarray, w: float
+):
     """Add the line pseudo-observation ``normal · (uv - A Δt) = d`` with weight ``w``.
 
     Its design row is ``j = -Aᵀ normal`` on the shift parameters (0 and 3); ``N⁻¹`` is

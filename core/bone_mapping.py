@@ -46,15 +46,24 @@ _SIDED = ("clavicle", "upper_arm", "forearm", "hand", "thigh", "shin", "foot", "
 
 #: Canonical humanoid bones, parents before children.
 CANONICAL_BONES = (
-    "pelvis", "spine", "chest", "upper_chest", "neck", "head",
+    "pelvis",
+    "spine",
+    "chest",
+    "upper_chest",
+    "neck",
+    "head",
     *(f"{s}_{b}" for s in ("l", "r") for b in _SIDED),
 )
 
 #: Bones that must be mapped for a rig to count as humanoid.
 REQUIRED_BONES = (
-    "pelvis", "head",
-    *(f"{s}_{b}" for s in ("l", "r")
-      for b in ("upper_arm", "forearm", "hand", "thigh", "shin", "foot")),
+    "pelvis",
+    "head",
+    *(
+        f"{s}_{b}"
+        for s in ("l", "r")
+        for b in ("upper_arm", "forearm", "hand", "thigh", "shin", "foot")
+    ),
 )
 
 #: Canonical bone -> (head joint, tail joint) in ``core.landmarks.JOINTS`` terms.
@@ -91,18 +100,34 @@ def _sided(table: dict[str, str], fmt) -> dict[str, str]:
 def _rigify(prefix: str, fk: bool = False) -> dict[str, str]:
     limb = "_fk" if fk else ""
     names = {
-        "pelvis": f"{prefix}spine", "spine": f"{prefix}spine.001",
-        "chest": f"{prefix}spine.002", "upper_chest": f"{prefix}spine.003",
-        "neck": f"{prefix}spine.004", "head": f"{prefix}spine.006",
-        "clavicle": f"{prefix}shoulder{{S}}", "upper_arm": f"{prefix}upper_arm{limb}{{S}}",
-        "forearm": f"{prefix}forearm{limb}{{S}}", "hand": f"{prefix}hand{limb}{{S}}",
-        "thigh": f"{prefix}thigh{limb}{{S}}", "shin": f"{prefix}shin{limb}{{S}}",
-        "foot": f"{prefix}foot{limb}{{S}}", "toe": f"{prefix}toe{limb}{{S}}",
+        "pelvis": f"{prefix}spine",
+        "spine": f"{prefix}spine.001",
+        "chest": f"{prefix}spine.002",
+        "upper_chest": f"{prefix}spine.003",
+        "neck": f"{prefix}spine.004",
+        "head": f"{prefix}spine.006",
+        "clavicle": f"{prefix}shoulder{{S}}",
+        "upper_arm": f"{prefix}upper_arm{limb}{{S}}",
+        "forearm": f"{prefix}forearm{limb}{{S}}",
+        "hand": f"{prefix}hand{limb}{{S}}",
+        "thigh": f"{prefix}thigh{limb}{{S}}",
+        "shin": f"{prefix}shin{limb}{{S}}",
+        "foot": f"{prefix}foot{limb}{{S}}",
+        "toe": f"{prefix}toe{limb}{{S}}",
     }
     if fk:  # Rigify's FK spine chain (drives DEF-spine … DEF-spine.003 rigidly), neck, head
-        names.update({"pelvis": "spine_fk", "spine": "spine_fk.001", "chest": "spine_fk.002",
-                      "upper_chest": "spine_fk.003", "neck": "neck", "head": "head",
-                      "clavicle": "shoulder{S}", "toe": "toe_fk{S}"})
+        names.update(
+            {
+                "pelvis": "spine_fk",
+                "spine": "spine_fk.001",
+                "chest": "spine_fk.002",
+                "upper_chest": "spine_fk.003",
+                "neck": "neck",
+                "head": "head",
+                "clavicle": "shoulder{S}",
+                "toe": "toe_fk{S}",
+            }
+        )
     return _sided(names, lambda s: ".L" if s == "l" else ".R")
 
 
@@ -113,61 +138,179 @@ def _side_word(s: str) -> str:
 #: scheme -> canonical bone -> bone name in that scheme.
 SCHEMES: dict[str, dict[str, str]] = {
     # This project's armature (core.skeleton: a bone is named after its head joint).
-    "somacap": _sided({
-        "pelvis": "pelvis", "spine": "lowerback", "chest": "spine", "upper_chest": "chest",
-        "neck": "neck", "head": "head", "clavicle": "{S}_clavicle", "upper_arm": "{S}_shoulder",
-        "forearm": "{S}_elbow", "hand": "{S}_wrist", "thigh": "{S}_hip", "shin": "{S}_knee",
-        "foot": "{S}_ankle"}, lambda s: s),
+    "somacap": _sided(
+        {
+            "pelvis": "pelvis",
+            "spine": "lowerback",
+            "chest": "spine",
+            "upper_chest": "chest",
+            "neck": "neck",
+            "head": "head",
+            "clavicle": "{S}_clavicle",
+            "upper_arm": "{S}_shoulder",
+            "forearm": "{S}_elbow",
+            "hand": "{S}_wrist",
+            "thigh": "{S}_hip",
+            "shin": "{S}_knee",
+            "foot": "{S}_ankle",
+        },
+        lambda s: s,
+    ),
     "rigify_def": _rigify("DEF-"),
     "rigify_org": _rigify("ORG-"),
     "rigify_fk": _rigify("", fk=True),
     "rigify_metarig": _rigify(""),
-    "mixamo": _sided({
-        "pelvis": "Hips", "spine": "Spine", "chest": "Spine1", "upper_chest": "Spine2",
-        "neck": "Neck", "head": "Head", "clavicle": "{S}Shoulder", "upper_arm": "{S}Arm",
-        "forearm": "{S}ForeArm", "hand": "{S}Hand", "thigh": "{S}UpLeg", "shin": "{S}Leg",
-        "foot": "{S}Foot", "toe": "{S}ToeBase"}, _side_word),
-    "cmu_mb": _sided({
-        "pelvis": "Hips", "spine": "LowerBack", "chest": "Spine", "upper_chest": "Spine1",
-        "neck": "Neck", "head": "Head", "clavicle": "{S}Shoulder", "upper_arm": "{S}Arm",
-        "forearm": "{S}ForeArm", "hand": "{S}Hand", "thigh": "{S}UpLeg", "shin": "{S}Leg",
-        "foot": "{S}Foot", "toe": "{S}ToeBase"}, _side_word),
-    "cmu_max": _sided({
-        "pelvis": "Hips", "spine": "lowerback", "chest": "Chest", "upper_chest": "Chest2",
-        "neck": "lowerneck", "head": "Head", "clavicle": "{S}Collar",
-        "upper_arm": "{S}Shoulder", "forearm": "{S}Elbow", "hand": "{S}Wrist",
-        "thigh": "{S}Hip", "shin": "{S}Knee", "foot": "{S}Ankle", "toe": "{S}Toe"},
-        _side_word),
-    "cmu_daz": _sided({
-        "pelvis": "hip", "spine": "abdomen", "chest": "chest", "neck": "neck", "head": "head",
-        "clavicle": "{S}Collar", "upper_arm": "{S}Shldr", "forearm": "{S}ForeArm",
-        "hand": "{S}Hand", "thigh": "{S}Thigh", "shin": "{S}Shin", "foot": "{S}Foot",
-        "toe": "{S}Toe"}, lambda s: s),
-    "mpfb": _sided({
-        "pelvis": "spine05", "spine": "spine04", "chest": "spine03", "upper_chest": "spine02",
-        "neck": "neck01", "head": "head", "clavicle": "clavicle{S}",
-        "upper_arm": "upperarm01{S}", "forearm": "lowerarm01{S}", "hand": "wrist{S}",
-        "thigh": "upperleg01{S}", "shin": "lowerleg01{S}", "foot": "foot{S}",
-        "toe": "toe1-1{S}"}, lambda s: ".L" if s == "l" else ".R"),
-    "unreal": _sided({
-        "pelvis": "pelvis", "spine": "spine_01", "chest": "spine_02", "upper_chest": "spine_03",
-        "neck": "neck_01", "head": "head", "clavicle": "clavicle_{S}",
-        "upper_arm": "upperarm_{S}", "forearm": "lowerarm_{S}", "hand": "hand_{S}",
-        "thigh": "thigh_{S}", "shin": "calf_{S}", "foot": "foot_{S}", "toe": "ball_{S}"},
-        lambda s: s),
-    "vrm": _sided({
-        "pelvis": "hips", "spine": "spine", "chest": "chest", "upper_chest": "upperChest",
-        "neck": "neck", "head": "head", "clavicle": "{S}Shoulder", "upper_arm": "{S}UpperArm",
-        "forearm": "{S}LowerArm", "hand": "{S}Hand", "thigh": "{S}UpperLeg",
-        "shin": "{S}LowerLeg", "foot": "{S}Foot", "toe": "{S}Toes"},
-        lambda s: "left" if s == "l" else "right"),
-    "vroid": _sided({
-        "pelvis": "J_Bip_C_Hips", "spine": "J_Bip_C_Spine", "chest": "J_Bip_C_Chest",
-        "upper_chest": "J_Bip_C_UpperChest", "neck": "J_Bip_C_Neck", "head": "J_Bip_C_Head",
-        "clavicle": "J_Bip_{S}_Shoulder", "upper_arm": "J_Bip_{S}_UpperArm",
-        "forearm": "J_Bip_{S}_LowerArm", "hand": "J_Bip_{S}_Hand",
-        "thigh": "J_Bip_{S}_UpperLeg", "shin": "J_Bip_{S}_LowerLeg", "foot": "J_Bip_{S}_Foot",
-        "toe": "J_Bip_{S}_ToeBase"}, lambda s: s.upper()),
+    "mixamo": _sided(
+        {
+            "pelvis": "Hips",
+            "spine": "Spine",
+            "chest": "Spine1",
+            "upper_chest": "Spine2",
+            "neck": "Neck",
+            "head": "Head",
+            "clavicle": "{S}Shoulder",
+            "upper_arm": "{S}Arm",
+            "forearm": "{S}ForeArm",
+            "hand": "{S}Hand",
+            "thigh": "{S}UpLeg",
+            "shin": "{S}Leg",
+            "foot": "{S}Foot",
+            "toe": "{S}ToeBase",
+        },
+        _side_word,
+    ),
+    "cmu_mb": _sided(
+        {
+            "pelvis": "Hips",
+            "spine": "LowerBack",
+            "chest": "Spine",
+            "upper_chest": "Spine1",
+            "neck": "Neck",
+            "head": "Head",
+            "clavicle": "{S}Shoulder",
+            "upper_arm": "{S}Arm",
+            "forearm": "{S}ForeArm",
+            "hand": "{S}Hand",
+            "thigh": "{S}UpLeg",
+            "shin": "{S}Leg",
+            "foot": "{S}Foot",
+            "toe": "{S}ToeBase",
+        },
+        _side_word,
+    ),
+    "cmu_max": _sided(
+        {
+            "pelvis": "Hips",
+            "spine": "lowerback",
+            "chest": "Chest",
+            "upper_chest": "Chest2",
+            "neck": "lowerneck",
+            "head": "Head",
+            "clavicle": "{S}Collar",
+            "upper_arm": "{S}Shoulder",
+            "forearm": "{S}Elbow",
+            "hand": "{S}Wrist",
+            "thigh": "{S}Hip",
+            "shin": "{S}Knee",
+            "foot": "{S}Ankle",
+            "toe": "{S}Toe",
+        },
+        _side_word,
+    ),
+    "cmu_daz": _sided(
+        {
+            "pelvis": "hip",
+            "spine": "abdomen",
+            "chest": "chest",
+            "neck": "neck",
+            "head": "head",
+            "clavicle": "{S}Collar",
+            "upper_arm": "{S}Shldr",
+            "forearm": "{S}ForeArm",
+            "hand": "{S}Hand",
+            "thigh": "{S}Thigh",
+            "shin": "{S}Shin",
+            "foot": "{S}Foot",
+            "toe": "{S}Toe",
+        },
+        lambda s: s,
+    ),
+    "mpfb": _sided(
+        {
+            "pelvis": "spine05",
+            "spine": "spine04",
+            "chest": "spine03",
+            "upper_chest": "spine02",
+            "neck": "neck01",
+            "head": "head",
+            "clavicle": "clavicle{S}",
+            "upper_arm": "upperarm01{S}",
+            "forearm": "lowerarm01{S}",
+            "hand": "wrist{S}",
+            "thigh": "upperleg01{S}",
+            "shin": "lowerleg01{S}",
+            "foot": "foot{S}",
+            "toe": "toe1-1{S}",
+        },
+        lambda s: ".L" if s == "l" else ".R",
+    ),
+    "unreal": _sided(
+        {
+            "pelvis": "pelvis",
+            "spine": "spine_01",
+            "chest": "spine_02",
+            "upper_chest": "spine_03",
+            "neck": "neck_01",
+            "head": "head",
+            "clavicle": "clavicle_{S}",
+            "upper_arm": "upperarm_{S}",
+            "forearm": "lowerarm_{S}",
+            "hand": "hand_{S}",
+            "thigh": "thigh_{S}",
+            "shin": "calf_{S}",
+            "foot": "foot_{S}",
+            "toe": "ball_{S}",
+        },
+        lambda s: s,
+    ),
+    "vrm": _sided(
+        {
+            "pelvis": "hips",
+            "spine": "spine",
+            "chest": "chest",
+            "upper_chest": "upperChest",
+            "neck": "neck",
+            "head": "head",
+            "clavicle": "{S}Shoulder",
+            "upper_arm": "{S}UpperArm",
+            "forearm": "{S}LowerArm",
+            "hand": "{S}Hand",
+            "thigh": "{S}UpperLeg",
+            "shin": "{S}LowerLeg",
+            "foot": "{S}Foot",
+            "toe": "{S}Toes",
+        },
+        lambda s: "left" if s == "l" else "right",
+    ),
+    "vroid": _sided(
+        {
+            "pelvis": "J_Bip_C_Hips",
+            "spine": "J_Bip_C_Spine",
+            "chest": "J_Bip_C_Chest",
+            "upper_chest": "J_Bip_C_UpperChest",
+            "neck": "J_Bip_C_Neck",
+            "head": "J_Bip_C_Head",
+            "clavicle": "J_Bip_{S}_Shoulder",
+            "upper_arm": "J_Bip_{S}_UpperArm",
+            "forearm": "J_Bip_{S}_LowerArm",
+            "hand": "J_Bip_{S}_Hand",
+            "thigh": "J_Bip_{S}_UpperLeg",
+            "shin": "J_Bip_{S}_LowerLeg",
+            "foot": "J_Bip_{S}_Foot",
+            "toe": "J_Bip_{S}_ToeBase",
+        },
+        lambda s: s.upper(),
+    ),
 }
 
 #: Rigs whose deform bones are driven by constraints from animator controls (a generated
@@ -179,8 +322,11 @@ CONTROL_SCHEMES: dict[str, dict] = {
     scheme: {
         "controls": SCHEMES["rigify_fk"],
         "root": "torso",
-        "switches": {f'pose.bones["{b}{s}"]["IK_FK"]': 1.0
-                     for b in ("upper_arm_parent", "thigh_parent") for s in (".L", ".R")},
+        "switches": {
+            f'pose.bones["{b}{s}"]["IK_FK"]': 1.0
+            for b in ("upper_arm_parent", "thigh_parent")
+            for s in (".L", ".R")
+        },
     }
     for scheme in ("rigify_def", "rigify_org")
 }
@@ -261,12 +407,15 @@ def map_bones(names: Iterable[str], scheme: str | None = None) -> BoneMapping:
         if len(bones) > len(best_bones):
             best, best_bones = sch, bones
     used = set(best_bones.values())
-    return _with_controls(BoneMapping(
-        bones=best_bones,
-        scheme=best,
-        unmapped=[n for n in names if n not in used],
-        missing=[c for c in CANONICAL_BONES if c not in best_bones],
-    ), keyed)
+    return _with_controls(
+        BoneMapping(
+            bones=best_bones,
+            scheme=best,
+            unmapped=[n for n in names if n not in used],
+            missing=[c for c in CANONICAL_BONES if c not in best_bones],
+        ),
+        keyed,
+    )
 
 
 def _with_controls(mapping: BoneMapping, keyed: dict[str, str]) -> BoneMapping:
@@ -287,16 +436,21 @@ def _with_controls(mapping: BoneMapping, keyed: dict[str, str]) -> BoneMapping:
 
 def pair_bones(source: BoneMapping, target: BoneMapping) -> dict[str, str]:
     """Source bone name -> target bone name for canonical bones both rigs have."""
-    return {source.bones[c]: target.bones[c] for c in CANONICAL_BONES
-            if c in source.bones and c in target.bones}
+    return {
+        source.bones[c]: target.bones[c]
+        for c in CANONICAL_BONES
+        if c in source.bones and c in target.bones
+    }
 
 
 def save_preset(mapping: BoneMapping, path: str | Path) -> Path:
     """Write a (possibly hand-edited) mapping as a JSON preset."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps({"format": "somacap-bone-mapping", "version": 1,
-                                **mapping.to_dict()}, indent=2), encoding="utf-8")
+    path.write_text(
+        json.dumps({"format": "somacap-bone-mapping", "version": 1, **mapping.to_dict()}, indent=2),
+        encoding="utf-8",
+    )
     return path
 
 
@@ -324,7 +478,9 @@ def load_preset(path: str | Path, names: Iterable[str] | None = None) -> BoneMap
             raise InputError(f"{path}: the rig has no bones named {absent}")
     used = set(bones.values())
     mapping = BoneMapping(
-        bones=dict(bones), scheme=str(data.get("scheme", "custom")),
+        bones=dict(bones),
+        scheme=str(data.get("scheme", "custom")),
         unmapped=[n for n in (names or []) if n not in used],
-        missing=[c for c in CANONICAL_BONES if c not in bones])
+        missing=[c for c in CANONICAL_BONES if c not in bones],
+    )
     return _with_controls(mapping, {normalise(n): n for n in names or []})

@@ -123,17 +123,17 @@ class _Problem:
     """Packing, residuals and sparse Jacobian of one adjustment (all arrays fixed)."""
 
     def __init__(self, params0, xyz0, uv, obs, length, free, w_len, w_obs=None):
-        self.params0 = params0                      # (C, 15)
+        self.params0 = params0  # (C, 15)
         self.C = params0.shape[0]
         self.F = xyz0.shape[0]
         self.uv = uv
-        self.obs = obs                               # (M, 3): frame, camera, target
+        self.obs = obs  # (M, 3): frame, camera, target
         self.length = length
         self.w_len = w_len
         free_idx = [6 + INTRINSIC_NAMES.index(n) for n in free]
         mask = np.zeros((self.C, N_PARAMS), dtype=bool)
         mask[:, free_idx] = True
-        mask[1:, :6] = True                          # datum: camera 1 exterior fixed
+        mask[1:, :6] = True  # datum: camera 1 exterior fixed
         self.mask = mask
         # column of each (camera, parameter), -1 when fixed
         col = -np.ones((self.C, N_PARAMS), dtype=int)
@@ -142,8 +142,8 @@ class _Problem:
         self.n_cam = int(mask.sum())
         self.n = self.n_cam + self.F * 6
         f, c, k = obs.T
-        self.pt_col = self.n_cam + (f * 2 + k)[:, None] * 3 + np.arange(3)   # (M, 3)
-        self.target = uv[f, c, k]                                             # (M, 2)
+        self.pt_col = self.n_cam + (f * 2 + k)[:, None] * 3 + np.arange(3)  # (M, 3)
+        self.target = uv[f, c, k]  # (M, 2)
         self.M = obs.shape[0]
         self.m = 2 * self.M + self.F
         # weight of each observation's residual pair: 1, or ε for a flagged bad blob
@@ -156,7 +156,7 @@ class _Problem:
     def unpack(self, x):
         params = self.params0.copy()
         params[self.mask] = x[: self.n_cam]
-        return params, x[self.n_cam:].reshape(self.F, 2, 3)
+        return params, x[self.n_cam :].reshape(self.F, 2, 3)
 
     def residuals(self, x, jacobian=False):
         params, xyz = self.unpack(x)
@@ -174,8 +174,8 @@ class _Problem:
         _, J_cam, J_xyz = out
         J_cam, J_xyz = J_cam * w[:, :, None], J_xyz * w[:, :, None]
         rows, cols, vals = [], [], []
-        obs_rows = 2 * np.arange(self.M)[:, None] + np.arange(2)              # (M, 2)
-        cc = self.cam_col[c]                                                   # (M, 15)
+        obs_rows = 2 * np.arange(self.M)[:, None] + np.arange(2)  # (M, 2)
+        cc = self.cam_col[c]  # (M, 15)
         for p in range(N_PARAMS):
             use = cc[:, p] >= 0
             if not np.any(use):
@@ -186,14 +186,16 @@ class _Problem:
         rows.append(np.repeat(obs_rows, 3, axis=1).ravel())
         cols.append(np.tile(self.pt_col, (1, 2)).ravel())
         vals.append(J_xyz.ravel())
-        u = d / np.where(dist > 0, dist, 1.0)[:, None]                        # (F, 3)
+        u = d / np.where(dist > 0, dist, 1.0)[:, None]  # (F, 3)
         len_rows = 2 * self.M + np.arange(self.F)
         base = self.n_cam + np.arange(self.F) * 6
         rows.append(np.repeat(len_rows, 6))
         cols.append((base[:, None] + np.arange(6)).ravel())
         vals.append((self.w_len * np.concatenate([u, -u], axis=1)).ravel())
-        J = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                          shape=(self.m, self.n))
+        J = sp.csr_matrix(
+            (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+            shape=(self.m, self.n),
+        )
         return r, J
 
     def sparsity(self):
@@ -214,13 +216,23 @@ class _Problem:
         return sp.csr_matrix((np.ones(r.size), (r, cl)), shape=(self.m, self.n))
 
 
-def adjust_wand(cameras: list[Camera], uv: np.ndarray, xyz0: np.ndarray, length_m: float,
-                free: tuple[str, ...] = DEFAULT_FREE, sigma_px: float = 0.1,
-                sigma_length_m: float = 1e-4, f_scale_px: float = 1.0,
-                outlier_px: float | None = None, outlier_sigma: float = 5.0,
-                outlier_floor_px: float = 0.25, robust: bool = True,
-                solver: str = "lm", max_iter: int = 100, max_rounds: int = 6
-                ) -> BundleResult:
+def adjust_wand(
+    cameras: list[Camera],
+    uv: np.ndarray,
+    xyz0: np.ndarray,
+    length_m: float,
+    free: tuple[str, ...] = DEFAULT_FREE,
+    sigma_px: float = 0.1,
+    sigma_length_m: float = 1e-4,
+    f_scale_px: float = 1.0,
+    outlier_px: float | None = None,
+    outlier_sigma: float = 5.0,
+    outlier_floor_px: float = 0.25,
+    robust: bool = True,
+    solver: str = "lm",
+    max_iter: int = 100,
+    max_rounds: int = 6,
+) -> BundleResult:
     """Self-calibrating bundle adjustment of wand observations, robust to bad blobs.
 
     Robust scheme (``robust=True``): start by flagging, with the initial cameras,
@@ -281,11 +293,11 @@ def adjust_wand(cameras: list[Camera], uv: np.ndarray, xyz0: np.ndarray, length_
     F, C = uv.shape[:2]
     if uv.shape != (F, C, 2, 2) or C != len(cameras):
         raise ValueError(f"uv must have shape (F, {len(cameras)}, 2, 2), got {uv.shape}")
-    uv = uv.copy()                                                # labels may be exchanged
+    uv = uv.copy()  # labels may be exchanged
     swapped = np.zeros((F, C), dtype=bool)
     xyz = np.asarray(xyz0, dtype=float).reshape(F, 2, 3).copy()
-    seen = np.all(np.isfinite(uv), axis=-1)                      # (F, C, 2)
-    base = np.all(seen.sum(axis=1) >= 2, axis=1)                 # (F,) both targets ≥ 2 views
+    seen = np.all(np.isfinite(uv), axis=-1)  # (F, C, 2)
+    base = np.all(seen.sum(axis=1) >= 2, axis=1)  # (F,) both targets ≥ 2 views
     seen &= base[:, None, None]
     xyz[~base] = np.nan
     params = np.stack([pack_camera(c) for c in cameras])
@@ -302,9 +314,12 @@ def adjust_wand(cameras: list[Camera], uv: np.ndarray, xyz0: np.ndarray, length_
         rn = residual_norms(params, xyz, uv, seen)
         # both targets seen by ≥ 2 unflagged views (else the location waits outside the
         # adjustment, its targets re-intersected every round) and in front of the cameras
-        incl = (base & np.all((seen & ~flags).sum(axis=1) >= 2, axis=1)
-                & np.all(np.isfinite(xyz), axis=(1, 2))
-                & ~np.any(seen & ~np.isfinite(rn), axis=(1, 2)))
+        incl = (
+            base
+            & np.all((seen & ~flags).sum(axis=1) >= 2, axis=1)
+            & np.all(np.isfinite(xyz), axis=(1, 2))
+            & ~np.any(seen & ~np.isfinite(rn), axis=(1, 2))
+        )
         fidx = np.flatnonzero(incl)
         obs = np.argwhere(seen[fidx])
         w_obs = np.where(flags[fidx][tuple(obs.T)], FLAG_WEIGHT, 1.0)
@@ -325,8 +340,9 @@ def adjust_wand(cameras: list[Camera], uv: np.ndarray, xyz0: np.ndarray, length_
         if np.any(out):
             loo = flag_by_intersection(cams, uv[out], seen[out], thr)
             again = intersect_targets(cams, uv[out], seen[out] & ~loo)
-            new[out] = np.where(np.isfinite(again), again,
-                                intersect_targets(cams, uv[out], seen[out]))
+            new[out] = np.where(
+                np.isfinite(again), again, intersect_targets(cams, uv[out], seen[out])
+            )
         new[fidx] = xyz_f
         new[~base] = np.nan
         return p, new
@@ -357,7 +373,7 @@ def adjust_wand(cameras: list[Camera], uv: np.ndarray, xyz0: np.ndarray, length_
     used[fidx] = True
     xyz_f = xyz_all[fidx]
     r, J = prob.residuals(sol.x, jacobian=True)
-    inl = prob.w_obs == 1.0                                        # (M,)
+    inl = prob.w_obs == 1.0  # (M,)
     r_obs = r[: 2 * prob.M].reshape(-1, 2)
     # redundancy: inlier coordinates + conditions − camera unknowns − the target
     # coordinates the inliers determine (min(3, 2 · views) per target)
@@ -365,7 +381,7 @@ def adjust_wand(cameras: list[Camera], uv: np.ndarray, xyz0: np.ndarray, length_
     views = np.zeros((prob.F, 2))
     np.add.at(views, (f[inl], k[inl]), 1)
     dof = max(2 * int(inl.sum()) + prob.F - prob.n_cam - int(np.minimum(3, 2 * views).sum()), 1)
-    sigma0 = float(np.sqrt((np.sum(r_obs[inl] ** 2) + np.sum(r[2 * prob.M:] ** 2)) / dof))
+    sigma0 = float(np.sqrt((np.sum(r_obs[inl] ** 2) + np.sum(r[2 * prob.M :] ** 2)) / dof))
     param_sigma = np.full((C, N_PARAMS), np.nan)
     xyz_sigma = np.full((F, 2, 3), np.nan)
     Ncc, Npc, Bp = normal_blocks((J.T @ J).tocsr(), prob.n_cam, prob.F)
@@ -390,9 +406,22 @@ def adjust_wand(cameras: list[Camera], uv: np.ndarray, xyz0: np.ndarray, length_
     lres[fidx] = np.linalg.norm(xyz_f[:, 0] - xyz_f[:, 1], axis=1) - length_m
     cams = [unpack_camera(params[c], cameras[c].name, cameras[c].size) for c in range(C)]
     return BundleResult(
-        success=bool(sol.success), message=str(sol.message), cameras=cams, xyz=xyz,
-        rmse_px=rmse, rms_px=float(np.sqrt(np.mean(r_obs[inl] ** 2))), sigma0=sigma0,
-        param_sigma=param_sigma, xyz_sigma=xyz_sigma, length_residual_m=lres,
-        outliers=flags, used=used, free=tuple(free), nfev=int(nfev),
-        names=[c.name for c in cameras], outlier_threshold_px=float(thr or np.nan),
-        uv=uv, swapped=swapped)
+        success=bool(sol.success),
+        message=str(sol.message),
+        cameras=cams,
+        xyz=xyz,
+        rmse_px=rmse,
+        rms_px=float(np.sqrt(np.mean(r_obs[inl] ** 2))),
+        sigma0=sigma0,
+        param_sigma=param_sigma,
+        xyz_sigma=xyz_sigma,
+        length_residual_m=lres,
+        outliers=flags,
+        used=used,
+        free=tuple(free),
+        nfev=int(nfev),
+        names=[c.name for c in cameras],
+        outlier_threshold_px=float(thr or np.nan),
+        uv=uv,
+        swapped=swapped,
+    )

@@ -34,7 +34,7 @@ def flag_by_intersection(cameras, uv, seen, thr):
             p[:, mask_cam] = np.nan
         xyz = triangulate(cameras, p, iterations=5).xyz
         pred = np.stack([c.project(xyz) for c in cameras], axis=1)
-        return np.linalg.norm(pred - pts, axis=2)                   # (G, C), NaN unseen
+        return np.linalg.norm(pred - pts, axis=2)  # (G, C), NaN unseen
 
     with np.errstate(invalid="ignore"):
         full = residuals(None)
@@ -50,7 +50,7 @@ def flag_by_intersection(cameras, uv, seen, thr):
             better = (n >= 3) & np.isfinite(pts[:, j, 0]) & (worst < best_rest)
             best_rest[better], best_cam[better] = worst[better], j
             loo.append(res_j)
-        loo = np.stack(loo, axis=1)                                   # (G, Cmask, C)
+        loo = np.stack(loo, axis=1)  # (G, Cmask, C)
         single = bad_full & (best_rest <= thr) & (best_cam >= 0)
         g = np.flatnonzero(single)
         flags[g, best_cam[g]] = True
@@ -121,8 +121,9 @@ def label_swaps(params, xyz, uv, seen, rn, cap):
     return both & (swap < keep - 0.5 * cap)
 
 
-def flag_observations(rn: np.ndarray, seen: np.ndarray, thr: float,
-                      previous: np.ndarray) -> np.ndarray:
+def flag_observations(
+    rn: np.ndarray, seen: np.ndarray, thr: float, previous: np.ndarray
+) -> np.ndarray:
     """Bad-blob flags (F, C, 2) from residual lengths ``rn`` (F, C, 2), px.
 
     Flags are decided afresh every round, so an observation comes back as soon as its
@@ -137,6 +138,6 @@ def flag_observations(rn: np.ndarray, seen: np.ndarray, thr: float,
     with np.errstate(invalid="ignore"):
         new = np.where(previous, ~(rn < 0.8 * thr), rn > thr)
     new = np.where(np.isfinite(rn), new, True) & seen
-    two = seen.sum(axis=1) == 2                                      # (F, 2) targets
+    two = seen.sum(axis=1) == 2  # (F, 2) targets
     either = np.any(new, axis=1) & two
     return new | (either[:, None, :] & seen)

@@ -41,8 +41,9 @@ def _lm(problem, x, loss, f_scale, max_iter, tol=1e-10):
             rho, w = r2, np.ones(M)
         else:
             rho, w = _soft_l1(r2, f_scale)
-        return 0.5 * (rho.sum() + np.sum(r[2 * M:] ** 2)), np.concatenate(
-            [np.repeat(w, 2), np.ones(problem.F)])
+        return 0.5 * (rho.sum() + np.sum(r[2 * M :] ** 2)), np.concatenate(
+            [np.repeat(w, 2), np.ones(problem.F)]
+        )
 
     r, J = problem.residuals(x, jacobian=True)
     cost, w = cost_weights(r)
@@ -95,7 +96,7 @@ def _schur_solve(N, g, nc, F, lam):
     B[:, idx, idx] *= 1.0 + lam
     Binv = np.linalg.inv(B)
     gc, gp = g[:nc], g[nc:].reshape(F, 6)
-    E = np.einsum("fij,fjn->fin", Binv, Npc)                    # B⁻¹ N_pc
+    E = np.einsum("fij,fjn->fin", Binv, Npc)  # B⁻¹ N_pc
     S = Ncc - np.einsum("fin,fim->nm", Npc, E)
     rhs = gc - np.einsum("fin,fi->n", E, gp)
     dc = np.linalg.solve(S, rhs) if nc else np.zeros(0)
@@ -105,11 +106,21 @@ def _schur_solve(N, g, nc, F, lam):
 
 def _scipy(problem, x0, loss, f_scale, jac_mode, max_nfev):
     """``scipy.optimize.least_squares`` path (slower to converge on large problems)."""
-    kw = dict(x_scale="jac", loss=loss, f_scale=f_scale, method="trf", tr_solver="lsmr",
-              max_nfev=max_nfev, ftol=1e-12, xtol=1e-12, gtol=1e-10)
+    kw = dict(
+        x_scale="jac",
+        loss=loss,
+        f_scale=f_scale,
+        method="trf",
+        tr_solver="lsmr",
+        max_nfev=max_nfev,
+        ftol=1e-12,
+        xtol=1e-12,
+        gtol=1e-10,
+    )
     if jac_mode == "analytic":
-        sol = least_squares(problem.residuals, x0,
-                            jac=lambda x: problem.residuals(x, jacobian=True)[1], **kw)
+        sol = least_squares(
+            problem.residuals, x0, jac=lambda x: problem.residuals(x, jacobian=True)[1], **kw
+        )
     else:
         sol = least_squares(problem.residuals, x0, jac_sparsity=problem.sparsity(), **kw)
     return _Solution(sol.x, bool(sol.success), str(sol.message), int(sol.nfev))

@@ -51,32 +51,38 @@ class CalibrationReport:
 
     def text(self) -> str:
         b = self.bundle
-        lines = [f"wand: {self.detections.summary()}",
-                 f"bundle adjustment: {'converged' if b.success else 'NOT converged'} "
-                 f"({b.message}); free interior: {', '.join(b.free)}",
-                 f"locations used: {int(b.used.sum())}, observations flagged as bad blobs: "
-                 f"{int(b.outliers.sum())}, sigma0 = {b.sigma0:.3f} px",
-                 f"bar length L = {self.length_m * 1e3:.1f} mm; independently intersected "
-                 f"bars: RMS residual {self.bar_rms_mm:.3f} mm",
-                 "",
-                 f"world: {self.world}",
-                 f"{'camera':8s} {'RMSE px':>8s} {'f px':>10s} {'sd':>6s} {'aspect':>7s} "
-                 f"{'cx':>8s} {'cy':>8s} {'k1':>8s} {'k2':>8s}  centre (m)"]
+        lines = [
+            f"wand: {self.detections.summary()}",
+            f"bundle adjustment: {'converged' if b.success else 'NOT converged'} "
+            f"({b.message}); free interior: {', '.join(b.free)}",
+            f"locations used: {int(b.used.sum())}, observations flagged as bad blobs: "
+            f"{int(b.outliers.sum())}, sigma0 = {b.sigma0:.3f} px",
+            f"bar length L = {self.length_m * 1e3:.1f} mm; independently intersected "
+            f"bars: RMS residual {self.bar_rms_mm:.3f} mm",
+            "",
+            f"world: {self.world}",
+            f"{'camera':8s} {'RMSE px':>8s} {'f px':>10s} {'sd':>6s} {'aspect':>7s} "
+            f"{'cx':>8s} {'cy':>8s} {'k1':>8s} {'k2':>8s}  centre (m)",
+        ]
         for i, c in enumerate(self.cameras):
             lines.append(
                 f"{c.name:8s} {b.rmse_px[i]:8.3f} {c.K[0, 0]:10.2f} {b.sigma_of(i, 'f'):6.2f} "
                 f"{c.aspect:7.4f} {c.K[0, 2]:8.2f} {c.K[1, 2]:8.2f} {c.dist[0]:8.4f} "
-                f"{c.dist[1]:8.4f}  [{c.center[0]:.4f}, {c.center[1]:.4f}, {c.center[2]:.4f}]")
+                f"{c.dist[1]:8.4f}  [{c.center[0]:.4f}, {c.center[1]:.4f}, {c.center[2]:.4f}]"
+            )
         return "\n".join(lines)
 
     def metadata(self) -> dict:
-        return {"adjusted": True, "error": float(self.bundle.rms_px),
-                "method": "somacap wand bundle adjustment",
-                "datum": "first camera fixed, scale from the bar length",
-                "world": self.world,
-                "bar_length_m": float(self.length_m),
-                "bar_rms_mm": self.bar_rms_mm,
-                "rmse_px": [float(x) for x in self.bundle.rmse_px]}
+        return {
+            "adjusted": True,
+            "error": float(self.bundle.rms_px),
+            "method": "somacap wand bundle adjustment",
+            "datum": "first camera fixed, scale from the bar length",
+            "world": self.world,
+            "bar_length_m": float(self.length_m),
+            "bar_rms_mm": self.bar_rms_mm,
+            "rmse_px": [float(x) for x in self.bundle.rmse_px],
+        }
 
 
 class _WandImages:
@@ -104,10 +110,10 @@ def z_up_world(cameras: list[Camera], xyz: np.ndarray) -> tuple[list[Camera], np
     up = np.mean([-c.R[1] for c in cameras], axis=0)
     z = up / np.linalg.norm(up)
     x = cameras[0].R[0] - (cameras[0].R[0] @ z) * z
-    if np.linalg.norm(x) < 1e-9:                       # camera 1 looks straight down
+    if np.linalg.norm(x) < 1e-9:  # camera 1 looks straight down
         x = np.cross(z, [0.0, 1.0, 0.0]) if abs(z[1]) < 0.9 else np.cross(z, [1.0, 0, 0])
     x /= np.linalg.norm(x)
-    Rw = np.stack([x, np.cross(z, x), z])              # rows: new axes in the old frame
+    Rw = np.stack([x, np.cross(z, x), z])  # rows: new axes in the old frame
     pts = np.asarray(xyz, dtype=float).reshape(-1, 3)
     pts = pts[np.all(np.isfinite(pts), axis=1)]
     c = pts.mean(axis=0) if len(pts) else np.zeros(3)
@@ -115,16 +121,27 @@ def z_up_world(cameras: list[Camera], xyz: np.ndarray) -> tuple[list[Camera], np
     origin = c + (h.min() - c @ z) * z
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = Rw, -Rw @ origin
-    out = [Camera(cam.name, cam.size, cam.K.copy(), cam.dist.copy(), cam.R @ Rw.T,
-                  cam.t + cam.R @ origin) for cam in cameras]
+    out = [
+        Camera(
+            cam.name, cam.size, cam.K.copy(), cam.dist.copy(), cam.R @ Rw.T, cam.t + cam.R @ origin
+        )
+        for cam in cameras
+    ]
     return out, T
 
 
-def calibrate_detections(uv: np.ndarray, sizes, names, length_m: float,
-                         free: tuple[str, ...] = DEFAULT_FREE, aspect: float = 1.0,
-                         source: str = "wand", detections: WandDetections | None = None,
-                         progress: Progress | None = None, z_up: bool = False
-                         ) -> CalibrationReport:
+def calibrate_detections(
+    uv: np.ndarray,
+    sizes,
+    names,
+    length_m: float,
+    free: tuple[str, ...] = DEFAULT_FREE,
+    aspect: float = 1.0,
+    source: str = "wand",
+    detections: WandDetections | None = None,
+    progress: Progress | None = None,
+    z_up: bool = False,
+) -> CalibrationReport:
     """Calibrate from target points ``uv`` (F, C, 2, 2) (NaN where not measured).
 
     ``z_up``: express the result in the Z-up world of :func:`z_up_world` (the
@@ -146,21 +163,29 @@ def calibrate_detections(uv: np.ndarray, sizes, names, length_m: float,
     bar = np.linalg.norm(xyz[:, 0] - xyz[:, 1], axis=1) - length_m
     if progress is not None:
         progress.update(1.0, 1.0, "calibrated")
-    det = detections if detections is not None else WandDetections(
-        uv, np.where(both, 2, 0))
+    det = detections if detections is not None else WandDetections(uv, np.where(both, 2, 0))
     cams, world, T = res.cameras, "camera 1 frame (the adjustment datum)", np.eye(4)
     if z_up:
         cams, T = z_up_world(res.cameras, res.xyz)
-        world = ("Z up = mean camera up vector; origin = wand-volume centroid dropped to the "
-                 "lowest wand position; X = camera 1's x axis made horizontal")
-    return CalibrationReport(cameras=cams, bundle=res, detections=det,
-                             length_m=length_m, bar_residual_m=bar, uv=res.uv, world=world,
-                             world_from_datum=T)
+        world = (
+            "Z up = mean camera up vector; origin = wand-volume centroid dropped to the "
+            "lowest wand position; X = camera 1's x axis made horizontal"
+        )
+    return CalibrationReport(
+        cameras=cams,
+        bundle=res,
+        detections=det,
+        length_m=length_m,
+        bar_residual_m=bar,
+        uv=res.uv,
+        world=world,
+        world_from_datum=T,
+    )
 
 
-def calibrate_scene(scene, free: tuple[str, ...] | None = None,
-                    progress: Progress | None = None, z_up: bool = False
-                    ) -> CalibrationReport:
+def calibrate_scene(
+    scene, free: tuple[str, ...] | None = None, progress: Progress | None = None, z_up: bool = False
+) -> CalibrationReport:
     """Calibrate a loaded :class:`core.scene.Scene` from its ``wand/`` sequence.
 
     Single-field scenes (``field`` odd/even) start from pixel aspect 2 and adjust it.
@@ -178,13 +203,21 @@ def calibrate_scene(scene, free: tuple[str, ...] | None = None,
     if free is None:
         free = DEFAULT_FREE + (("aspect",) if aspect != 1.0 else ())
     sizes = [scene.camera_size(c) for c in scene.cameras]
-    return calibrate_detections(det.uv, sizes, list(scene.cameras), length, free=free,
-                                aspect=aspect, source=str(scene.root / "wand"),
-                                detections=det, progress=progress, z_up=z_up)
+    return calibrate_detections(
+        det.uv,
+        sizes,
+        list(scene.cameras),
+        length,
+        free=free,
+        aspect=aspect,
+        source=str(scene.root / "wand"),
+        detections=det,
+        progress=progress,
+        z_up=z_up,
+    )
 
 
-def compare_to_reference(cameras: list[Camera], reference: list[Camera], source: str = ""
-                         ) -> dict:
+def compare_to_reference(cameras: list[Camera], reference: list[Camera], source: str = "") -> dict:
     """Errors of calibrated cameras against a reference after a similarity alignment.
 
     The calibrated world is camera 1's frame with scale from L; the reference (e.g. the
@@ -193,8 +226,10 @@ def compare_to_reference(cameras: list[Camera], reference: list[Camera], source:
     errors, aspect and the similarity scale.
     """
     if len(cameras) != len(reference):
-        raise InputError(f"{source}: has {len(reference)} cameras but the calibration has "
-                         f"{len(cameras)}: the camera counts must match")
+        raise InputError(
+            f"{source}: has {len(reference)} cameras but the calibration has "
+            f"{len(cameras)}: the camera counts must match"
+        )
     ref = {c.name: c for c in reference}
     missing = [c.name for c in cameras if c.name not in ref]
     if missing:
@@ -204,9 +239,12 @@ def compare_to_reference(cameras: list[Camera], reference: list[Camera], source:
     b = np.array([r.center for _, r in pairs])
     s, R, t = similarity(a, b)
     err = np.linalg.norm(s * a @ R.T + t - b, axis=1)
-    return {"centre_error_m": err, "scale": s,
-            "focal_error": np.array([c.K[0, 0] / r.K[0, 0] - 1 for c, r in pairs]),
-            "aspect": np.array([c.aspect for c, _ in pairs])}
+    return {
+        "centre_error_m": err,
+        "scale": s,
+        "focal_error": np.array([c.K[0, 0] / r.K[0, 0] - 1 for c, r in pairs]),
+        "aspect": np.array([c.aspect for c, _ in pairs]),
+    }
 
 
 def similarity(src: np.ndarray, dst: np.ndarray):

@@ -79,15 +79,24 @@ def read_calibration(path: str | Path) -> list[Camera]:
         K = _array(path, table, "matrix", (3, 3))
         rvec = _array(path, table, "rotation", (3,))
         t = _array(path, table, "translation", (3,))
-        cameras.append(Camera(name, (int(round(size[0])), int(round(size[1]))), K, dist,
-                              rodrigues_to_matrix(rvec), t))
+        cameras.append(
+            Camera(
+                name,
+                (int(round(size[0])), int(round(size[1]))),
+                K,
+                dist,
+                rodrigues_to_matrix(rvec),
+                t,
+            )
+        )
     if not cameras:
         raise InputError(f"{path}: no camera tables found")
     return cameras
 
 
-def write_calibration(path: str | Path, cameras: list[Camera], metadata: dict | None = None,
-                      overwrite: bool = True) -> Path:
+def write_calibration(
+    path: str | Path, cameras: list[Camera], metadata: dict | None = None, overwrite: bool = True
+) -> Path:
     """Write cameras to ``path`` in the anipose/Pose2Sim layout.
 
     ``overwrite=False`` refuses to replace an existing file (raises InputError).

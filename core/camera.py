@@ -165,8 +165,9 @@ class Camera:
         return self.center, d
 
     def copy(self) -> Camera:
-        return Camera(self.name, self.size, self.K.copy(), self.dist.copy(), self.R.copy(),
-                      self.t.copy())
+        return Camera(
+            self.name, self.size, self.K.copy(), self.dist.copy(), self.R.copy(), self.t.copy()
+        )
 
 
 # -- parameter packing and analytic Jacobians ----------------------------------------
@@ -188,8 +189,9 @@ def pack_camera(cam: Camera) -> np.ndarray:
     """
     k1, k2, p1, p2, k3 = cam.dist
     fx, fy = cam.K[0, 0], cam.K[1, 1]
-    return np.concatenate([cam.rvec, cam.t,
-                           [fx, fx / fy, cam.K[0, 2], cam.K[1, 2], k1, k2, k3, p1, p2]])
+    return np.concatenate(
+        [cam.rvec, cam.t, [fx, fx / fy, cam.K[0, 2], cam.K[1, 2], k1, k2, k3, p1, p2]]
+    )
 
 
 def unpack_camera(p: np.ndarray, name: str, size: tuple[int, int]) -> Camera:
@@ -197,16 +199,20 @@ def unpack_camera(p: np.ndarray, name: str, size: tuple[int, int]) -> Camera:
     p = np.asarray(p, dtype=float).reshape(N_PARAMS)
     f, aspect, cx, cy, k1, k2, k3, p1, p2 = p[6:]
     K = np.array([[f, 0.0, cx], [0.0, f / aspect, cy], [0.0, 0.0, 1.0]])
-    return Camera(name, size, K, np.array([k1, k2, p1, p2, k3]), rodrigues_to_matrix(p[:3]),
-                  p[3:6])
+    return Camera(name, size, K, np.array([k1, k2, p1, p2, k3]), rodrigues_to_matrix(p[:3]), p[3:6])
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
     """Cross-product matrices of vectors (..., 3) -> (..., 3, 3)."""
     z = np.zeros(v.shape[:-1])
-    return np.stack([np.stack([z, -v[..., 2], v[..., 1]], -1),
-                     np.stack([v[..., 2], z, -v[..., 0]], -1),
-                     np.stack([-v[..., 1], v[..., 0], z], -1)], -2)
+    return np.stack(
+        [
+            np.stack([z, -v[..., 2], v[..., 1]], -1),
+            np.stack([v[..., 2], z, -v[..., 0]], -1),
+            np.stack([-v[..., 1], v[..., 0], z], -1),
+        ],
+        -2,
+    )
 
 
 def rodrigues_batch(rvec: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -226,19 +232,20 @@ def rodrigues_batch(rvec: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     R = np.eye(3) + s * Kx + (1.0 - c) * (Kx @ Kx)
     R[small] = np.eye(3) + _skew(rvec[small])
     eye = np.eye(3)
-    Vx = _skew(rvec)                                          # (M, 3, 3)
-    ImR = eye - R                                             # (M, 3, 3)
+    Vx = _skew(rvec)  # (M, 3, 3)
+    ImR = eye - R  # (M, 3, 3)
     dR = np.empty(rvec.shape[:1] + (3, 3, 3))
     for i in range(3):  # three components, not a loop over points
-        cross = np.cross(rvec, ImR[:, :, i])                  # v x ((I - R) e_i)
+        cross = np.cross(rvec, ImR[:, :, i])  # v x ((I - R) e_i)
         A = rvec[:, i, None, None] * Vx + _skew(cross)
         dR[:, i] = (A / (th**2)[:, None, None]) @ R
     dR[small] = _skew(np.broadcast_to(eye, (int(small.sum()), 3, 3)))
     return R, dR
 
 
-def project_params(params: np.ndarray, xyz: np.ndarray, jacobian: bool = True,
-                   camera_jacobian: bool = True):
+def project_params(
+    params: np.ndarray, xyz: np.ndarray, jacobian: bool = True, camera_jacobian: bool = True
+):
     """Project points with per-point camera parameter vectors, with Jacobians.
 
     Parameters
@@ -300,17 +307,19 @@ def _project(params, xyz, jacobian, camera_jacobian, one_camera):
     dxd_dy = 2.0 * x * y * D + 2.0 * p1 * x + 2.0 * p2 * y
     dyd_dx = dxd_dy
     dyd_dy = radial + 2.0 * y * y * D + 6.0 * p1 * y + 2.0 * p2 * x
-    J_d = np.stack([np.stack([f * dxd_dx, f * dxd_dy], -1),
-                    np.stack([fy * dyd_dx, fy * dyd_dy], -1)], -2)       # (M, 2, 2)
+    J_d = np.stack(
+        [np.stack([f * dxd_dx, f * dxd_dy], -1), np.stack([fy * dyd_dx, fy * dyd_dy], -1)], -2
+    )  # (M, 2, 2)
     zero = np.zeros_like(x)
-    J_n = np.stack([np.stack([1.0 / zs, zero, -x / zs], -1),
-                    np.stack([zero, 1.0 / zs, -y / zs], -1)], -2)         # (M, 2, 3)
-    J_pc = J_d @ J_n                                                      # d uv / d pc
+    J_n = np.stack(
+        [np.stack([1.0 / zs, zero, -x / zs], -1), np.stack([zero, 1.0 / zs, -y / zs], -1)], -2
+    )  # (M, 2, 3)
+    J_pc = J_d @ J_n  # d uv / d pc
     J_xyz = J_pc @ R
     if not camera_jacobian:
         return uv, None, J_xyz
     if one_camera:
-        dpc_dr = np.einsum("kij,mj->mik", dR[0], xyz)                      # (M, 3, 3)
+        dpc_dr = np.einsum("kij,mj->mik", dR[0], xyz)  # (M, 3, 3)
     else:
         dpc_dr = np.einsum("mkij,mj->mik", dR, xyz)
     J_cam = np.zeros((xyz.shape[0], 2, N_PARAMS))

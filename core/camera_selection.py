@@ -60,9 +60,13 @@ def observability(displacements: list[list[np.ndarray]]) -> np.ndarray:
     return out
 
 
-def select_cameras(visibility: np.ndarray, observ: np.ndarray | None = None,
-                   min_visibility: float = 0.2, keep_ratio: float = 0.3,
-                   min_motion_px: float = 0.5) -> Selection:
+def select_cameras(
+    visibility: np.ndarray,
+    observ: np.ndarray | None = None,
+    min_visibility: float = 0.2,
+    keep_ratio: float = 0.3,
+    min_motion_px: float = 0.5,
+) -> Selection:
     """Select the cameras of every part.
 
     Parameters

@@ -64,9 +64,14 @@ def viewing_plane_normals(camera: Camera, uv: np.ndarray, tangent: np.ndarray) -
     return k / np.linalg.norm(k, axis=1, keepdims=True)
 
 
-def match_contours(camera: Camera, contours: list[Contour], rim: RimPoints,
-                   max_dist_px: float = 15.0, eps: float = 0.9,
-                   parts: np.ndarray | None = None) -> ContourMatches:
+def match_contours(
+    camera: Camera,
+    contours: list[Contour],
+    rim: RimPoints,
+    max_dist_px: float = 15.0,
+    eps: float = 0.9,
+    parts: np.ndarray | None = None,
+) -> ContourMatches:
     """Pair image contour points with visible model rim points.
 
     Parameters
@@ -87,8 +92,14 @@ def match_contours(camera: Camera, contours: list[Contour], rim: RimPoints,
     -------
     ContourMatches
     """
-    empty = ContourMatches(np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, int),
-                           np.zeros((0, 2)), np.zeros(0), np.zeros((0, 3)))
+    empty = ContourMatches(
+        np.zeros((0, 2)),
+        np.zeros((0, 2)),
+        np.zeros(0, int),
+        np.zeros((0, 2)),
+        np.zeros(0),
+        np.zeros((0, 3)),
+    )
     if not contours or len(rim) == 0:
         return empty
     if parts is not None:
@@ -119,5 +130,4 @@ def match_contours(camera: Camera, contours: list[Contour], rim: RimPoints,
     f_im = uv[m] - rim.uv[ri]
     n3 = rim.normal[ri]
     km = k[m] * np.sign(np.einsum("mj,mj->m", k[m], n3))[:, None]
-    return ContourMatches(uv[m], nim[m], ri, f_im, np.einsum("mj,mj->m", f_im, nim[m]),
-                          n3 - km)
+    return ContourMatches(uv[m], nim[m], ri, f_im, np.einsum("mj,mj->m", f_im, nim[m]), n3 - km)

@@ -80,8 +80,9 @@ class ContourObservations:
         return float(np.sqrt(np.mean(self.residual**2))) if len(self) else float("nan")
 
 
-def body_ellipsoids(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray, s: np.ndarray,
-                    balls: Metaballs):
+def body_ellipsoids(
+    skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray, s: np.ndarray, balls: Metaballs
+):
     """The visible ellipsoid of every metaball at one pose.
 
     Returns centres (M, 3), axes (M, 3, 3) (columns in world), radii (M, 3) scaled to the
@@ -93,12 +94,21 @@ def body_ellipsoids(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray, s: 
     return cw[0], Rw[0], balls.visible, balls.bone.copy()
 
 
-def contour_observations(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray,
-                         s: np.ndarray, balls: Metaballs, cameras: list[Camera],
-                         contours: list[list[Contour]], theta_rate: np.ndarray | None = None,
-                         sigma_px: float = 1.0, max_dist_px: float = 12.0,
-                         min_visibility: float = 0.2, select: bool = True,
-                         rays: list[np.ndarray] | None = None) -> ContourObservations:
+def contour_observations(
+    skel: Skeleton,
+    theta: np.ndarray,
+    root_xyz: np.ndarray,
+    s: np.ndarray,
+    balls: Metaballs,
+    cameras: list[Camera],
+    contours: list[list[Contour]],
+    theta_rate: np.ndarray | None = None,
+    sigma_px: float = 1.0,
+    max_dist_px: float = 12.0,
+    min_visibility: float = 0.2,
+    select: bool = True,
+    rays: list[np.ndarray] | None = None,
+) -> ContourObservations:
     """Contour observation equations of one frame.
 
     Parameters
@@ -126,8 +136,9 @@ def contour_observations(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray
     anc = skel.ancestors()
     renders, rims = [], []
     for c, cam in enumerate(cameras):
-        r = render_parts(cam, centers, axes, radii, part, n_parts,
-                         rays=None if rays is None else rays[c])
+        r = render_parts(
+            cam, centers, axes, radii, part, n_parts, rays=None if rays is None else rays[c]
+        )
         renders.append(r)
         rims.append(rim_points(cam, centers, axes, radii, part, render=r))
     vis = np.stack([r.visibility_index for r in renders], axis=1)  # (P, C)
@@ -143,8 +154,11 @@ def contour_observations(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray
             sums = np.zeros((n_parts, 2))
             np.add.at(sums, rim.part, duv)
             observ[:, c] = np.linalg.norm(sums, axis=1)
-    selection = (select_cameras(vis, observ, min_visibility=min_visibility) if select
-                 else select_cameras(np.where(np.isfinite(vis), 1.0, np.nan)))
+    selection = (
+        select_cameras(vis, observ, min_visibility=min_visibility)
+        if select
+        else select_cameras(np.where(np.isfinite(vis), 1.0, np.nan))
+    )
     res, Jt, Jr, cam_idx, parts, ells, Jrad = [], [], [], [], [], [], []
     for c, (cam, rim) in enumerate(zip(cameras, rims, strict=True)):
         use_parts = np.flatnonzero(selection.use[:, c])
@@ -169,13 +183,30 @@ def contour_observations(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray
         ells.append(e)
     n = skel.n_dof
     if not res:
-        return ContourObservations(np.zeros(0), np.zeros((0, n)), np.zeros((0, 3)),
-                                   np.zeros(0, int), np.zeros((0, 3)), np.zeros(0, int),
-                                   np.zeros(0, int), sigma_px, selection, renders)
-    return ContourObservations(np.concatenate(res), np.vstack(Jt), np.vstack(Jr),
-                               np.concatenate(ells), np.vstack(Jrad),
-                               np.concatenate(cam_idx), np.concatenate(parts), sigma_px,
-                               selection, renders)
+        return ContourObservations(
+            np.zeros(0),
+            np.zeros((0, n)),
+            np.zeros((0, 3)),
+            np.zeros(0, int),
+            np.zeros((0, 3)),
+            np.zeros(0, int),
+            np.zeros(0, int),
+            sigma_px,
+            selection,
+            renders,
+        )
+    return ContourObservations(
+        np.concatenate(res),
+        np.vstack(Jt),
+        np.vstack(Jr),
+        np.concatenate(ells),
+        np.vstack(Jrad),
+        np.concatenate(cam_idx),
+        np.concatenate(parts),
+        sigma_px,
+        selection,
+        renders,
+    )
 
 
 def _rim_jacobians(skel, pose, Rb, pb, rim, s, anc):
@@ -233,8 +264,12 @@ class SilhouetteField:
         v0 = np.clip(np.floor(np.where(ok, v, 0)).astype(int), 0, h - 2)
         a = (np.where(ok, u, 0) - u0)[:, None]
         b = (np.where(ok, v, 0) - v0)[:, None]
-        val = ((1 - a) * (1 - b) * stack[v0, u0] + a * (1 - b) * stack[v0, u0 + 1]
-               + (1 - a) * b * stack[v0 + 1, u0] + a * b * stack[v0 + 1, u0 + 1])
+        val = (
+            (1 - a) * (1 - b) * stack[v0, u0]
+            + a * (1 - b) * stack[v0, u0 + 1]
+            + (1 - a) * b * stack[v0 + 1, u0]
+            + a * b * stack[v0 + 1, u0 + 1]
+        )
         val[~ok] = np.nan
         return val[:, 0], val[:, 1:]
 
@@ -282,14 +317,27 @@ class ContainmentObservations:
 
 
 def _no_containment(n: int) -> ContainmentObservations:
-    return ContainmentObservations(np.zeros(0), np.zeros((0, n)), np.zeros((0, 3)),
-                                   np.zeros(0, int), np.zeros(0, int), np.zeros(0, bool))
+    return ContainmentObservations(
+        np.zeros(0),
+        np.zeros((0, n)),
+        np.zeros((0, 3)),
+        np.zeros(0, int),
+        np.zeros(0, int),
+        np.zeros(0, bool),
+    )
 
 
-def containment_observations(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray,
-                             s: np.ndarray, balls: Metaballs, cameras: list[Camera],
-                             fields: list[SilhouetteField], tol_px: float = 2.0,
-                             keep_parts: np.ndarray | None = None) -> ContainmentObservations:
+def containment_observations(
+    skel: Skeleton,
+    theta: np.ndarray,
+    root_xyz: np.ndarray,
+    s: np.ndarray,
+    balls: Metaballs,
+    cameras: list[Camera],
+    fields: list[SilhouetteField],
+    tol_px: float = 2.0,
+    keep_parts: np.ndarray | None = None,
+) -> ContainmentObservations:
     """Silhouette containment: points inside every metaball must project into the foreground.
 
     Unlike a contour, this holds in every camera whatever occludes the part (a limb in
@@ -310,8 +358,9 @@ def containment_observations(skel: Skeleton, theta: np.ndarray, root_xyz: np.nda
     if not len(part):
         return _no_containment(n)
     K = len(_INNER)
-    xyz = (centers[:, None] + np.einsum("eij,ekj->eki", axes, _INNER[None] * radii[:, None])
-           ).reshape(-1, 3)
+    xyz = (
+        centers[:, None] + np.einsum("eij,ekj->eki", axes, _INNER[None] * radii[:, None])
+    ).reshape(-1, 3)
     bone = np.repeat(part, K)
     pose = forward(skel, theta[None], root_xyz[None], s)
     Rb, pb = bone_frames(skel, pose)
@@ -336,6 +385,11 @@ def containment_observations(skel: Skeleton, theta: np.ndarray, root_xyz: np.nda
         outside.append(on)
     if not res:
         return _no_containment(n)
-    return ContainmentObservations(np.concatenate(res), np.vstack(Jt), np.vstack(Jr),
-                                   np.concatenate(parts), np.concatenate(cams),
-                                   np.concatenate(outside))
+    return ContainmentObservations(
+        np.concatenate(res),
+        np.vstack(Jt),
+        np.vstack(Jr),
+        np.concatenate(parts),
+        np.concatenate(cams),
+        np.concatenate(outside),
+    )

@@ -41,20 +41,33 @@ from .skeleton import Skeleton, forward
 #: body turned about the pelvis and moved (the root position is searched too).
 LIMBS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "trunk": ((), ("pelvis_z", "pelvis_x", "pelvis_y")),
-    **{f"{s}_{limb}": (tuple(f"{s}_{b}" for b in bones), tuple(f"{s}_{d}" for d in dofs))
-       for s in ("l", "r")
-       for limb, bones, dofs in (
-           ("arm", ("shoulder", "elbow", "wrist"),
-            ("shoulder_x", "shoulder_y", "shoulder_z", "elbow_x")),
-           ("leg", ("hip", "knee", "ankle"), ("hip_x", "hip_y", "hip_z", "knee_x")),
-    )},
+    **{
+        f"{s}_{limb}": (tuple(f"{s}_{b}" for b in bones), tuple(f"{s}_{d}" for d in dofs))
+        for s in ("l", "r")
+        for limb, bones, dofs in (
+            (
+                "arm",
+                ("shoulder", "elbow", "wrist"),
+                ("shoulder_x", "shoulder_y", "shoulder_z", "elbow_x"),
+            ),
+            ("leg", ("hip", "knee", "ankle"), ("hip_x", "hip_y", "hip_z", "knee_x")),
+        )
+    },
 }
 
 
 def _sphere_points() -> np.ndarray:
     """Unit-sphere directions (26) plus inner points (7), shape (33, 3)."""
-    g = np.array([[x, y, z] for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1)
-                  if (x, y, z) != (0, 0, 0)], float)
+    g = np.array(
+        [
+            [x, y, z]
+            for x in (-1, 0, 1)
+            for y in (-1, 0, 1)
+            for z in (-1, 0, 1)
+            if (x, y, z) != (0, 0, 0)
+        ],
+        float,
+    )
     g /= np.linalg.norm(g, axis=1, keepdims=True)
     inner = np.vstack([np.zeros(3), 0.5 * np.eye(3), -0.5 * np.eye(3)])
     return np.vstack([g, inner])
@@ -68,16 +81,16 @@ _N_SURFACE = 26
 class SearchSettings:
     """Parameters of the limb search (units in brackets)."""
 
-    samples: int = 32            # random candidates per limb and round
-    rounds: int = 2              # search rounds, each narrower about the best so far
-    shrink: float = 0.35         # spread of a round relative to the previous one
-    sigma_theta: float = 0.45    # spread of the candidates about the prediction [rad]
-    sigma_trunk: float = 0.2     # ... of the trunk's angles [rad]
-    sigma_root: float = 0.05     # ... of the root position [m]
-    explained_px: float = 4.0    # contour points nearer the rest of the body are explained
-    cap_px: float = 40.0         # distances capped here [px]
-    tol_px: float = 2.0          # distance outside the foreground that is free [px]
-    min_gain_px: float = 1.0     # a candidate must lower the score by this much [px]
+    samples: int = 32  # random candidates per limb and round
+    rounds: int = 2  # search rounds, each narrower about the best so far
+    shrink: float = 0.35  # spread of a round relative to the previous one
+    sigma_theta: float = 0.45  # spread of the candidates about the prediction [rad]
+    sigma_trunk: float = 0.2  # ... of the trunk's angles [rad]
+    sigma_root: float = 0.05  # ... of the root position [m]
+    explained_px: float = 4.0  # contour points nearer the rest of the body are explained
+    cap_px: float = 40.0  # distances capped here [px]
+    tol_px: float = 2.0  # distance outside the foreground that is free [px]
+    min_gain_px: float = 1.0  # a candidate must lower the score by this much [px]
     seed: int = 0
 
 
@@ -125,10 +138,18 @@ def _limb_scores(skel, thetas, roots, s, balls, sel, cameras, fields, unexplaine
     return score
 
 
-def search_limbs(skel: Skeleton, theta: np.ndarray, root: np.ndarray, s: np.ndarray,
-                 balls: Metaballs, cameras: list[Camera], contours: list[list[Contour]],
-                 fields: list[SilhouetteField], rays: list | None = None,
-                 cfg: SearchSettings | None = None) -> SearchResult:
+def search_limbs(
+    skel: Skeleton,
+    theta: np.ndarray,
+    root: np.ndarray,
+    s: np.ndarray,
+    balls: Metaballs,
+    cameras: list[Camera],
+    contours: list[list[Contour]],
+    fields: list[SilhouetteField],
+    rays: list | None = None,
+    cfg: SearchSettings | None = None,
+) -> SearchResult:
     """Re-pose the limbs that explain the silhouettes better elsewhere.
 
     Parameters
@@ -154,13 +175,13 @@ def search_limbs(skel: Skeleton, theta: np.ndarray, root: np.ndarray, s: np.ndar
     theta = np.asarray(theta, float).copy()
     root = np.asarray(root, float).copy()
     n_parts = len(skel.bone_names)
-    contour_uv = [np.vstack([c.uv for c in cons]) if cons else np.zeros((0, 2))
-                  for cons in contours]
+    contour_uv = [
+        np.vstack([c.uv for c in cons]) if cons else np.zeros((0, 2)) for cons in contours
+    ]
     moved, gains = [], {}
     for name, (bones, dofs) in LIMBS.items():
         trunk = not bones
-        b_idx = (list(range(n_parts)) if trunk else
-                 [skel.bone_names.index(b) for b in bones])
+        b_idx = list(range(n_parts)) if trunk else [skel.bone_names.index(b) for b in bones]
         d_idx = np.array([skel.dof_index(d) for d in dofs])
         sel = np.flatnonzero(np.isin(balls.bone, b_idx))
         rest = np.flatnonzero(~np.isin(balls.bone, b_idx))
@@ -173,9 +194,15 @@ def search_limbs(skel: Skeleton, theta: np.ndarray, root: np.ndarray, s: np.ndar
             if len(contour_uv[c]) == 0 or len(rest) == 0:
                 unexplained.append(contour_uv[c])
                 continue
-            rnd = render_parts(cam, cw[0, rest], Rw[0, rest], balls.visible[rest],
-                               balls.bone[rest], n_parts,
-                               rays=None if rays is None else rays[c])
+            rnd = render_parts(
+                cam,
+                cw[0, rest],
+                Rw[0, rest],
+                balls.visible[rest],
+                balls.bone[rest],
+                n_parts,
+                rays=None if rays is None else rays[c],
+            )
             dt = cv2.distanceTransform((~rnd.mask).astype(np.uint8), cv2.DIST_L2, 5)
             h, w = dt.shape
             uv = contour_uv[c]
@@ -193,8 +220,9 @@ def search_limbs(skel: Skeleton, theta: np.ndarray, root: np.ndarray, s: np.ndar
             cand[:, d_idx] = np.clip(cand[:, d_idx], skel.dof_lo[d_idx], skel.dof_hi[d_idx])
             if trunk:
                 roots[1:] += rng.normal(0.0, cfg.sigma_root * scale, (cfg.samples, 3))
-            score = _limb_scores(skel, cand, roots, s, balls, sel, cameras, fields,
-                                 unexplained, cfg)
+            score = _limb_scores(
+                skel, cand, roots, s, balls, sel, cameras, fields, unexplained, cfg
+            )
             if start_score is None:
                 start_score = float(score[0])
             k = int(np.argmin(score))

@@ -42,32 +42,32 @@ from .skeleton import Skeleton, bone_frames, forward
 class ContourTrackSettings:
     """Parameters of contour tracking (units in brackets)."""
 
-    sigma_px: float = 1.0            # a-priori σ of one contour observation [px]
-    huber_px: float = 2.0            # Huber threshold on contour residuals [px]
-    iterations: int = 4              # relinearisations of the update per frame
-    select: bool = True              # per-part camera selection (False: all fused)
-    observability: bool = True       # ... ranked by predicted motion (False: visibility only)
-    max_dist_px: float = 12.0        # largest contour ↔ rim pairing distance [px]
-    min_matches: int = 40            # fewer contour matches: frame not updated
-    q_sigma_theta: float = 0.05      # initial σ of the clicked pose [rad]
-    q_sigma_root: float = 0.01       # [m]
-    rate_sigma_theta: float = 0.05   # initial σ of the rates [rad/frame]
-    rate_sigma_root: float = 0.02    # [m/frame]
-    accel_theta: float = 0.04        # process noise [rad/frame²]
-    accel_root: float = 0.01         # [m/frame²]
-    damping: float = 0.9             # rate decay per frame
-    containment: bool = True         # the body must project inside every foreground
-    sigma_in_px: float = 2.0         # σ of a containment observation [px]
-    huber_in_px: float = 6.0         # its Huber threshold [px]
-    tol_in_px: float = 2.0           # distance outside the foreground that is free [px]
-    diverge_outside: float = 0.15    # diverged: more model points this far outside ...
+    sigma_px: float = 1.0  # a-priori σ of one contour observation [px]
+    huber_px: float = 2.0  # Huber threshold on contour residuals [px]
+    iterations: int = 4  # relinearisations of the update per frame
+    select: bool = True  # per-part camera selection (False: all fused)
+    observability: bool = True  # ... ranked by predicted motion (False: visibility only)
+    max_dist_px: float = 12.0  # largest contour ↔ rim pairing distance [px]
+    min_matches: int = 40  # fewer contour matches: frame not updated
+    q_sigma_theta: float = 0.05  # initial σ of the clicked pose [rad]
+    q_sigma_root: float = 0.01  # [m]
+    rate_sigma_theta: float = 0.05  # initial σ of the rates [rad/frame]
+    rate_sigma_root: float = 0.02  # [m/frame]
+    accel_theta: float = 0.04  # process noise [rad/frame²]
+    accel_root: float = 0.01  # [m/frame²]
+    damping: float = 0.9  # rate decay per frame
+    containment: bool = True  # the body must project inside every foreground
+    sigma_in_px: float = 2.0  # σ of a containment observation [px]
+    huber_in_px: float = 6.0  # its Huber threshold [px]
+    tol_in_px: float = 2.0  # distance outside the foreground that is free [px]
+    diverge_outside: float = 0.15  # diverged: more model points this far outside ...
     diverge_outside_px: float = 8.0  # ... the foreground [px], or
     diverge_unexplained: float = 0.2  # more observed contour points this far from ...
     diverge_unexplained_px: float = 8.0  # ... the model's silhouette [px]
-    recover: bool = True             # re-solve a diverged frame from a widened prior
+    recover: bool = True  # re-solve a diverged frame from a widened prior
     recover_sigma_theta: float = 0.35  # prior σ of the suspect parts' angles then [rad]
-    recover_dist_px: float = 30.0    # contour pairing distance then [px]
-    search: bool = True              # limb search before the update (core.contour_search)
+    recover_dist_px: float = 30.0  # contour pairing distance then [px]
+    search: bool = True  # limb search before the update (core.contour_search)
     search_sigma_theta: float = 0.15  # prior σ of a re-posed limb's angles [rad]
 
 
@@ -111,17 +111,23 @@ def _limits(skel: Skeleton) -> tuple[np.ndarray, np.ndarray]:
     return lo, hi
 
 
-def start_filter(skel: Skeleton, theta0: np.ndarray, root0: np.ndarray,
-                 cfg: ContourTrackSettings) -> EKF:
+def start_filter(
+    skel: Skeleton, theta0: np.ndarray, root0: np.ndarray, cfg: ContourTrackSettings
+) -> EKF:
     """An EKF at the clicked pose (n + 3 parameters, zero rates)."""
     n = skel.n_dof
     q0 = np.concatenate([theta0, root0])
     per = lambda a, b: np.concatenate([np.full(n, a), np.full(3, b)])  # noqa: E731
     lo, hi = _limits(skel)
-    return EKF.start(q0, per(cfg.q_sigma_theta, cfg.q_sigma_root),
-                     per(cfg.rate_sigma_theta, cfg.rate_sigma_root),
-                     per(cfg.accel_theta, cfg.accel_root), damping=cfg.damping,
-                     lower=lo, upper=hi)
+    return EKF.start(
+        q0,
+        per(cfg.q_sigma_theta, cfg.q_sigma_root),
+        per(cfg.rate_sigma_theta, cfg.rate_sigma_root),
+        per(cfg.accel_theta, cfg.accel_root),
+        damping=cfg.damping,
+        lower=lo,
+        upper=hi,
+    )
 
 
 def bone_dofs(skel: Skeleton) -> list[np.ndarray]:
@@ -138,8 +144,9 @@ def bone_dofs(skel: Skeleton) -> list[np.ndarray]:
     return out
 
 
-def _solve(x_pred, P_pred, skel, s, balls, cameras, contours, cfg, rays, fields, max_dist_px,
-           iterations):
+def _solve(
+    x_pred, P_pred, skel, s, balls, cameras, contours, cfg, rays, fields, max_dist_px, iterations
+):
     """Iterated information-form update from the prior (x_pred, P_pred).
 
     Returns (x, P, obs) — P None and x the prior when too few contour matches.
@@ -147,18 +154,26 @@ def _solve(x_pred, P_pred, skel, s, balls, cameras, contours, cfg, rays, fields,
     n = skel.n_dof
     m = n + 3
     N = x_pred.size
-    P_inv = scipy.linalg.cho_solve(scipy.linalg.cho_factor(P_pred + 1e-12 * np.eye(N)),
-                                   np.eye(N))
-    rate = x_pred[m:m + n]
+    P_inv = scipy.linalg.cho_solve(scipy.linalg.cho_factor(P_pred + 1e-12 * np.eye(N)), np.eye(N))
+    rate = x_pred[m : m + n]
     x_i = x_pred.copy()
     obs = info = None
     for _ in range(max(1, iterations)):
         theta, root = x_i[:n], x_i[n:m]
-        obs = contour_observations(skel, theta, root, s, balls, cameras, contours,
-                                   theta_rate=rate if cfg.select and cfg.observability
-                                   else None,
-                                   sigma_px=cfg.sigma_px, max_dist_px=max_dist_px,
-                                   select=cfg.select, rays=rays)
+        obs = contour_observations(
+            skel,
+            theta,
+            root,
+            s,
+            balls,
+            cameras,
+            contours,
+            theta_rate=rate if cfg.select and cfg.observability else None,
+            sigma_px=cfg.sigma_px,
+            max_dist_px=max_dist_px,
+            select=cfg.select,
+            rays=rays,
+        )
         if len(obs) < cfg.min_matches:
             return x_pred, None, obs
         J = np.zeros((len(obs), N))
@@ -166,8 +181,9 @@ def _solve(x_pred, P_pred, skel, s, balls, cameras, contours, cfg, rays, fields,
         r = obs.residual
         w = _huber(r, cfg.huber_px) / cfg.sigma_px**2
         if fields is not None and cfg.containment:
-            co = containment_observations(skel, theta, root, s, balls, cameras, fields,
-                                          tol_px=cfg.tol_in_px)
+            co = containment_observations(
+                skel, theta, root, s, balls, cameras, fields, tol_px=cfg.tol_in_px
+            )
             Jc = np.zeros((len(co), N))
             Jc[:, :n], Jc[:, n:m] = co.J_theta, co.J_root
             J = np.vstack([J, Jc])
@@ -191,10 +207,18 @@ def _huber(r: np.ndarray, k: float) -> np.ndarray:
     return np.where(a <= k, 1.0, k / np.maximum(a, 1e-12))
 
 
-def divergence(skel: Skeleton, theta: np.ndarray, root: np.ndarray, s: np.ndarray,
-               balls: Metaballs, cameras: list[Camera], contours: list[list[Contour]],
-               fields: list, renders: list, cfg: ContourTrackSettings
-               ) -> tuple[float, float, np.ndarray]:
+def divergence(
+    skel: Skeleton,
+    theta: np.ndarray,
+    root: np.ndarray,
+    s: np.ndarray,
+    balls: Metaballs,
+    cameras: list[Camera],
+    contours: list[list[Contour]],
+    fields: list,
+    renders: list,
+    cfg: ContourTrackSettings,
+) -> tuple[float, float, np.ndarray]:
     """How far the model at a pose has lost the observed silhouettes.
 
     Returns
@@ -212,8 +236,9 @@ def divergence(skel: Skeleton, theta: np.ndarray, root: np.ndarray, s: np.ndarra
     """
     import cv2
 
-    co = containment_observations(skel, theta, root, s, balls, cameras, fields,
-                                  tol_px=cfg.diverge_outside_px)
+    co = containment_observations(
+        skel, theta, root, s, balls, cameras, fields, tol_px=cfg.diverge_outside_px
+    )
     B = len(skel.bone_names)
     part_out = np.zeros(B)
     if len(co):
@@ -242,9 +267,17 @@ def _is_diverged(outside: float, unexplained: float, cfg: ContourTrackSettings) 
     return bool(outside > cfg.diverge_outside or unexplained > cfg.diverge_unexplained)
 
 
-def update_with_contours(ekf: EKF, skel: Skeleton, s: np.ndarray, balls: Metaballs,
-                         cameras: list[Camera], contours: list[list[Contour]],
-                         cfg: ContourTrackSettings, rays=None, fields=None) -> FrameTrack:
+def update_with_contours(
+    ekf: EKF,
+    skel: Skeleton,
+    s: np.ndarray,
+    balls: Metaballs,
+    cameras: list[Camera],
+    contours: list[list[Contour]],
+    cfg: ContourTrackSettings,
+    rays=None,
+    fields=None,
+) -> FrameTrack:
     """Iterated EKF update of ``ekf`` (in place) with one frame's contours.
 
     ``fields`` (list (C) of :class:`core.contour_obs.SilhouetteField`, optional) adds the
@@ -265,8 +298,9 @@ def update_with_contours(ekf: EKF, skel: Skeleton, s: np.ndarray, balls: Metabal
     if fields is not None and cfg.search:
         from .contour_search import LIMBS, search_limbs
 
-        found = search_limbs(skel, ekf.x[:n], ekf.x[n:m], s, balls, cameras, contours, fields,
-                             rays=rays)
+        found = search_limbs(
+            skel, ekf.x[:n], ekf.x[n:m], s, balls, cameras, contours, fields, rays=rays
+        )
         for name in found.moved:
             idx = np.array([skel.dof_index(d) for d in LIMBS[name][1]])
             if name == "trunk":
@@ -282,56 +316,111 @@ def update_with_contours(ekf: EKF, skel: Skeleton, s: np.ndarray, balls: Metabal
             ekf.P[m + idx, m + idx] = cfg.rate_sigma_theta**2
         moved = found.moved
     x_pred, P_pred = ekf.x.copy(), ekf.P.copy()
-    x, P, obs = _solve(x_pred, P_pred, skel, s, balls, cameras, contours, cfg, rays, fields,
-                       cfg.max_dist_px, cfg.iterations)
+    x, P, obs = _solve(
+        x_pred,
+        P_pred,
+        skel,
+        s,
+        balls,
+        cameras,
+        contours,
+        cfg,
+        rays,
+        fields,
+        cfg.max_dist_px,
+        cfg.iterations,
+    )
     if P is None:
         ekf.x, ekf.P = x_pred, P_pred
-        return FrameTrack(x_pred[:n].copy(), x_pred[n:m].copy(),
-                          np.sqrt(np.diag(P_pred)[:m]), float("nan"), len(obs), False,
-                          obs.selection.use, diverged=True)
+        return FrameTrack(
+            x_pred[:n].copy(),
+            x_pred[n:m].copy(),
+            np.sqrt(np.diag(P_pred)[:m]),
+            float("nan"),
+            len(obs),
+            False,
+            obs.selection.use,
+            diverged=True,
+        )
     ekf.x, ekf.P = x, P
     ekf._apply_limits()
     out_f = unexp = float("nan")
     diverged = recovered = False
     if fields is not None:
-        out_f, unexp, part_out = divergence(skel, ekf.x[:n], ekf.x[n:m], s, balls, cameras,
-                                            contours, fields, obs.renders, cfg)
+        out_f, unexp, part_out = divergence(
+            skel, ekf.x[:n], ekf.x[n:m], s, balls, cameras, contours, fields, obs.renders, cfg
+        )
         diverged = _is_diverged(out_f, unexp, cfg)
         if diverged and cfg.recover:
             suspects = np.flatnonzero(part_out > 0.3)
             dofs = bone_dofs(skel)
-            idx = (np.concatenate([dofs[b] for b in suspects]) if len(suspects)
-                   else np.arange(n))
+            idx = np.concatenate([dofs[b] for b in suspects]) if len(suspects) else np.arange(n)
             P2 = P_pred.copy()
             x2 = x_pred.copy()
             P2[idx, idx] += cfg.recover_sigma_theta**2
             x2[m + idx] = 0.0
             P2[m + idx, m + idx] += cfg.rate_sigma_theta**2
-            xr, Pr, obs_r = _solve(x2, P2, skel, s, balls, cameras, contours, cfg, rays,
-                                   fields, cfg.recover_dist_px, 2 * cfg.iterations)
+            xr, Pr, obs_r = _solve(
+                x2,
+                P2,
+                skel,
+                s,
+                balls,
+                cameras,
+                contours,
+                cfg,
+                rays,
+                fields,
+                cfg.recover_dist_px,
+                2 * cfg.iterations,
+            )
             if Pr is not None:
                 # tighten the pairing again from the recovered pose
-                xr, Pr2, obs_r2 = _solve(xr, Pr, skel, s, balls, cameras, contours, cfg, rays,
-                                         fields, cfg.max_dist_px, cfg.iterations)
+                xr, Pr2, obs_r2 = _solve(
+                    xr,
+                    Pr,
+                    skel,
+                    s,
+                    balls,
+                    cameras,
+                    contours,
+                    cfg,
+                    rays,
+                    fields,
+                    cfg.max_dist_px,
+                    cfg.iterations,
+                )
                 if Pr2 is not None:
                     Pr, obs_r = Pr2, obs_r2
                 lo, hi = _limits(skel)
                 xr[:m] = np.clip(xr[:m], lo, hi)
-                o2, u2, _ = divergence(skel, xr[:n], xr[n:m], s, balls, cameras, contours,
-                                       fields, obs_r.renders, cfg)
+                o2, u2, _ = divergence(
+                    skel, xr[:n], xr[n:m], s, balls, cameras, contours, fields, obs_r.renders, cfg
+                )
                 if o2 + u2 < out_f + unexp:
                     ekf.x, ekf.P, obs = xr, Pr, obs_r
                     out_f, unexp = o2, u2
                     recovered = True
                     diverged = _is_diverged(out_f, unexp, cfg)
         if diverged:
-            ekf.P[:m, :m] += np.diag(np.concatenate([np.full(n, cfg.q_sigma_theta),
-                                                     np.full(3, cfg.q_sigma_root)]) ** 2)
+            ekf.P[:m, :m] += np.diag(
+                np.concatenate([np.full(n, cfg.q_sigma_theta), np.full(3, cfg.q_sigma_root)]) ** 2
+            )
     rms = float(np.sqrt(np.mean(obs.residual**2)))
-    return FrameTrack(ekf.x[:n].copy(), ekf.x[n:m].copy(), np.sqrt(np.diag(ekf.P)[:m]), rms,
-                      len(obs), True, obs.selection.use, diverged=diverged,
-                      outside_frac=out_f, unexplained_frac=unexp, recovered=recovered,
-                      searched=moved)
+    return FrameTrack(
+        ekf.x[:n].copy(),
+        ekf.x[n:m].copy(),
+        np.sqrt(np.diag(ekf.P)[:m]),
+        rms,
+        len(obs),
+        True,
+        obs.selection.use,
+        diverged=diverged,
+        outside_frac=out_f,
+        unexplained_frac=unexp,
+        recovered=recovered,
+        searched=moved,
+    )
 
 
 def frame_fields(cameras: list[Camera], contours: list[list[Contour]]) -> list:
@@ -339,11 +428,17 @@ def frame_fields(cameras: list[Camera], contours: list[list[Contour]]) -> list:
     return [silhouette_field(cons, cam.size) for cons, cam in zip(contours, cameras, strict=True)]
 
 
-def track_contours(skel: Skeleton, s: np.ndarray, balls: Metaballs, theta0: np.ndarray,
-                   root0: np.ndarray, cameras: list[Camera],
-                   contours: list[list[list[Contour]]],
-                   cfg: ContourTrackSettings | None = None,
-                   progress: Progress | None = None) -> list[FrameTrack]:
+def track_contours(
+    skel: Skeleton,
+    s: np.ndarray,
+    balls: Metaballs,
+    theta0: np.ndarray,
+    root0: np.ndarray,
+    cameras: list[Camera],
+    contours: list[list[list[Contour]]],
+    cfg: ContourTrackSettings | None = None,
+    progress: Progress | None = None,
+) -> list[FrameTrack]:
     """Track a pose through F frames of contours.
 
     Parameters
@@ -367,20 +462,39 @@ def track_contours(skel: Skeleton, s: np.ndarray, balls: Metaballs, theta0: np.n
     for f, frame_contours in enumerate(contours):
         if f:
             ekf.predict()
-        out.append(update_with_contours(ekf, skel, s, balls, cameras, frame_contours, cfg,
-                                        rays=rays, fields=frame_fields(cameras,
-                                                                       frame_contours)))
+        out.append(
+            update_with_contours(
+                ekf,
+                skel,
+                s,
+                balls,
+                cameras,
+                frame_contours,
+                cfg,
+                rays=rays,
+                fields=frame_fields(cameras, frame_contours),
+            )
+        )
         if progress is not None:
             progress.update(f + 1, len(contours), f"contour tracking: frame {f + 1}")
     return out
 
 
-def fit_shape_to_contours(skel: Skeleton, s: np.ndarray, balls: Metaballs, theta: np.ndarray,
-                          root: np.ndarray, cameras: list[Camera], contours: list[list[Contour]],
-                          cfg: ContourTrackSettings | None = None, radius_prior_m: float = 0.02,
-                          iterations: int = 6, rays=None, center_prior_m=None,
-                          center_axes: tuple = (0, 1, 2)
-                          ) -> tuple[Metaballs, np.ndarray, np.ndarray, float]:
+def fit_shape_to_contours(
+    skel: Skeleton,
+    s: np.ndarray,
+    balls: Metaballs,
+    theta: np.ndarray,
+    root: np.ndarray,
+    cameras: list[Camera],
+    contours: list[list[Contour]],
+    cfg: ContourTrackSettings | None = None,
+    radius_prior_m: float = 0.02,
+    iterations: int = 6,
+    rays=None,
+    center_prior_m=None,
+    center_axes: tuple = (0, 1, 2),
+) -> tuple[Metaballs, np.ndarray, np.ndarray, float]:
     """Metaball radii (and centres, and a pose refinement) from one frame's silhouettes.
 
     Minimises the Huber-weighted contour residuals (σ = ``cfg.sigma_px``) plus priors:
@@ -414,29 +528,39 @@ def fit_shape_to_contours(skel: Skeleton, s: np.ndarray, balls: Metaballs, theta
     root0 = np.asarray(root, float).copy()
     r0, c0 = balls.radii.copy(), balls.center0.copy()
     th, rt, radii, cen = theta0.copy(), root0.copy(), r0.copy(), c0.copy()
-    sig_c = np.broadcast_to(np.nan if center_prior_m is None else
-                            np.asarray(center_prior_m, float), (E,))
-    free = np.flatnonzero(np.isfinite(sig_c) & (sig_c > 0))    # metaballs with free centres
+    sig_c = np.broadcast_to(
+        np.nan if center_prior_m is None else np.asarray(center_prior_m, float), (E,)
+    )
+    free = np.flatnonzero(np.isfinite(sig_c) & (sig_c > 0))  # metaballs with free centres
     ax = np.asarray(center_axes, int)
     k = len(ax)
     nc = k * len(free)
     slot = np.full(E, -1)
     slot[free] = np.arange(len(free))
     w_pose = np.concatenate([np.full(n, cfg.q_sigma_theta), np.full(3, cfg.q_sigma_root)]) ** -2
-    w_shape = np.concatenate([np.full(3 * E, radius_prior_m**-2),
-                              np.repeat(sig_c[free], k) ** -2])
+    w_shape = np.concatenate([np.full(3 * E, radius_prior_m**-2), np.repeat(sig_c[free], k) ** -2])
     scale = np.where(balls.group >= 0, np.asarray(s, float)[np.maximum(balls.group, 0)], 1.0)
     rms = float("nan")
     for _ in range(iterations):
         cur = balls.with_parts(cen, radii)
-        obs = contour_observations(skel, th, rt, s, cur, cameras, contours,
-                                   sigma_px=cfg.sigma_px, max_dist_px=cfg.max_dist_px,
-                                   select=cfg.select, rays=rays)
+        obs = contour_observations(
+            skel,
+            th,
+            rt,
+            s,
+            cur,
+            cameras,
+            contours,
+            sigma_px=cfg.sigma_px,
+            max_dist_px=cfg.max_dist_px,
+            select=cfg.select,
+            rays=rays,
+        )
         if len(obs) < cfg.min_matches:
             break
         M = len(obs)
         J = np.zeros((M, n + 3 + 3 * E + nc))
-        J[:, :n], J[:, n:n + 3] = obs.J_theta, obs.J_root
+        J[:, :n], J[:, n : n + 3] = obs.J_theta, obs.J_root
         e = obs.ellipsoid
         cols = n + 3 + 3 * e[:, None] + np.arange(3)[None]
         np.put_along_axis(J, cols, obs.J_radii, axis=1)
@@ -444,8 +568,10 @@ def fit_shape_to_contours(skel: Skeleton, s: np.ndarray, balls: Metaballs, theta
             Rb, _ = bone_frames(skel, forward(skel, th[None], rt[None], s))
             eo = e[on]
             Jc = np.einsum("mj,mjk->mk", obs.J_root[on], Rb[0, balls.bone[eo]]) * scale[eo, None]
-            J[np.flatnonzero(on)[:, None], n + 3 + 3 * E + k * slot[eo][:, None]
-              + np.arange(k)[None]] = Jc[:, ax]
+            J[
+                np.flatnonzero(on)[:, None],
+                n + 3 + 3 * E + k * slot[eo][:, None] + np.arange(k)[None],
+            ] = Jc[:, ax]
         r = obs.residual
         a = np.abs(r)
         w = np.where(a <= cfg.huber_px, 1.0, cfg.huber_px / np.maximum(a, 1e-12))
@@ -456,20 +582,25 @@ def fit_shape_to_contours(skel: Skeleton, s: np.ndarray, balls: Metaballs, theta
         A = (J.T * w) @ J + np.diag(prior_w)
         g = (J.T * w) @ r + prior_w * (x - x0)
         delta = -scipy.linalg.cho_solve(scipy.linalg.cho_factor(A), g)
-        th, rt = th + delta[:n], rt + delta[n:n + 3]
-        radii = np.maximum(radii + delta[n + 3:n + 3 + 3 * E].reshape(E, 3), 0.01)
-        cen[np.ix_(free, ax)] += delta[n + 3 + 3 * E:].reshape(-1, k)
+        th, rt = th + delta[:n], rt + delta[n : n + 3]
+        radii = np.maximum(radii + delta[n + 3 : n + 3 + 3 * E].reshape(E, 3), 0.01)
+        cen[np.ix_(free, ax)] += delta[n + 3 + 3 * E :].reshape(-1, k)
         rms = float(np.sqrt(np.mean(r**2)))
         if np.max(np.abs(delta)) < 1e-5:
             break
     return balls.copy().with_parts(cen, radii), th, rt, rms
 
 
-def refine_state_with_contours(state, cameras: list[Camera],
-                               contours: list[list[list[Contour]]],
-                               cfg: ContourTrackSettings | None = None,
-                               sigma_floor_theta: float = 0.02, sigma_hidden: float = 0.3,
-                               sigma_root: float = 0.005, progress: Progress | None = None):
+def refine_state_with_contours(
+    state,
+    cameras: list[Camera],
+    contours: list[list[list[Contour]]],
+    cfg: ContourTrackSettings | None = None,
+    sigma_floor_theta: float = 0.02,
+    sigma_hidden: float = 0.3,
+    sigma_root: float = 0.005,
+    progress: Progress | None = None,
+):
     """Fuse contour observations into a fitted state, frame by frame.
 
     Each frame's pose from the point fit is the prior of an iterated information-form
@@ -502,14 +633,17 @@ def refine_state_with_contours(state, cameras: list[Camera],
         sig = np.where(np.isfinite(sig), np.maximum(sig, sigma_floor_theta), sigma_hidden)
         ekf = start_filter(skel, out.theta[f], out.root_xyz[f], cfg)
         ekf.P[:n, :n] = np.diag(sig**2)
-        ekf.P[n:n + 3, n:n + 3] = np.eye(3) * sigma_root**2
-        r = update_with_contours(ekf, skel, out.s, out.metaballs, cameras, contours[f], cfg,
-                                 rays=rays)
+        ekf.P[n : n + 3, n : n + 3] = np.eye(3) * sigma_root**2
+        r = update_with_contours(
+            ekf, skel, out.s, out.metaballs, cameras, contours[f], cfg, rays=rays
+        )
         if r.updated:
             out.theta[f], out.root_xyz[f] = r.theta, r.root
             rms_px[f] = r.rms_px
-            q.cameras[f] = {skel.bone_names[p]: [cameras[c].name for c in np.flatnonzero(
-                r.use[p])] for p in range(len(skel.bone_names))}
+            q.cameras[f] = {
+                skel.bone_names[p]: [cameras[c].name for c in np.flatnonzero(r.use[p])]
+                for p in range(len(skel.bone_names))
+            }
         if progress is not None:
             progress.update(f + 1, state.n_frames, f"contour refinement: frame {f + 1}")
     out.contour_rms_px = rms_px

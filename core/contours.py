@@ -58,8 +58,13 @@ def _resample_closed(pts: np.ndarray, spacing: float) -> np.ndarray:
     return np.stack([np.interp(t, s, closed[:, 0]), np.interp(t, s, closed[:, 1])], axis=1)
 
 
-def occluding_contours(mask: np.ndarray, spacing: float = 2.0, smooth_px: float = 3.0,
-                       min_length_px: float = 40.0, holes: bool = True) -> list[Contour]:
+def occluding_contours(
+    mask: np.ndarray,
+    spacing: float = 2.0,
+    smooth_px: float = 3.0,
+    min_length_px: float = 40.0,
+    holes: bool = True,
+) -> list[Contour]:
     """Extract the occluding contours of a foreground mask.
 
     Parameters
@@ -127,8 +132,9 @@ def occluding_contours(mask: np.ndarray, spacing: float = 2.0, smooth_px: float 
     return out
 
 
-def draw_contours(image: np.ndarray, contours: list[Contour], colour=(255, 64, 0),
-                  normals_every: int = 0) -> np.ndarray:
+def draw_contours(
+    image: np.ndarray, contours: list[Contour], colour=(255, 64, 0), normals_every: int = 0
+) -> np.ndarray:
     """Overlay contours (and optionally every n-th normal) on an RGB image copy."""
     out = image.copy() if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2RGB)
     for c in contours:
@@ -137,6 +143,12 @@ def draw_contours(image: np.ndarray, contours: list[Contour], colour=(255, 64, 0
         if normals_every:
             for p, n in zip(c.uv[::normals_every], c.normal[::normals_every], strict=True):
                 q = p + 8 * n
-                cv2.line(out, tuple(np.round(p).astype(int)), tuple(np.round(q).astype(int)),
-                         (0, 200, 255), 1, cv2.LINE_AA)
+                cv2.line(
+                    out,
+                    tuple(np.round(p).astype(int)),
+                    tuple(np.round(q).astype(int)),
+                    (0, 200, 255),
+                    1,
+                    cv2.LINE_AA,
+                )
     return out

@@ -50,18 +50,30 @@ class EKF:
     upper: np.ndarray | None = None
 
     @classmethod
-    def start(cls, q0: np.ndarray, q_sigma: np.ndarray | float, rate_sigma: np.ndarray | float,
-              accel_sigma: np.ndarray | float, damping: float = 1.0, lower=None,
-              upper=None) -> EKF:
+    def start(
+        cls,
+        q0: np.ndarray,
+        q_sigma: np.ndarray | float,
+        rate_sigma: np.ndarray | float,
+        accel_sigma: np.ndarray | float,
+        damping: float = 1.0,
+        lower=None,
+        upper=None,
+    ) -> EKF:
         """A filter at pose ``q0`` (n,) with zero rate and the given uncertainties."""
         q0 = np.asarray(q0, float)
         n = q0.size
-        var = np.concatenate([np.broadcast_to(q_sigma, n) ** 2,
-                              np.broadcast_to(rate_sigma, n) ** 2])
-        return cls(np.concatenate([q0, np.zeros(n)]), np.diag(var),
-                   np.broadcast_to(np.asarray(accel_sigma, float), n).copy(), damping,
-                   None if lower is None else np.asarray(lower, float),
-                   None if upper is None else np.asarray(upper, float))
+        var = np.concatenate(
+            [np.broadcast_to(q_sigma, n) ** 2, np.broadcast_to(rate_sigma, n) ** 2]
+        )
+        return cls(
+            np.concatenate([q0, np.zeros(n)]),
+            np.diag(var),
+            np.broadcast_to(np.asarray(accel_sigma, float), n).copy(),
+            damping,
+            None if lower is None else np.asarray(lower, float),
+            None if upper is None else np.asarray(upper, float),
+        )
 
     @property
     def n(self) -> int:
@@ -73,7 +85,7 @@ class EKF:
 
     @property
     def q_dot(self) -> np.ndarray:
-        return self.x[self.n:]
+        return self.x[self.n :]
 
     @property
     def q_sigma(self) -> np.ndarray:
@@ -112,9 +124,14 @@ class EKF:
             v = v * self.damping
         return q
 
-    def update(self, z: np.ndarray, h: Callable[[np.ndarray], np.ndarray],
-               H: np.ndarray | Callable[[np.ndarray], np.ndarray], V: np.ndarray | float,
-               iterations: int = 1) -> EKF:
+    def update(
+        self,
+        z: np.ndarray,
+        h: Callable[[np.ndarray], np.ndarray],
+        H: np.ndarray | Callable[[np.ndarray], np.ndarray],
+        V: np.ndarray | float,
+        iterations: int = 1,
+    ) -> EKF:
         """Measurement update (iterated EKF when ``iterations > 1``; in place).
 
         Parameters

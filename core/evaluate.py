@@ -50,8 +50,16 @@ SEGMENT_REFS = {
 }
 
 #: Segments whose RMSE forms ``segment_orientation_rmse_deg``.
-LIMB_SEGMENTS = ("l_upper_arm", "l_forearm", "r_upper_arm", "r_forearm",
-                 "l_thigh", "l_shin", "r_thigh", "r_shin")
+LIMB_SEGMENTS = (
+    "l_upper_arm",
+    "l_forearm",
+    "r_upper_arm",
+    "r_forearm",
+    "l_thigh",
+    "l_shin",
+    "r_thigh",
+    "r_shin",
+)
 
 _MIN_REF_ANGLE = np.deg2rad(15.0)
 
@@ -142,8 +150,9 @@ def truth_joints(truth: dict, path: str | Path = "truth.npz") -> tuple[np.ndarra
     xyz = np.asarray(truth["joints_xyz"], dtype=float)
     names = [str(n) for n in truth["joint_names"]]
     if xyz.ndim != 3 or xyz.shape[1:] != (len(names), 3):
-        raise InputError(f"{path}: joints_xyz has shape {list(xyz.shape)}, expected "
-                         f"(F, {len(names)}, 3)")
+        raise InputError(
+            f"{path}: joints_xyz has shape {list(xyz.shape)}, expected (F, {len(names)}, 3)"
+        )
     missing = [j for j in METRIC_JOINTS if j not in names]
     if missing:
         raise InputError(f"{path}: joint_names lacks the metric joints {missing}")
@@ -152,8 +161,13 @@ def truth_joints(truth: dict, path: str | Path = "truth.npz") -> tuple[np.ndarra
     return xyz, names
 
 
-def evaluate(fit_xyz: np.ndarray, truth_xyz: np.ndarray, names: list, height_m: float,
-             diverged: np.ndarray | None = None) -> Evaluation:
+def evaluate(
+    fit_xyz: np.ndarray,
+    truth_xyz: np.ndarray,
+    names: list,
+    height_m: float,
+    diverged: np.ndarray | None = None,
+) -> Evaluation:
     """Score fitted joint positions against the truth.
 
     Parameters
@@ -203,18 +217,24 @@ def evaluate(fit_xyz: np.ndarray, truth_xyz: np.ndarray, names: list, height_m: 
         per_segment_rmse_deg={s: _rms(c) for s, c in seg_curves.items()},
         per_segment_max_deg={s: _max(c) for s, c in seg_curves.items()},
         height_m=float(height_m),
-        curves={"mpjpe_mm": per_frame_mpjpe, "max_pct_height": per_frame_max_pct,
-                "joint_mm": err_mm, **{f"seg_{s}": c for s, c in seg_curves.items()}},
+        curves={
+            "mpjpe_mm": per_frame_mpjpe,
+            "max_pct_height": per_frame_max_pct,
+            "joint_mm": err_mm,
+            **{f"seg_{s}": c for s, c in seg_curves.items()},
+        },
     )
 
 
-def evaluate_state(state, truth: dict, truth_path: str | Path = "truth.npz",
-                   fit_path: str | Path = "fit.json") -> Evaluation:
+def evaluate_state(
+    state, truth: dict, truth_path: str | Path = "truth.npz", fit_path: str | Path = "fit.json"
+) -> Evaluation:
     """Score a :class:`core.state.FitState` against a scene's truth dict."""
     txyz, names = truth_joints(truth, truth_path)
     if state.n_frames != txyz.shape[0]:
-        raise InputError(f"{fit_path}: has {state.n_frames} frames but {truth_path} has "
-                         f"{txyz.shape[0]}")
+        raise InputError(
+            f"{fit_path}: has {state.n_frames} frames but {truth_path} has {txyz.shape[0]}"
+        )
     missing = [n for n in names if n not in state.skeleton.joint_names]
     if missing:
         raise InputError(f"{fit_path}: the skeleton lacks the joints {missing}")
@@ -222,13 +242,15 @@ def evaluate_state(state, truth: dict, truth_path: str | Path = "truth.npz",
     ev = evaluate(fxyz, txyz, names, float(truth["height_m"]), state.quality.diverged)
     ok = np.flatnonzero(~np.asarray(state.quality.diverged, bool))
     if "vertices" in truth and "faces" in truth and len(ok):
-        ev.surface_mm = surface_distance_mm(state, truth["vertices"], truth["faces"],
-                                            ok[:: max(1, len(ok) // 5)].tolist())
+        ev.surface_mm = surface_distance_mm(
+            state, truth["vertices"], truth["faces"], ok[:: max(1, len(ok) // 5)].tolist()
+        )
     return ev
 
 
-def sample_mesh_surface(vertices: np.ndarray, faces: np.ndarray, n: int,
-                        rng: np.random.Generator) -> np.ndarray:
+def sample_mesh_surface(
+    vertices: np.ndarray, faces: np.ndarray, n: int, rng: np.random.Generator
+) -> np.ndarray:
     """Points (n, 3) drawn uniformly by area on a triangle mesh.
 
     Parameters
@@ -252,8 +274,14 @@ def sample_mesh_surface(vertices: np.ndarray, faces: np.ndarray, n: int,
     return a[k] + u[:, None] * (b[k] - a[k]) + w[:, None] * (c[k] - a[k])
 
 
-def surface_distance_mm(state, vertices: np.ndarray, faces: np.ndarray, frames: list[int],
-                        per_frame: int = 2000, seed: int = 0) -> float:
+def surface_distance_mm(
+    state,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    frames: list[int],
+    per_frame: int = 2000,
+    seed: int = 0,
+) -> float:
     """Mean distance (mm) of the true mesh's surface to the fitted metaball surface.
 
     The mesh surface is sampled uniformly by area (``per_frame`` points per frame on its
@@ -283,8 +311,9 @@ def surface_distance_mm(state, vertices: np.ndarray, faces: np.ndarray, frames: 
         p = sample_mesh_surface(vertices[f], faces, per_frame, rng)
         pose = forward(state.skeleton, state.theta[f][None], state.root_xyz[f][None], state.s)
         Rw, cw = mb.world_frames(state.skeleton, pose, state.metaballs, state.s)
-        xs, ok = mb.project_to_surface(p, Rw[0], cw[0], state.metaballs.radii,
-                                       iterations=60, tol=1e-6)
+        xs, ok = mb.project_to_surface(
+            p, Rw[0], cw[0], state.metaballs.radii, iterations=60, tol=1e-6
+        )
         out.append(np.linalg.norm(xs - p, axis=1)[ok])
     return float(np.mean(np.concatenate(out)) * 1000.0)
 

@@ -16,8 +16,9 @@ import math
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("scene", help="scene folder with truth.npz")
     parser.add_argument("fit", help="fitted-state file (fit.json)")
-    parser.add_argument("--json", action="store_true",
-                        help="print the metrics as one JSON object on the last line")
+    parser.add_argument(
+        "--json", action="store_true", help="print the metrics as one JSON object on the last line"
+    )
     parser.add_argument("--plot", metavar="PNG", help="write per-frame error curves here")
 
 
@@ -41,8 +42,10 @@ def format_table(ev) -> str:
     ]
     lines += [f"{j:<14}{_fmt(v):>10}" for j, v in ev.per_joint_mm.items()]
     lines += ["", f"{'segment':<14}{'RMSE deg':>10}{'max deg':>10}"]
-    lines += [f"{s:<14}{_fmt(ev.per_segment_rmse_deg[s]):>10}"
-              f"{_fmt(ev.per_segment_max_deg[s]):>10}" for s in ev.per_segment_rmse_deg]
+    lines += [
+        f"{s:<14}{_fmt(ev.per_segment_rmse_deg[s]):>10}{_fmt(ev.per_segment_max_deg[s]):>10}"
+        for s in ev.per_segment_rmse_deg
+    ]
     return "\n".join(lines)
 
 

@@ -44,13 +44,14 @@ def run(kernel, *args) -> bool:
             warnings.simplefilter("ignore")
             kernel(*args)
         return True
-    except Exception as err:                 # pragma: no cover - a broken numba
+    except Exception as err:  # pragma: no cover - a broken numba
         _FAILED["error"] = f"{type(err).__name__}: {err}"
         return False
 
 
-def log_field(xyz: np.ndarray, Rw: np.ndarray, cw: np.ndarray,
-              radii: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def log_field(
+    xyz: np.ndarray, Rw: np.ndarray, cw: np.ndarray, radii: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Log field ``L = ln Σ_m exp(−2 d_m)`` of H poses' metaballs at N points, and its
     gradient (eq. 7–8 of the first paper, as a log-sum-exp).
 
@@ -132,8 +133,9 @@ def _log_field_loops(xyz, Rw, cw, inv_r2, L, g):  # pragma: no cover - compiled
             g[h, n, 2] = -4.0 * s2 / tot
 
 
-def inside_any(xyz: np.ndarray, A: np.ndarray, centers: np.ndarray, exclude: np.ndarray,
-               limit: float) -> np.ndarray:
+def inside_any(
+    xyz: np.ndarray, A: np.ndarray, centers: np.ndarray, exclude: np.ndarray, limit: float
+) -> np.ndarray:
     """Whether each point lies inside any ellipsoid but its excluded one, (N,) bool.
 
     Parameters

@@ -138,13 +138,18 @@ from .skeleton import anchor_sigma, joint_positions, stiff_sigma
 from .state import FitState, Quality
 
 
-def fit_sequence(frames: list[FramePoints], init: Initialisation,
-                 settings: SequenceSettings | None = None, fps: float = 25.0,
-                 source_scene: str = "", metaball_model: str = "simplified",
-                 progress: Progress | None = None,
-                 cameras: list | None = None,
-                 contours: list | None = None,
-                 flow=None) -> SequenceResult:
+def fit_sequence(
+    frames: list[FramePoints],
+    init: Initialisation,
+    settings: SequenceSettings | None = None,
+    fps: float = 25.0,
+    source_scene: str = "",
+    metaball_model: str = "simplified",
+    progress: Progress | None = None,
+    cameras: list | None = None,
+    contours: list | None = None,
+    flow=None,
+) -> SequenceResult:
     """Fit shape and motion to the observations of every frame.
 
     Parameters
@@ -224,14 +229,16 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
         if cf is not None:
             # parts that the points observe: their contour pairs weigh less (σ × scale)
             cf.part_scale = np.where(cnt >= cfg.min_part_points, cf.cfg.textured_scale, 1.0)
-            cf.containment_parts = containment_parts(cnt, len(xyz) >= cfg.min_points,
-                                                     cfg.min_part_points, cf.cfg)
+            cf.containment_parts = containment_parts(
+                cnt, len(xyz) >= cfg.min_points, cfg.min_part_points, cf.cfg
+            )
             cf.freeze(skel, balls.copy(radii=radii), q[:n], q[n:], s)
             if len(xyz) < cfg.min_points or cf.cfg.unhide:
                 # beside points, one view's contours do not un-hide a part (its depth)
                 views = cf.cfg.unhide_views if len(xyz) >= cfg.min_points else 1
-                hidden &= (cf.part_counts(len(skel.bone_names), views)[dof_bone]
-                           < cf.cfg.min_part_matches)
+                hidden &= (
+                    cf.part_counts(len(skel.bone_names), views)[dof_bone] < cf.cfg.min_part_matches
+                )
         return hidden
 
     def prior(hidden, th_pred, sig_pred, th_hold):
@@ -254,8 +261,17 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
         cands = np.atleast_2d(cands)
         if len(cands) == 1 or not len(frames[f].xyz):
             return cands[0].copy()
-        cost = explain_cost(frames[f].xyz, skel, balls, s, radii, cands[:, :n], cands[:, n:],
-                            cfg.search_tau, probes=frame_probes(f))
+        cost = explain_cost(
+            frames[f].xyz,
+            skel,
+            balls,
+            s,
+            radii,
+            cands[:, :n],
+            cands[:, n:],
+            cfg.search_tau,
+            probes=frame_probes(f),
+        )
         return cands[int(np.argmin(cost))].copy()
 
     def one_frame(f, q_pred, sig_pred, joints=None, q_hold=None, anneal=False):
@@ -271,44 +287,70 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
         pts = frames[f]
         cf = cframe(f)
         lab = labels
-        stages = cfg.anneal if anneal else \
-            ((cfg.segment_max_dist, cfg.fit.robust_scale),) * (2 if cfg.resegment else 1)
+        stages = (
+            cfg.anneal
+            if anneal
+            else ((cfg.segment_max_dist, cfg.fit.robust_scale),) * (2 if cfg.resegment else 1)
+        )
         if cf is not None and len(pts.xyz) < cfg.min_points:  # contours alone: no
             stages = stages[:1]  # segmentation to redo (they re-pair every round)
         q, target_q = q_pred.copy(), q_pred.copy()
         r = part = None
-        traj = (anchors.observations(pts.xyz, pts.sigma, pts.ids, cfg.traj_slip_m,
-                                     cfg.traj_robust) if cfg.trajectories else None)
+        traj = (
+            anchors.observations(pts.xyz, pts.sigma, pts.ids, cfg.traj_slip_m, cfg.traj_robust)
+            if cfg.trajectories
+            else None
+        )
         for k, (max_dist, knee) in enumerate(stages):
             if anneal and k == 1 and cfg.search:
-                q[:n] = search_limbs(pts.xyz, skel, balls, s, radii, q[:n], q[n:],
-                                     tau=cfg.search_tau, probes=frame_probes(f)).theta
+                q[:n] = search_limbs(
+                    pts.xyz,
+                    skel,
+                    balls,
+                    s,
+                    radii,
+                    q[:n],
+                    q[n:],
+                    tau=cfg.search_tau,
+                    probes=frame_probes(f),
+                ).theta
                 target_q = q.copy()
             if len(pts.xyz):
-                part, _ = segment_points(pts.xyz, skel, balls, q[:n], q[n:], s, radii,
-                                         max_dist, cfg.segment_margin)
+                part, _ = segment_points(
+                    pts.xyz, skel, balls, q[:n], q[n:], s, radii, max_dist, cfg.segment_margin
+                )
                 part, lab = carry_labels(part, pts.ids, lab)
             else:
                 part = np.zeros(0, int)
             if (part >= 0).sum() < cfg.min_points and cf is None:
                 if r is None:
-                    return (None, None, False,
-                            f"frame {f}: only {(part >= 0).sum()} usable points", lab)
+                    return (
+                        None,
+                        None,
+                        False,
+                        f"frame {f}: only {(part >= 0).sum()} usable points",
+                        lab,
+                    )
                 break
             hidden = hidden_dofs(pts.xyz, q, max_dist, cf)
-            target, sig = prior(hidden, target_q[:n], sig_pred,
-                                None if q_hold is None else q_hold[:n])
+            target, sig = prior(
+                hidden, target_q[:n], sig_pred, None if q_hold is None else q_hold[:n]
+            )
             o = frame_observations(pts, part, target, sig, n, joints)
             o.contours = cf
             if cf is not None and len(pts.xyz) < cfg.min_points:
                 q_ref = target_q if q_hold is None else q_hold  # the previous frame
                 o.depth = frame_depth_holds(skel, cf, hidden, q_ref[:n], q_ref[n:], s)
             o.trajectory = traj
-            if flow is not None and (len(pts.xyz) < cfg.min_points
-                                     or not flow.cfg.without_points_only):
+            if flow is not None and (
+                len(pts.xyz) < cfg.min_points or not flow.cfg.without_points_only
+            ):
                 o.flow = flow.observations(f)
-            stage_cfg = pose_cfg if knee == pose_cfg.robust_scale else \
-                FitSettings(**{**pose_cfg.__dict__, "robust_scale": knee})
+            stage_cfg = (
+                pose_cfg
+                if knee == pose_cfg.robust_scale
+                else FitSettings(**{**pose_cfg.__dict__, "robust_scale": knee})
+            )
             if cf is not None and stage_cfg.irls_rounds < cf.cfg.rounds:
                 stage_cfg = FitSettings(**{**stage_cfg.__dict__, "irls_rounds": cf.cfg.rounds})
             r = fit(skel, balls, o, q[:n], q[n:], s, radii, solve="pose", settings=stage_cfg)
@@ -317,16 +359,21 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
 
     def assess(f, res):
         """Quality of a fitted frame, without side effects: ``(ok, reasons, stats)``."""
-        return assess_frame(res, skel, balls, radii, s, frames[f].xyz, cframe(f),
-                            lambda: frame_probes(f), cfg)
+        return assess_frame(
+            res, skel, balls, radii, s, frames[f].xyz, cframe(f), lambda: frame_probes(f), cfg
+        )
 
     def record(f, res, ok, why, stats):
         """Write the quality of frame f (and the message of a diverged one); commit the
         segmentation labels of an accepted fit."""
         nonlocal labels
         if stats is not None:
-            n_pts[f], inl[f], rmse[f], q_sig[f] = (stats["n"], stats["inl"], stats["rmse"],
-                                                   stats["sig"])
+            n_pts[f], inl[f], rmse[f], q_sig[f] = (
+                stats["n"],
+                stats["inl"],
+                stats["rmse"],
+                stats["sig"],
+            )
             unexpl[f] = stats["unexplained"]
             if stats["contour"] is not None:
                 c_n[f], c_rms[f] = stats["contour"]["n"], stats["contour"]["rms_px"]
@@ -336,8 +383,11 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
             if cframe(f) is not None:
                 cams_used[f] = cframe(f).cameras_used(skel)
         else:
-            msgs.append(f"frame {f}: {why}: marked diverged" if stats is not None
-                        else f"{why}: marked diverged")
+            msgs.append(
+                f"frame {f}: {why}: marked diverged"
+                if stats is not None
+                else f"{why}: marked diverged"
+            )
 
     def recentre_retry(f, res, ok, why, st, q_pred, sig_pred, joints, q_hold):
         """Contours alone, a frame that failed: the root moved to centre the body on
@@ -369,10 +419,14 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
         q = res[0]
         body = balls.copy(radii=radii)
         xyz = frames[f].xyz
-        veto = keeps_points(xyz, skel, balls, s, radii, q[n:], cfg.search_tau,
-                            frame_probes(f)) if len(xyz) >= cfg.min_points else None
-        sr = search_limbs_silhouette(skel, body, s, q[:n], q[n:], cf.cameras, cf.masks(),
-                                     allowed=veto)
+        veto = (
+            keeps_points(xyz, skel, balls, s, radii, q[n:], cfg.search_tau, frame_probes(f))
+            if len(xyz) >= cfg.min_points
+            else None
+        )
+        sr = search_limbs_silhouette(
+            skel, body, s, q[:n], q[n:], cf.cameras, cf.masks(), allowed=veto
+        )
         if not sr.moved:
             return res, True, "", st
         q1 = q.copy()
@@ -384,10 +438,10 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
             hold[:n][moved] = sr.theta[moved]
         res2 = one_frame(f, q1, sig_pred, joints, hold)
         ok2, why2, st2 = assess(f, res2)
-        if ok2 and (silhouette_disagreement(skel, body, res2[0][:n], res2[0][n:], s,
-                                            cf.cameras, cf.grids())
-                    < silhouette_disagreement(skel, body, q[:n], q[n:], s, cf.cameras,
-                                              cf.grids())):
+        if ok2 and (
+            silhouette_disagreement(skel, body, res2[0][:n], res2[0][n:], s, cf.cameras, cf.grids())
+            < silhouette_disagreement(skel, body, q[:n], q[n:], s, cf.cameras, cf.grids())
+        ):
             retried[f] = True
             return res2, ok2, why2, st2
         return res, True, "", st
@@ -409,9 +463,18 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
         ok, why, st = assess(f, res)
         search = cfg.search and len(frames[f].xyz) >= cfg.min_points  # needs points
         if search and ok and st["unexplained"] <= cfg.retry_unexplained:
-            sr = search_limbs(frames[f].xyz, skel, balls, s, radii, res[0][:n], res[0][n:],
-                              tau=cfg.search_tau, min_gain=cfg.search_min_gain,
-                              probes=frame_probes(f))
+            sr = search_limbs(
+                frames[f].xyz,
+                skel,
+                balls,
+                s,
+                radii,
+                res[0][:n],
+                res[0][n:],
+                tau=cfg.search_tau,
+                min_gain=cfg.search_min_gain,
+                probes=frame_probes(f),
+            )
             if sr.moved:
                 q1 = res[0].copy()
                 q1[:n] = sr.theta
@@ -425,21 +488,33 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
             # person may have walked on while the prediction stayed behind
             cands = np.stack([q_pred, *alternatives])
             if cfg.recentre and last_fitted >= 0:
-                cands = np.concatenate([cands, recentred_starts(
-                    frames[f].xyz, q_pred, frames[last_fitted].xyz, root[last_fitted], up)])
+                cands = np.concatenate(
+                    [
+                        cands,
+                        recentred_starts(
+                            frames[f].xyz, q_pred, frames[last_fitted].xyz, root[last_fitted], up
+                        ),
+                    ]
+                )
             q0 = search_start(f, cands)
             res2 = one_frame(f, q0, sig_pred, joints, q_hold, anneal=True)
             ok2, why2, st2 = assess(f, res2)
             if ok2 and (not ok or st2["cost"] < st["cost"]):
                 res, ok, why, st = res2, ok2, why2, st2
                 retried[f] = True
-        if (search and ok and cfg.silhouette_search and cfg.silhouette_search_points
-                and has_outline(cframe(f))):
+        if (
+            search
+            and ok
+            and cfg.silhouette_search
+            and cfg.silhouette_search_points
+            and has_outline(cframe(f))
+        ):
             res, ok, why, st = silhouette_retry(f, res, st, sig_pred, joints, q_hold)
         elif not search and cfg.silhouette_search and cframe(f) is not None:
             if not ok:
-                res, ok, why, st = recentre_retry(f, res, ok, why, st, q_pred, sig_pred,
-                                                  joints, q_hold)
+                res, ok, why, st = recentre_retry(
+                    f, res, ok, why, st, q_pred, sig_pred, joints, q_hold
+                )
             if ok:
                 res, ok, why, st = silhouette_retry(f, res, st, sig_pred, joints, q_hold)
         record(f, res, ok, why, st)
@@ -448,8 +523,11 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
         return ok, (res[0] if ok else q_pred)
 
     last_fitted = -1  # the last frame stored as fitted with points (recentred_starts)
-    up = np.subtract(*joint_positions(skel, init.theta, init.root_xyz, init.s)[
-        [skel.joint_index("neck"), skel.joint_index("pelvis")]])  # the body upright
+    up = np.subtract(
+        *joint_positions(skel, init.theta, init.root_xyz, init.s)[
+            [skel.joint_index("neck"), skel.joint_index("pelvis")]
+        ]
+    )  # the body upright
 
     def store(f, q, ok):
         nonlocal last_fitted
@@ -464,13 +542,22 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
         pts = frames[f]
         if flow is not None:
             near = [g for g in (f - 1, f + 1) if 0 <= g < nf]
-            if div[f] or (flow.cfg.without_points_only
-                          and all(len(frames[g].xyz) >= cfg.min_points for g in near)):
+            if div[f] or (
+                flow.cfg.without_points_only
+                and all(len(frames[g].xyz) >= cfg.min_points for g in near)
+            ):
                 flow.clear()  # (no neighbour will use the flow)
             else:
                 cf = cframe(f)
-                flow.set(skel, balls.copy(radii=radii), theta[f], root[f], s, f,
-                         None if cf is None else cf.masks())
+                flow.set(
+                    skel,
+                    balls.copy(radii=radii),
+                    theta[f],
+                    root[f],
+                    s,
+                    f,
+                    None if cf is None else cf.masks(),
+                )
         if not cfg.trajectories or div[f] or pts.ids is None:
             anchors.clear()
             return
@@ -480,11 +567,16 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
     # 1) shape: at the clicked frame the clicks fix the pose; later shape frames are
     #    pose-fitted with the current shape, then the shape is re-solved over all of
     #    them with their poses held (shape-only solves avoid the shape/pose trade-off)
-    shape_cfg = FitSettings(**{**cfg.fit.__dict__, "max_nfev": cfg.max_nfev_shape,
-                               "fit_scales": cfg.shape_scales,
-                               "free_centers": cfg.shape_centers,
-                               "sigma_radius": cfg.shape_sigma_radius,
-                               "sigma_center": cfg.shape_sigma_center})
+    shape_cfg = FitSettings(
+        **{
+            **cfg.fit.__dict__,
+            "max_nfev": cfg.max_nfev_shape,
+            "fit_scales": cfg.shape_scales,
+            "free_centers": cfg.shape_centers,
+            "sigma_radius": cfg.shape_sigma_radius,
+            "sigma_center": cfg.shape_sigma_center,
+        }
+    )
     shape_first = cfg.shape == "fit" and cfg.shape_fit_track
     n_shape = max(cfg.shape_frames, 1, cfg.shape_fit_frames if shape_first else 1)
     shape_range = list(range(f0, min(nf, f0 + n_shape)))
@@ -492,39 +584,66 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
     shaped = []
     for k, f in enumerate(shape_range):
         if k:
-            ok, q = fit_frame(f, np.concatenate([theta[f - 1], root[f - 1]]),
-                              np.full(n, cfg.sigma_pred_max))
+            ok, q = fit_frame(
+                f, np.concatenate([theta[f - 1], root[f - 1]]), np.full(n, cfg.sigma_pred_max)
+            )
             store(f, q, ok)
             if not ok:
                 continue
         for rnd in range(2):  # segment, solve the shape, segment again with it
             obs_s, keep = [], []
             for g in (shaped + [f]) if rnd == 0 else shaped:
-                part, _d = segment_points(frames[g].xyz, skel, balls, theta[g], root[g], s,
-                                          radii, cfg.segment_max_dist, cfg.segment_margin)
+                part, _d = segment_points(
+                    frames[g].xyz,
+                    skel,
+                    balls,
+                    theta[g],
+                    root[g],
+                    s,
+                    radii,
+                    cfg.segment_max_dist,
+                    cfg.segment_margin,
+                )
                 if (part >= 0).sum() >= cfg.min_points:
                     obs_s.append(frame_observations(frames[g], part, None, cfg.sigma_pred, n))
                     keep.append(g)
             if not obs_s:
                 break
-            rs = fit(skel, balls, obs_s, theta[keep], root[keep], s, radii, solve="shape",
-                     settings=shape_cfg, shape_ref=template)
+            rs = fit(
+                skel,
+                balls,
+                obs_s,
+                theta[keep],
+                root[keep],
+                s,
+                radii,
+                solve="shape",
+                settings=shape_cfg,
+                shape_ref=template,
+            )
             s, radii = rs[0].s.copy(), rs[0].radii.copy()
             balls.center0 = rs[0].centers.copy()
             shaped = keep
         if progress is not None:
             progress.update(k + 1, nf + len(shape_range), f"shape: frame {f}")
     if not shaped:
-        msgs.append("no usable points in the shape frames: the template shape is kept"
-                    if contours is None else "no usable points in the shape frames: the "
-                    "initial shape (e.g. fitted to the silhouettes) is kept")
+        msgs.append(
+            "no usable points in the shape frames: the template shape is kept"
+            if contours is None
+            else "no usable points in the shape frames: the "
+            "initial shape (e.g. fitted to the silhouettes) is kept"
+        )
+
     def refit_shape_frames():
         for f in shape_range:  # the poses with the final shape
             if div[f]:
                 continue
-            ok, q = fit_frame(f, np.concatenate([theta[f], root[f]]),
-                              np.full(n, cfg.sigma_pred_max),
-                              joints=click_obs if f == f0 else None)
+            ok, q = fit_frame(
+                f,
+                np.concatenate([theta[f], root[f]]),
+                np.full(n, cfg.sigma_pred_max),
+                joints=click_obs if f == f0 else None,
+            )
             if ok:
                 store(f, q, True)
             elif f != f0:
@@ -538,8 +657,17 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
         start = deflate(skel, init.metaballs, s)
     if shape_first:
         fitted_balls, _, shape_rec = whole_body_shape(
-            skel, start, s, theta, root, frames, [f for f in shape_range if not div[f]],
-            cameras, cfg.shape_fit, msgs)
+            skel,
+            start,
+            s,
+            theta,
+            root,
+            frames,
+            [f for f in shape_range if not div[f]],
+            cameras,
+            cfg.shape_fit,
+            msgs,
+        )
         balls, radii = fitted_balls, fitted_balls.radii.copy()
         refit_shape_frames()
     # 2) motion forwards and backwards from the clicked frame ----------------------
@@ -561,8 +689,9 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
             q_prev = np.concatenate([theta[f - direction], root[f - direction]])
             if cframe(f) is not None:  # predicted rates rank the cameras (observability)
                 cframe(f).theta_rate = q_pred[:n] - q_prev[:n]
-            ok, q = fit_frame(f, q_pred, sig_pred, [q_prev],
-                              q_hold=q_prev if cfg.hold_hidden else None)
+            ok, q = fit_frame(
+                f, q_pred, sig_pred, [q_prev], q_hold=q_prev if cfg.hold_hidden else None
+            )
             if ok:
                 sig = np.concatenate([q_sig[f], np.full(3, 0.005)])
                 sig = np.where(np.isfinite(sig), sig, 0.05)
@@ -577,23 +706,72 @@ def fit_sequence(frames: list[FramePoints], init: Initialisation,
             if progress is not None:
                 progress.update(done, nf + len(shape_range), f"frame {f}")
     unobs = unobserved(hid, skel.dof_parent)
-    theta[:], fill_msgs = fill_unobserved(skel, theta, root, s, unobs, div, cfg.couple_hidden,
-                                          cfg.bridge_hidden, cfg.couple_r2, hid, (f0,),
-                                          cfg.mirror_hidden, cfg.mirror_r2)
+    theta[:], fill_msgs = fill_unobserved(
+        skel,
+        theta,
+        root,
+        s,
+        unobs,
+        div,
+        cfg.couple_hidden,
+        cfg.bridge_hidden,
+        cfg.couple_r2,
+        hid,
+        (f0,),
+        cfg.mirror_hidden,
+        cfg.mirror_r2,
+    )
     msgs += fill_msgs
     if cfg.shape == "fit" and not shape_first:  # at the fitted poses, for the state only
-        fitted_balls, shape_rec = written_shape(skel, start, s, theta, root, frames, contours,
-                                                ~div & conv, n_pts, unobs, f0, cfg, cameras,
-                                                msgs, progress)
+        fitted_balls, shape_rec = written_shape(
+            skel,
+            start,
+            s,
+            theta,
+            root,
+            frames,
+            contours,
+            ~div & conv,
+            n_pts,
+            unobs,
+            f0,
+            cfg,
+            cameras,
+            msgs,
+            progress,
+        )
     balls_out = balls.copy(radii=radii) if fitted_balls is None else fitted_balls.copy()
-    q = Quality(rmse_m=rmse, theta_sigma=q_sig, converged=conv & ~div, diverged=div,
-                cameras=cams_used, unobserved=unobs)
-    state = FitState(skeleton=skel, s=s, metaballs=balls_out, root_xyz=root, theta=theta,
-                     quality=q, fps=fps, source_scene=source_scene,
-                     metaball_model=metaball_model)
+    q = Quality(
+        rmse_m=rmse,
+        theta_sigma=q_sig,
+        converged=conv & ~div,
+        diverged=div,
+        cameras=cams_used,
+        unobserved=unobs,
+    )
+    state = FitState(
+        skeleton=skel,
+        s=s,
+        metaballs=balls_out,
+        root_xyz=root,
+        theta=theta,
+        quality=q,
+        fps=fps,
+        source_scene=source_scene,
+        metaball_model=metaball_model,
+    )
     if retried.any():
         msgs.append(f"{int(retried.sum())} frames refitted after the limb search")
-    return SequenceResult(state=state, n_points=n_pts, inlier_share=inl, unexplained=unexpl,
-                          retried=retried, messages=msgs,
-                          seconds=time.perf_counter() - t_start, shape=shape_rec,
-                          contour_matches=c_n, contour_rms_px=c_rms, hidden=hid)
+    return SequenceResult(
+        state=state,
+        n_points=n_pts,
+        inlier_share=inl,
+        unexplained=unexpl,
+        retried=retried,
+        messages=msgs,
+        seconds=time.perf_counter() - t_start,
+        shape=shape_rec,
+        contour_matches=c_n,
+        contour_rms_px=c_rms,
+        hidden=hid,
+    )

@@ -23,8 +23,17 @@ from .silhouette_search import silhouette_iou
 from .skeleton import Skeleton, forward
 
 
-def surface_residuals(skel: Skeleton, balls: Metaballs, theta, root, s, radii,
-                      xyz: np.ndarray, part: np.ndarray, members: str = "part") -> np.ndarray:
+def surface_residuals(
+    skel: Skeleton,
+    balls: Metaballs,
+    theta,
+    root,
+    s,
+    radii,
+    xyz: np.ndarray,
+    part: np.ndarray,
+    members: str = "part",
+) -> np.ndarray:
     """Signed distance (N,) metres of each point to its part's surface (positive inside;
     membership as in :func:`core.attractor.member_table`)."""
     pose = forward(skel, np.asarray(theta)[None], np.asarray(root)[None], s)
@@ -33,9 +42,17 @@ def surface_residuals(skel: Skeleton, balls: Metaballs, theta, root, s, radii,
     return attractor(xyz, idx, ok, Rw[0], cw[0], radii).dist
 
 
-def assess_frame(res: tuple, skel: Skeleton, balls: Metaballs, radii: np.ndarray,
-                 s: np.ndarray, xyz: np.ndarray, cf, probes, cfg: SequenceSettings
-                 ) -> tuple[bool, str, dict | None]:
+def assess_frame(
+    res: tuple,
+    skel: Skeleton,
+    balls: Metaballs,
+    radii: np.ndarray,
+    s: np.ndarray,
+    xyz: np.ndarray,
+    cf,
+    probes,
+    cfg: SequenceSettings,
+) -> tuple[bool, str, dict | None]:
     """Quality of one fitted frame: ``(ok, reasons, stats)``.
 
     Parameters
@@ -68,9 +85,16 @@ def assess_frame(res: tuple, skel: Skeleton, balls: Metaballs, radii: np.ndarray
     use = part >= 0
     cst = None if cf is None else cf.stats(skel, balls.copy(radii=radii), q[:n], q[n:], s)
     if use.sum() < cfg.min_points and cst is not None:  # judged by its contours alone
-        stats = {"n": 0, "inl": cst["inl"], "rmse": np.nan, "sig": r.theta_sigma,
-                 "conv": bool(r.converged), "unexplained": 1.0 - cst["inl"],
-                 "cost": cst["cost"], "contour": cst}
+        stats = {
+            "n": 0,
+            "inl": cst["inl"],
+            "rmse": np.nan,
+            "sig": r.theta_sigma,
+            "conv": bool(r.converged),
+            "unexplained": 1.0 - cst["inl"],
+            "cost": cst["cost"],
+            "contour": cst,
+        }
         bad = []
         if not np.all(np.isfinite(q)):
             bad.append("non-finite solution")
@@ -78,13 +102,11 @@ def assess_frame(res: tuple, skel: Skeleton, balls: Metaballs, radii: np.ndarray
             bad.append(f"only {cst['n']} contour pairs")
         elif cst["rms_px"] > cf.cfg.max_rms_px:
             bad.append(f"contour RMS {cst['rms_px']:.1f} px")
-        iou = silhouette_iou(skel, balls.copy(radii=radii), q[:n], q[n:], s, cf.cameras,
-                             cf.grids())
+        iou = silhouette_iou(skel, balls.copy(radii=radii), q[:n], q[n:], s, cf.cameras, cf.grids())
         if np.isfinite(iou).any() and np.nanmean(iou) < cfg.min_silhouette_iou:
             bad.append(f"silhouette IoU {np.nanmean(iou):.2f}")
         return not bad, ", ".join(bad), stats
-    d = surface_residuals(skel, balls, q[:n], q[n:], s, radii, xyz[use], part[use],
-                          cfg.fit.members)
+    d = surface_residuals(skel, balls, q[:n], q[n:], s, radii, xyz[use], part[use], cfg.fit.members)
     inlier = np.abs(d) < cfg.inlier_m
     share = float(inlier.mean()) if len(d) else 0.0
     rm = float(np.sqrt(np.mean(d[inlier] ** 2))) if inlier.any() else np.inf
@@ -92,12 +114,30 @@ def assess_frame(res: tuple, skel: Skeleton, balls: Metaballs, radii: np.ndarray
     cost = float(np.sum(np.minimum(np.abs(d_all), cfg.search_tau) ** 2))
     pr = probes()
     if pr is not None:  # body in the points' lines of sight, in the same units (m²)
-        cost += float(explain_cost(np.zeros((0, 3)), skel, balls, s, radii, q[None, :n],
-                                   q[None, n:], cfg.search_tau, sigma=1.0, probes=pr)[0])
-    stats = {"n": int(use.sum()), "inl": share, "rmse": rm, "sig": r.theta_sigma,
-             "conv": bool(r.converged),
-             "unexplained": float(np.mean(np.abs(d_all) > cfg.inlier_m)),
-             "cost": cost, "contour": cst}
+        cost += float(
+            explain_cost(
+                np.zeros((0, 3)),
+                skel,
+                balls,
+                s,
+                radii,
+                q[None, :n],
+                q[None, n:],
+                cfg.search_tau,
+                sigma=1.0,
+                probes=pr,
+            )[0]
+        )
+    stats = {
+        "n": int(use.sum()),
+        "inl": share,
+        "rmse": rm,
+        "sig": r.theta_sigma,
+        "conv": bool(r.converged),
+        "unexplained": float(np.mean(np.abs(d_all) > cfg.inlier_m)),
+        "cost": cost,
+        "contour": cst,
+    }
     bad = []
     if not np.all(np.isfinite(q)):
         bad.append("non-finite solution")

@@ -57,8 +57,13 @@ def _slope(y: np.ndarray, ok: np.ndarray, f: int, step: int) -> float:
     return 0.0
 
 
-def bridge_hidden(theta: np.ndarray, hidden: np.ndarray, diverged: np.ndarray | None = None,
-                  max_gap: int | None = None, slopes: bool = True) -> tuple[np.ndarray, np.ndarray]:
+def bridge_hidden(
+    theta: np.ndarray,
+    hidden: np.ndarray,
+    diverged: np.ndarray | None = None,
+    max_gap: int | None = None,
+    slopes: bool = True,
+) -> tuple[np.ndarray, np.ndarray]:
     """Interpolate every angle across its hidden runs.
 
     Parameters

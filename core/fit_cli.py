@@ -33,41 +33,66 @@ import numpy as np
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("scene", type=Path, help="scene folder")
-    parser.add_argument("-o", "--output", type=Path, default=None,
-                        help="fitted-state file (default SCENE/fit.json)")
-    parser.add_argument("--observations", choices=("auto", "tracks", "truth"), default="auto",
-                        help="3-D observations: tracks.npz, truth-derived points (development),"
-                             " or auto (tracks when available)")
-    parser.add_argument("--model", choices=("simplified", "complete"), default="complete",
-                        help="metaball model")
+    parser.add_argument(
+        "-o", "--output", type=Path, default=None, help="fitted-state file (default SCENE/fit.json)"
+    )
+    parser.add_argument(
+        "--observations",
+        choices=("auto", "tracks", "truth"),
+        default="auto",
+        help="3-D observations: tracks.npz, truth-derived points (development),"
+        " or auto (tracks when available)",
+    )
+    parser.add_argument(
+        "--model", choices=("simplified", "complete"), default="complete", help="metaball model"
+    )
     parser.add_argument("--frames", type=int, default=None, help="fit only the first N frames")
-    parser.add_argument("--points", type=int, default=3000,
-                        help="candidate truth-derived points per frame")
+    parser.add_argument(
+        "--points", type=int, default=3000, help="candidate truth-derived points per frame"
+    )
     parser.add_argument("--predictor", choices=("ekf", "constant_velocity"), default="ekf")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--cues", choices=("texture", "contours", "both"), default="texture",
-                        help="observations of the fit: texture (3-D surface points, the "
-                             "default), contours (silhouette contours from each camera's "
-                             "foreground: no tracker, shape fitted to the clicked frame's "
-                             "silhouettes) or both")
-    parser.add_argument("--tracks", type=Path, default=None, metavar="NPZ",
-                        help="tracker output to fit (default SCENE/tracks.npz, tracked "
-                             "first when missing)")
-    parser.add_argument("--contour-sigma", type=float, default=None, metavar="PX",
-                        help="a-priori sigma of one contour observation, pixels "
-                             "(default 3)")
-    parser.add_argument("--no-flow", dest="flow", action="store_false",
-                        help="with --cues both: no single-camera texture flow in the "
-                             "frames that have too few 3-D points (on by default)")
-    parser.add_argument("--shape", choices=("template", "written", "tracked"),
-                        default="written",
-                        help="body shape: 'written' (default) fits the whole-body metaball "
-                             "shape after the motion (to the silhouettes too, with "
-                             "contours), for the state only; 'template' keeps the per-part "
-                             "shape of the shape frames; 'tracked' fits it after the shape "
-                             "frames and tracks with it")
-    parser.add_argument("--fit-shape", action="store_true",
-                        help="the same as --shape tracked")
+    parser.add_argument(
+        "--cues",
+        choices=("texture", "contours", "both"),
+        default="texture",
+        help="observations of the fit: texture (3-D surface points, the "
+        "default), contours (silhouette contours from each camera's "
+        "foreground: no tracker, shape fitted to the clicked frame's "
+        "silhouettes) or both",
+    )
+    parser.add_argument(
+        "--tracks",
+        type=Path,
+        default=None,
+        metavar="NPZ",
+        help="tracker output to fit (default SCENE/tracks.npz, tracked first when missing)",
+    )
+    parser.add_argument(
+        "--contour-sigma",
+        type=float,
+        default=None,
+        metavar="PX",
+        help="a-priori sigma of one contour observation, pixels (default 3)",
+    )
+    parser.add_argument(
+        "--no-flow",
+        dest="flow",
+        action="store_false",
+        help="with --cues both: no single-camera texture flow in the "
+        "frames that have too few 3-D points (on by default)",
+    )
+    parser.add_argument(
+        "--shape",
+        choices=("template", "written", "tracked"),
+        default="written",
+        help="body shape: 'written' (default) fits the whole-body metaball "
+        "shape after the motion (to the silhouettes too, with "
+        "contours), for the state only; 'template' keeps the per-part "
+        "shape of the shape frames; 'tracked' fits it after the shape "
+        "frames and tracks with it",
+    )
+    parser.add_argument("--fit-shape", action="store_true", help="the same as --shape tracked")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -94,35 +119,52 @@ def run(args: argparse.Namespace) -> int:
 
         csettings = ContourSettings(sigma_px=args.contour_sigma)
     out = args.output if args.output is not None else scene.root / "fit.json"
-    res = run_scene(scene, observations=args.observations, model=args.model,
-                    settings=SequenceSettings(predictor=args.predictor, shape=shape,
-                                              shape_fit_track=track),
-                    progress=Progress(), n_points=args.points, seed=args.seed,
-                    frames=args.frames, cues=args.cues, contour_settings=csettings,
-                    tracks=args.tracks, flow="auto" if args.flow else False)
+    res = run_scene(
+        scene,
+        observations=args.observations,
+        model=args.model,
+        settings=SequenceSettings(predictor=args.predictor, shape=shape, shape_fit_track=track),
+        progress=Progress(),
+        n_points=args.points,
+        seed=args.seed,
+        frames=args.frames,
+        cues=args.cues,
+        contour_settings=csettings,
+        tracks=args.tracks,
+        flow="auto" if args.flow else False,
+    )
     st = res.state
     if st.n_frames < scene.n_frames:  # pad unfitted frames: hold the last pose, flagged
         st = _pad(st, scene.n_frames)
     write_state(out, st)
     q = st.quality
-    label = {"truth": "truth-derived observations (development stand-in)",
-             "contours": "silhouette contours alone"}.get(res.source, "tracks")
+    label = {
+        "truth": "truth-derived observations (development stand-in)",
+        "contours": "silhouette contours alone",
+    }.get(res.source, "tracks")
     if res.source != "contours" and args.cues == "both":
         label += " and silhouette contours"
     print(f"fitted {res.state.n_frames} of {scene.n_frames} frames from {label}")
     for m in res.messages:
         print(f"  note: {m}")
     rm = q.rmse_m[np.isfinite(q.rmse_m)]
-    print(f"points per frame: median {int(np.median(res.n_points))}; surface RMS median "
-          f"{1000 * np.median(rm) if len(rm) else float('nan'):.2f} mm; diverged frames "
-          f"{int(q.diverged.sum())}")
+    print(
+        f"points per frame: median {int(np.median(res.n_points))}; surface RMS median "
+        f"{1000 * np.median(rm) if len(rm) else float('nan'):.2f} mm; diverged frames "
+        f"{int(q.diverged.sum())}"
+    )
     if res.contour_matches is not None:
         cr = res.contour_rms_px[np.isfinite(res.contour_rms_px)]
-        print(f"contour pairs per frame: median {int(np.median(res.contour_matches))}; "
-              f"contour RMS median {np.median(cr) if len(cr) else float('nan'):.2f} px")
+        print(
+            f"contour pairs per frame: median {int(np.median(res.contour_matches))}; "
+            f"contour RMS median {np.median(cr) if len(cr) else float('nan'):.2f} px"
+        )
     tm = res.timings
-    print("seconds: " + ", ".join(f"{k} {v:.1f}" for k, v in tm.items())
-          + f"; fit {tm['fit'] / res.state.n_frames:.2f} s/frame")
+    print(
+        "seconds: "
+        + ", ".join(f"{k} {v:.1f}" for k, v in tm.items())
+        + f"; fit {tm['fit'] / res.state.n_frames:.2f} s/frame"
+    )
     print(f"wrote {out}")
     return 0
 
@@ -134,15 +176,26 @@ def _pad(state, n_frames: int):
     extra = n_frames - k
     q = state.quality
     rep = lambda a: np.concatenate([a, np.repeat(a[-1:], extra, axis=0)])  # noqa: E731
-    qq = Quality(rmse_m=np.concatenate([q.rmse_m, np.full(extra, np.nan)]),
-                 theta_sigma=np.concatenate([q.theta_sigma,
-                                             np.full((extra, q.theta_sigma.shape[1]), np.nan)]),
-                 converged=np.concatenate([q.converged, np.zeros(extra, bool)]),
-                 diverged=np.concatenate([q.diverged, np.ones(extra, bool)]),
-                 cameras=list(q.cameras) + [{} for _ in range(extra)],
-                 unobserved=None if q.unobserved is None else np.concatenate(
-                     [q.unobserved, np.ones((extra, q.unobserved.shape[1]), bool)]))
-    return FitState(skeleton=state.skeleton, s=state.s, metaballs=state.metaballs,
-                    root_xyz=rep(state.root_xyz), theta=rep(state.theta), quality=qq,
-                    fps=state.fps, source_scene=state.source_scene,
-                    metaball_model=state.metaball_model)
+    qq = Quality(
+        rmse_m=np.concatenate([q.rmse_m, np.full(extra, np.nan)]),
+        theta_sigma=np.concatenate(
+            [q.theta_sigma, np.full((extra, q.theta_sigma.shape[1]), np.nan)]
+        ),
+        converged=np.concatenate([q.converged, np.zeros(extra, bool)]),
+        diverged=np.concatenate([q.diverged, np.ones(extra, bool)]),
+        cameras=list(q.cameras) + [{} for _ in range(extra)],
+        unobserved=None
+        if q.unobserved is None
+        else np.concatenate([q.unobserved, np.ones((extra, q.unobserved.shape[1]), bool)]),
+    )
+    return FitState(
+        skeleton=state.skeleton,
+        s=state.s,
+        metaballs=state.metaballs,
+        root_xyz=rep(state.root_xyz),
+        theta=rep(state.theta),
+        quality=qq,
+        fps=state.fps,
+        source_scene=state.source_scene,
+        metaball_model=state.metaball_model,
+    )

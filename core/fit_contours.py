@@ -52,20 +52,20 @@ from .skeleton import Skeleton, bone_frames, forward, point_jacobians
 class ContourSettings:
     """Contour observations in the fit (units in brackets)."""
 
-    sigma_px: float = 3.0          # a-priori σ of one contour observation [px]
-    huber_px: float = 4.0          # knee of the Huber weights [px]
-    max_dist_px: float = 12.0      # largest contour ↔ rim pairing distance [px]
-    min_visibility: float = 0.2    # a part uses a camera with a visibility index ≥ this
-    select: bool = True            # per-part camera selection (False: all cameras fused)
+    sigma_px: float = 3.0  # a-priori σ of one contour observation [px]
+    huber_px: float = 4.0  # knee of the Huber weights [px]
+    max_dist_px: float = 12.0  # largest contour ↔ rim pairing distance [px]
+    min_visibility: float = 0.2  # a part uses a camera with a visibility index ≥ this
+    select: bool = True  # per-part camera selection (False: all cameras fused)
     #: with selection: also rank a part's visible cameras by its predicted contour motion
     #: (the paper's observability); False: every camera with visibility >= min_visibility
     rank_motion: bool = True
     #: body parts that use no contours (names of core.skeleton bones), e.g. the head,
     #: whose template metaballs do not follow a real head's outline (hair, face)
     skip_parts: tuple = ()
-    min_matches: int = 40          # a contours-only frame with fewer pairs is diverged
-    max_rms_px: float = 6.0        # ... or with a larger RMS of its inlier pairs [px]
-    min_part_matches: int = 30     # a part with fewer pairs is hidden to the contours
+    min_matches: int = 40  # a contours-only frame with fewer pairs is diverged
+    max_rms_px: float = 6.0  # ... or with a larger RMS of its inlier pairs [px]
+    min_part_matches: int = 30  # a part with fewer pairs is hidden to the contours
     #: with points: contours may un-hide a part the points miss.  Off since the tracker
     #: seeds surface across depth jumps (``core track``, :mod:`core.surface_seed`): a
     #: part that two cameras see then has points, and one the points miss is one whose
@@ -97,12 +97,12 @@ class ContourSettings:
     #: with selection 176.1 -> 40.3 (fused 39.8 -> 61.2), dance_line3 fused 162.6 ->
     #: 68.2 (selection 205.2 -> 207.7).  The orthogonal rig's views are 90° apart.
     depth_spread_deg: float = 40.0
-    textured_scale: float = 1.0    # σ of the pairs of parts that texture points observe, × this
-    spacing_px: float = 2.0        # sampling of the image contours [px]
-    rim_samples: int = 32          # model rim samples per metaball
-    outer_px: float = 3.0          # only rim points with no model pixel this far out (0: all)
-    background_frames: int = 20    # frames (evenly spaced) in the background medians
-    rounds: int = 3                # re-pairing (re-weighting) rounds per pose solve, at least
+    textured_scale: float = 1.0  # σ of the pairs of parts that texture points observe, × this
+    spacing_px: float = 2.0  # sampling of the image contours [px]
+    rim_samples: int = 32  # model rim samples per metaball
+    outer_px: float = 3.0  # only rim points with no model pixel this far out (0: all)
+    background_frames: int = 20  # frames (evenly spaced) in the background medians
+    rounds: int = 3  # re-pairing (re-weighting) rounds per pose solve, at least
     #: σ of the silhouette-containment term [px] (0: off): points inside the metaballs of
     #: the parts the texture points miss must project into every camera's foreground
     #: (:meth:`ContourFrame.containment_block`, :func:`containment_parts`; frames with
@@ -113,8 +113,8 @@ class ContourSettings:
     containment_px: float = 3.0
     containment_tol_px: float = 2.0  # ... tolerated distance outside the foreground [px]
     containment_textured: bool = False  # ... also for the parts the texture points observe
-    min_fg_frac: float = 0.002     # a foreground mask covering less of the image, ...
-    max_fg_frac: float = 0.5       # ... or more, gives no contours for that view
+    min_fg_frac: float = 0.002  # a foreground mask covering less of the image, ...
+    max_fg_frac: float = 0.5  # ... or more, gives no contours for that view
     #: shaping the body from the clicked frame's silhouettes (contours alone, or too few
     #: points there): the metaball centres of these parts leave their template places,
     #: about them with σ ``shape_center_sigma_m`` [m] (None: centres held).  The template
@@ -123,8 +123,20 @@ class ContourSettings:
     #: The arms keep theirs: too thin for their silhouettes to place them apart from
     #: the pose.
     shape_center_sigma_m: float | None = 0.02
-    shape_center_parts: tuple = ("pelvis", "lowerback", "spine", "chest", "neck", "head",
-                                 "l_hip", "l_knee", "l_ankle", "r_hip", "r_knee", "r_ankle")
+    shape_center_parts: tuple = (
+        "pelvis",
+        "lowerback",
+        "spine",
+        "chest",
+        "neck",
+        "head",
+        "l_hip",
+        "l_knee",
+        "l_ankle",
+        "r_hip",
+        "r_knee",
+        "r_ankle",
+    )
 
 
 @dataclass
@@ -153,14 +165,28 @@ class ContourPairs:
 
 
 def _empty_pairs() -> ContourPairs:
-    return ContourPairs(np.zeros(0, int), np.zeros(0, int), np.zeros(0, int), np.zeros((0, 3)),
-                        np.zeros((0, 2)), np.zeros((0, 2)))
+    return ContourPairs(
+        np.zeros(0, int),
+        np.zeros(0, int),
+        np.zeros(0, int),
+        np.zeros((0, 3)),
+        np.zeros((0, 2)),
+        np.zeros((0, 2)),
+    )
 
 
-def match_frame(skel: Skeleton, balls: Metaballs, theta: np.ndarray, root: np.ndarray,
-                s: np.ndarray, cameras: list[Camera], contours: list[list[Contour]],
-                cfg: ContourSettings, theta_rate: np.ndarray | None = None,
-                rays: list[np.ndarray] | None = None) -> tuple[ContourPairs, Selection]:
+def match_frame(
+    skel: Skeleton,
+    balls: Metaballs,
+    theta: np.ndarray,
+    root: np.ndarray,
+    s: np.ndarray,
+    cameras: list[Camera],
+    contours: list[list[Contour]],
+    cfg: ContourSettings,
+    theta_rate: np.ndarray | None = None,
+    rays: list[np.ndarray] | None = None,
+) -> tuple[ContourPairs, Selection]:
     """Pair one frame's image contours with the model's visible rim at a pose.
 
     Parameters
@@ -184,8 +210,9 @@ def match_frame(skel: Skeleton, balls: Metaballs, theta: np.ndarray, root: np.nd
     n_parts = len(skel.bone_names)
     renders, rims = [], []
     for c, cam in enumerate(cameras):
-        r = render_parts(cam, centers, axes, radii, balls.bone, n_parts,
-                         rays=None if rays is None else rays[c])
+        r = render_parts(
+            cam, centers, axes, radii, balls.bone, n_parts, rays=None if rays is None else rays[c]
+        )
         renders.append(r)
         rim = rim_points(cam, centers, axes, radii, balls.bone, n_per=cfg.rim_samples, render=r)
         if cfg.outer_px > 0:
@@ -223,12 +250,19 @@ def match_frame(skel: Skeleton, balls: Metaballs, theta: np.ndarray, root: np.nd
         e = rim.ellipsoid[m.rim_index]
         x = rim.xyz[m.rim_index]
         p_unit = np.einsum("mji,mj->mi", axes[e], x - centers[e]) / radii[e]
-        out.append(ContourPairs(np.full(len(m), c), e, balls.bone[e], p_unit, m.contour_uv,
-                                m.contour_normal))
+        out.append(
+            ContourPairs(
+                np.full(len(m), c), e, balls.bone[e], p_unit, m.contour_uv, m.contour_normal
+            )
+        )
     if not out:
         return _empty_pairs(), sel
-    return ContourPairs(*(np.concatenate([getattr(p, k) for p in out]) for k in
-                          ("camera", "ellipsoid", "bone", "p_unit", "z", "normal"))), sel
+    return ContourPairs(
+        *(
+            np.concatenate([getattr(p, k) for p in out])
+            for k in ("camera", "ellipsoid", "bone", "p_unit", "z", "normal")
+        )
+    ), sel
 
 
 def outer_rim(camera: Camera, rim, mask: np.ndarray, offset_px: float = 3.0) -> np.ndarray:
@@ -262,9 +296,17 @@ def _rim_point_jacobian(skel, pose, bone, xyz, s, anc):
     return x[0], J_theta[0]
 
 
-def contour_block(skel: Skeleton, balls: Metaballs, theta: np.ndarray, root: np.ndarray,
-                  s: np.ndarray, cameras: list[Camera], pairs: ContourPairs,
-                  anc: np.ndarray | None = None, shape: bool = True):
+def contour_block(
+    skel: Skeleton,
+    balls: Metaballs,
+    theta: np.ndarray,
+    root: np.ndarray,
+    s: np.ndarray,
+    cameras: list[Camera],
+    pairs: ContourPairs,
+    anc: np.ndarray | None = None,
+    shape: bool = True,
+):
     """Residuals and analytic Jacobians of frozen contour pairs at a state.
 
     Parameters
@@ -330,8 +372,9 @@ def contour_block(skel: Skeleton, balls: Metaballs, theta: np.ndarray, root: np.
     return r, J_t, J_r, J_s, J_rad, J_c
 
 
-def containment_parts(counts: np.ndarray, with_points: bool, min_part_points: int,
-                      cfg: ContourSettings) -> np.ndarray:
+def containment_parts(
+    counts: np.ndarray, with_points: bool, min_part_points: int, cfg: ContourSettings
+) -> np.ndarray:
     """The parts the silhouette containment holds in one frame, shape (P,) bool.
 
     ``counts`` (P,) are the texture points near each part.  In a frame with points the
@@ -375,9 +418,14 @@ class ContourFrame:
         (every part) — set by the sequence fit (:attr:`ContourSettings.containment_px`)
     """
 
-    def __init__(self, cameras: list[Camera], contours: list[list[Contour]],
-                 settings: ContourSettings | None = None, rays: list[np.ndarray] | None = None,
-                 theta_rate: np.ndarray | None = None):
+    def __init__(
+        self,
+        cameras: list[Camera],
+        contours: list[list[Contour]],
+        settings: ContourSettings | None = None,
+        rays: list[np.ndarray] | None = None,
+        theta_rate: np.ndarray | None = None,
+    ):
         if len(contours) != len(cameras):
             raise ValueError(f"{len(contours)} contour lists for {len(cameras)} cameras")
         self.cameras = list(cameras)
@@ -399,41 +447,60 @@ class ContourFrame:
     def n_contour_points(self) -> int:
         return int(sum(len(c) for cam in self.contours for c in cam))
 
-    def freeze(self, skel: Skeleton, balls: Metaballs, theta: np.ndarray, root: np.ndarray,
-               s: np.ndarray) -> None:
+    def freeze(
+        self, skel: Skeleton, balls: Metaballs, theta: np.ndarray, root: np.ndarray, s: np.ndarray
+    ) -> None:
         """Pair the contours with the rim at this state and fix the Huber weights."""
         scale = np.zeros(0) if self.part_scale is None else self.part_scale
-        key = b"".join(np.ascontiguousarray(a, float).tobytes()
-                       for a in (theta, root, s, balls.radii, balls.center0, scale))
+        key = b"".join(
+            np.ascontiguousarray(a, float).tobytes()
+            for a in (theta, root, s, balls.radii, balls.center0, scale)
+        )
         if key == self._key and self.pairs is not None:
             return
         if self.n_contour_points == 0:
             self.pairs, self.selection = _empty_pairs(), None
         else:
             self.pairs, self.selection = match_frame(
-                skel, balls, theta, root, s, self.cameras, self.contours, self.cfg,
-                theta_rate=self.theta_rate, rays=self.rays)
-        r = contour_block(skel, balls, theta, root, s, self.cameras, self.pairs,
-                          shape=False)[0]
+                skel,
+                balls,
+                theta,
+                root,
+                s,
+                self.cameras,
+                self.contours,
+                self.cfg,
+                theta_rate=self.theta_rate,
+                rays=self.rays,
+            )
+        r = contour_block(skel, balls, theta, root, s, self.cameras, self.pairs, shape=False)[0]
         sig = np.full(len(r), self.cfg.sigma_px)
         if self.part_scale is not None and len(r):
             sig = sig * np.asarray(self.part_scale, float)[self.pairs.bone]
         self.weights = _huber_sqrt(r / (sig / self.cfg.sigma_px), self.cfg.huber_px) / sig
         self._key = key
 
-    def block(self, skel: Skeleton, balls: Metaballs, theta: np.ndarray, root: np.ndarray,
-              s: np.ndarray, anc: np.ndarray | None = None, shape: bool = True):
+    def block(
+        self,
+        skel: Skeleton,
+        balls: Metaballs,
+        theta: np.ndarray,
+        root: np.ndarray,
+        s: np.ndarray,
+        anc: np.ndarray | None = None,
+        shape: bool = True,
+    ):
         """Weighted residual rows ``(r, J_theta, J_root, J_s, J_radii, J_centers)`` of
         the frozen pairs (see :func:`contour_block`; every row times ``weights``)."""
         if self.pairs is None:
             self.freeze(skel, balls, theta, root, s)
         out = contour_block(skel, balls, theta, root, s, self.cameras, self.pairs, anc, shape)
         w = self.weights
-        return tuple(None if a is None else (a * w if a.ndim == 1 else a * w[:, None])
-                     for a in out)
+        return tuple(None if a is None else (a * w if a.ndim == 1 else a * w[:, None]) for a in out)
 
-    def containment_block(self, skel: Skeleton, balls: Metaballs, theta: np.ndarray,
-                          root: np.ndarray, s: np.ndarray):
+    def containment_block(
+        self, skel: Skeleton, balls: Metaballs, theta: np.ndarray, root: np.ndarray, s: np.ndarray
+    ):
         """Silhouette-containment rows ``(r, J_theta, J_root)`` at a state, or None when
         the term is off (``containment_px`` 0), holds no part (:attr:`containment_parts`)
         or no camera has contours.
@@ -450,15 +517,24 @@ class ContourFrame:
         if k_px <= 0 or (held is not None and not np.any(held)):
             return None
         if self._fields is None:
-            self._fields = [silhouette_field(cons, cam.size) if cons else None
-                            for cons, cam in zip(self.contours, self.cameras, strict=True)]
+            self._fields = [
+                silhouette_field(cons, cam.size) if cons else None
+                for cons, cam in zip(self.contours, self.cameras, strict=True)
+            ]
         use = [c for c, f in enumerate(self._fields) if f is not None]
         if not use:
             return None
-        co = containment_observations(skel, np.asarray(theta, float), np.asarray(root, float),
-                                      s, balls, [self.cameras[c] for c in use],
-                                      [self._fields[c] for c in use],
-                                      tol_px=self.cfg.containment_tol_px, keep_parts=held)
+        co = containment_observations(
+            skel,
+            np.asarray(theta, float),
+            np.asarray(root, float),
+            s,
+            balls,
+            [self.cameras[c] for c in use],
+            [self._fields[c] for c in use],
+            tol_px=self.cfg.containment_tol_px,
+            keep_parts=held,
+        )
         k = self.cfg.huber_px
         r = co.residual
         big = r > k
@@ -470,8 +546,10 @@ class ContourFrame:
         """Foreground (H, W) bool of every camera, enclosed by its contours (None for a
         camera without contours); computed once."""
         if self._masks is None:
-            self._masks = [contour_mask(cons, cam.size) if cons else None
-                           for cons, cam in zip(self.contours, self.cameras, strict=True)]
+            self._masks = [
+                contour_mask(cons, cam.size) if cons else None
+                for cons, cam in zip(self.contours, self.cameras, strict=True)
+            ]
         return self._masks
 
     def grids(self) -> list:
@@ -479,8 +557,10 @@ class ContourFrame:
         from .silhouette_search import MaskGrid, mask_grid
 
         if self._grids is None:
-            self._grids = [mask_grid(m) if m is not None else
-                           MaskGrid(np.zeros((0, 2)), np.zeros(0, bool), 2) for m in self.masks()]
+            self._grids = [
+                mask_grid(m) if m is not None else MaskGrid(np.zeros((0, 2)), np.zeros(0, bool), 2)
+                for m in self.masks()
+            ]
         return self._grids
 
     def part_counts(self, n_parts: int, min_views: int = 1) -> np.ndarray:
@@ -491,31 +571,37 @@ class ContourFrame:
         counts = np.bincount(self.pairs.bone, minlength=n_parts)[:n_parts]
         if min_views > 1:
             C = len(self.cameras)
-            per = np.bincount(self.pairs.bone * C + self.pairs.camera,
-                              minlength=n_parts * C)[:n_parts * C].reshape(n_parts, C)
+            per = np.bincount(self.pairs.bone * C + self.pairs.camera, minlength=n_parts * C)[
+                : n_parts * C
+            ].reshape(n_parts, C)
             counts = np.where((per >= 10).sum(axis=1) >= min_views, counts, 0)
         return counts
 
-    def stats(self, skel: Skeleton, balls: Metaballs, theta: np.ndarray, root: np.ndarray,
-              s: np.ndarray) -> dict:
+    def stats(
+        self, skel: Skeleton, balls: Metaballs, theta: np.ndarray, root: np.ndarray, s: np.ndarray
+    ) -> dict:
         """Re-pair at a (final) state: ``{"n": pairs, "rms_px": RMS of the pairs within
         3 knees, "inl": their share, "cost": Σ min(|r|, 3 knees)²}`` (pixels)."""
         self.freeze(skel, balls, theta, root, s)
-        r = contour_block(skel, balls, theta, root, s, self.cameras, self.pairs,
-                          shape=False)[0]
+        r = contour_block(skel, balls, theta, root, s, self.cameras, self.pairs, shape=False)[0]
         tau = 3.0 * self.cfg.huber_px
         inl = np.abs(r) <= tau
-        return {"n": len(r), "inl": float(inl.mean()) if len(r) else 0.0,
-                "rms_px": float(np.sqrt(np.mean(r[inl] ** 2))) if inl.any() else np.inf,
-                "cost": float(np.sum(np.minimum(np.abs(r), tau) ** 2))}
+        return {
+            "n": len(r),
+            "inl": float(inl.mean()) if len(r) else 0.0,
+            "rms_px": float(np.sqrt(np.mean(r[inl] ** 2))) if inl.any() else np.inf,
+            "cost": float(np.sum(np.minimum(np.abs(r), tau) ** 2)),
+        }
 
     def cameras_used(self, skel: Skeleton) -> dict:
         """``{part name: [camera names]}`` of the last freeze (empty before one)."""
         if self.selection is None:
             return {}
         use = self.selection.use
-        return {skel.bone_names[p]: [self.cameras[c].name for c in np.flatnonzero(use[p])]
-                for p in range(min(len(skel.bone_names), len(use)))}
+        return {
+            skel.bone_names[p]: [self.cameras[c].name for c in np.flatnonzero(use[p])]
+            for p in range(min(len(skel.bone_names), len(use)))
+        }
 
 
 # -- image contours of a scene ------------------------------------------------------------
@@ -539,8 +625,9 @@ class SceneContours:
     messages: list
 
 
-def contours_from_frames(frames: np.ndarray, cfg: ContourSettings | None = None
-                         ) -> tuple[list[list[Contour]], np.ndarray]:
+def contours_from_frames(
+    frames: np.ndarray, cfg: ContourSettings | None = None
+) -> tuple[list[list[Contour]], np.ndarray]:
     """Foreground contours of one camera's take (robust temporal median background).
 
     Parameters
@@ -566,8 +653,9 @@ def contours_from_frames(frames: np.ndarray, cfg: ContourSettings | None = None
     return out, ok
 
 
-def scene_contours(scene, cameras: list[Camera], n_frames: int,
-                   cfg: ContourSettings | None = None, progress=None) -> SceneContours:
+def scene_contours(
+    scene, cameras: list[Camera], n_frames: int, cfg: ContourSettings | None = None, progress=None
+) -> SceneContours:
     """Image contours of the first ``n_frames`` frames of every camera of a scene
     (:func:`contours_from_frames` per camera, from the whole take's background)."""
     cfg = cfg or ContourSettings()
@@ -583,9 +671,11 @@ def scene_contours(scene, cameras: list[Camera], n_frames: int,
     view_ok = np.stack(oks, axis=1) if oks else np.zeros((n_frames, 0), bool)
     camera_ok = view_ok.mean(axis=0) >= 0.5 if n_frames else np.zeros(C, bool)
     for c in np.flatnonzero(~camera_ok):
-        msgs.append(f"camera {scene.cameras[c]}: no usable background/foreground "
-                    f"(plausible person mask in {int(view_ok[:, c].sum())} of {n_frames} "
-                    "frames): its contours are not used")
+        msgs.append(
+            f"camera {scene.cameras[c]}: no usable background/foreground "
+            f"(plausible person mask in {int(view_ok[:, c].sum())} of {n_frames} "
+            "frames): its contours are not used"
+        )
         for f in range(n_frames):
             per_cam[c][f] = []
     view_ok &= camera_ok[None]
@@ -593,8 +683,9 @@ def scene_contours(scene, cameras: list[Camera], n_frames: int,
     return SceneContours(contours, view_ok, camera_ok, msgs)
 
 
-def contour_frames(cameras: list[Camera], contours: list[list[list[Contour]]],
-                   cfg: ContourSettings | None = None) -> list[ContourFrame]:
+def contour_frames(
+    cameras: list[Camera], contours: list[list[list[Contour]]], cfg: ContourSettings | None = None
+) -> list[ContourFrame]:
     """One :class:`ContourFrame` per frame, sharing the cameras' cached rays."""
     rays = [camera_rays(c) for c in cameras]
     return [ContourFrame(cameras, fc, cfg, rays=rays) for fc in contours]

@@ -46,8 +46,11 @@ from .fit_mirror import mirror_hidden
 from .skeleton import Skeleton, bone_frames, forward, joint_positions
 
 #: a limb's DOF-name prefixes (after ``l_``/``r_``)
-LIMB_PARTS = {"arm": ("clavicle", "shoulder", "elbow", "wrist"),
-              "leg": ("hip", "knee", "ankle"), "thigh": ("hip",)}
+LIMB_PARTS = {
+    "arm": ("clavicle", "shoulder", "elbow", "wrist"),
+    "leg": ("hip", "knee", "ankle"),
+    "thigh": ("hip",),
+}
 
 
 @dataclass
@@ -72,12 +75,25 @@ class Coupling:
 def limb_dofs(skel: Skeleton, side: str, limb: str) -> np.ndarray:
     """Indices of the DOFs of one limb, e.g. ``limb_dofs(skel, "r", "arm")``."""
     parts = LIMB_PARTS[limb]
-    return np.array([k for k, n in enumerate(skel.dof_names)
-                     if n.startswith(side + "_") and n[2:].rsplit("_", 1)[0] in parts], int)
+    return np.array(
+        [
+            k
+            for k, n in enumerate(skel.dof_names)
+            if n.startswith(side + "_") and n[2:].rsplit("_", 1)[0] in parts
+        ],
+        int,
+    )
 
 
-def segment_swing(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray, s: np.ndarray,
-                  head: str, tail: str, use: np.ndarray) -> np.ndarray:
+def segment_swing(
+    skel: Skeleton,
+    theta: np.ndarray,
+    root_xyz: np.ndarray,
+    s: np.ndarray,
+    head: str,
+    tail: str,
+    use: np.ndarray,
+) -> np.ndarray:
     """The swing of one body segment: (F,) first principal component of its direction.
 
     Parameters
@@ -102,8 +118,9 @@ def segment_swing(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray, s: np
     return (local - mean) @ vt[0]
 
 
-def coupling_lines(d: np.ndarray, y: np.ndarray, r2_min: float
-                   ) -> tuple[np.ndarray, np.ndarray, float]:
+def coupling_lines(
+    d: np.ndarray, y: np.ndarray, r2_min: float
+) -> tuple[np.ndarray, np.ndarray, float]:
     """Least-squares lines ``y ≈ c0 + c1·d`` and which of them the data bear out.
 
     Parameters
@@ -127,8 +144,9 @@ def coupling_lines(d: np.ndarray, y: np.ndarray, r2_min: float
     return coef, keep, pooled
 
 
-def fill_runs(y: np.ndarray, pred: np.ndarray, hidden: np.ndarray, ok: np.ndarray,
-              ends: bool) -> np.ndarray:
+def fill_runs(
+    y: np.ndarray, pred: np.ndarray, hidden: np.ndarray, ok: np.ndarray, ends: bool
+) -> np.ndarray:
     """(F,) bool: the frames of ``y`` (modified in place) replaced by the prediction.
 
     Each run of ``hidden`` gets ``pred`` plus the residual ``y − pred`` of its observed
@@ -150,11 +168,18 @@ def fill_runs(y: np.ndarray, pred: np.ndarray, hidden: np.ndarray, ok: np.ndarra
     return done
 
 
-def couple_hidden(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray, s: np.ndarray,
-                  unobserved: np.ndarray, diverged: np.ndarray | None = None,
-                  r2_min: float = 0.5, min_train: int = 8, min_side: int = 4,
-                  ends: bool = False
-                  ) -> tuple[np.ndarray, np.ndarray, list[Coupling]]:
+def couple_hidden(
+    skel: Skeleton,
+    theta: np.ndarray,
+    root_xyz: np.ndarray,
+    s: np.ndarray,
+    unobserved: np.ndarray,
+    diverged: np.ndarray | None = None,
+    r2_min: float = 0.5,
+    min_train: int = 8,
+    min_side: int = 4,
+    ends: bool = False,
+) -> tuple[np.ndarray, np.ndarray, list[Coupling]]:
     """Predict unobserved limb angles from the opposite thigh (see the module text).
 
     Parameters
@@ -197,8 +222,7 @@ def couple_hidden(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray, s: np
                 report.append(Coupling(name, 0.0, n_t, 0))
                 continue
             if d is None:
-                d = segment_swing(skel, theta, root_xyz, s, other + "_hip", other + "_knee",
-                                  drv_ok)
+                d = segment_swing(skel, theta, root_xyz, s, other + "_hip", other + "_knee", drv_ok)
             coef, keep, r2 = coupling_lines(d[train], theta[train][:, dofs], r2_min)
             replaced = np.zeros(nf, bool)
             # a run needs the coupling seen on both sides of it (time interpolation, not
@@ -220,11 +244,21 @@ def couple_hidden(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray, s: np
     return theta, coupled, report
 
 
-def fill_unobserved(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray, s: np.ndarray,
-                    unobserved: np.ndarray, diverged: np.ndarray, couple: bool = True,
-                    bridge: bool = True, r2_min: float = 0.5, hidden: np.ndarray | None = None,
-                    anchors: tuple = (), mirror: bool = True, mirror_r2: float = 0.8
-                    ) -> tuple[np.ndarray, list[str]]:
+def fill_unobserved(
+    skel: Skeleton,
+    theta: np.ndarray,
+    root_xyz: np.ndarray,
+    s: np.ndarray,
+    unobserved: np.ndarray,
+    diverged: np.ndarray,
+    couple: bool = True,
+    bridge: bool = True,
+    r2_min: float = 0.5,
+    hidden: np.ndarray | None = None,
+    anchors: tuple = (),
+    mirror: bool = True,
+    mirror_r2: float = 0.8,
+) -> tuple[np.ndarray, list[str]]:
     """The sequence fit's last step: unobserved angles coupled, hidden arms mirrored, the
     rest bridged.
 
@@ -249,22 +283,33 @@ def fill_unobserved(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray, s: 
     hid = unobs if hidden is None else np.asarray(hidden, bool)
     left, msgs = unobs, []
     if couple:
-        theta, coupled, report = couple_hidden(skel, theta, root_xyz, s, unobs, diverged,
-                                               r2_min=r2_min)
+        theta, coupled, report = couple_hidden(
+            skel, theta, root_xyz, s, unobs, diverged, r2_min=r2_min
+        )
         left = unobs & ~coupled
         hid = hid & ~coupled
-        msgs += [f"{c.limb}: {c.frames} unobserved frames predicted from the opposite thigh "
-                 f"(R² {c.r2:.2f} on {c.n_train} observed frames)" for c in report if c.frames]
+        msgs += [
+            f"{c.limb}: {c.frames} unobserved frames predicted from the opposite thigh "
+            f"(R² {c.r2:.2f} on {c.n_train} observed frames)"
+            for c in report
+            if c.frames
+        ]
     if mirror:
-        theta, mirrored, mreport = mirror_hidden(skel, theta, s, hid, diverged, anchors,
-                                                 r2_min=mirror_r2)
+        theta, mirrored, mreport = mirror_hidden(
+            skel, theta, s, hid, diverged, anchors, r2_min=mirror_r2
+        )
         left = left & ~mirrored
-        msgs += [f"{m.limb}: hidden in frames {m.frames[0]}–{m.frames[1] - 1}, mirrored from "
-                 f"the other arm (the legs move mirrored there, R² {m.r2:.2f})"
-                 for m in mreport if m.mirrored]
+        msgs += [
+            f"{m.limb}: hidden in frames {m.frames[0]}–{m.frames[1] - 1}, mirrored from "
+            f"the other arm (the legs move mirrored there, R² {m.r2:.2f})"
+            for m in mreport
+            if m.mirrored
+        ]
     if bridge:
         theta, bridged = bridge_hidden(theta, left, diverged)
         if bridged.any():
-            msgs.append(f"{int(bridged.any(axis=1).sum())} frames with angles interpolated "
-                        "across an unobserved stretch")
+            msgs.append(
+                f"{int(bridged.any(axis=1).sum())} frames with angles interpolated "
+                "across an unobserved stretch"
+            )
     return theta, msgs

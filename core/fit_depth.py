@@ -69,17 +69,20 @@ class DepthHolds:
         return r, J_theta, d * w[:, None], J_s
 
 
-def part_views(bone: np.ndarray, camera: np.ndarray, n_parts: int, n_cameras: int,
-               min_pairs: int = 10) -> np.ndarray:
+def part_views(
+    bone: np.ndarray, camera: np.ndarray, n_parts: int, n_cameras: int, min_pairs: int = 10
+) -> np.ndarray:
     """(P, C) bool: the views with at least ``min_pairs`` contour pairs of each part
     (``bone``, ``camera``: (M,) int, body part and camera of each pair)."""
-    per = np.bincount(bone * n_cameras + camera,
-                      minlength=n_parts * n_cameras)[:n_parts * n_cameras]
+    per = np.bincount(bone * n_cameras + camera, minlength=n_parts * n_cameras)[
+        : n_parts * n_cameras
+    ]
     return per.reshape(n_parts, n_cameras) >= min_pairs
 
 
-def single_view_parts(bone: np.ndarray, camera: np.ndarray, n_parts: int, n_cameras: int,
-                      min_pairs: int = 10) -> np.ndarray:
+def single_view_parts(
+    bone: np.ndarray, camera: np.ndarray, n_parts: int, n_cameras: int, min_pairs: int = 10
+) -> np.ndarray:
     """The camera of every part whose contour pairs come from exactly one view.
 
     Parameters
@@ -96,9 +99,16 @@ def single_view_parts(bone: np.ndarray, camera: np.ndarray, n_parts: int, n_came
     return np.where(seen.sum(axis=1) == 1, np.argmax(seen, axis=1), -1)
 
 
-def depth_holds(skel: Skeleton, theta: np.ndarray, root: np.ndarray, s: np.ndarray,
-                view: np.ndarray, cameras: list[Camera], parts: np.ndarray,
-                sigma_m: float) -> DepthHolds:
+def depth_holds(
+    skel: Skeleton,
+    theta: np.ndarray,
+    root: np.ndarray,
+    s: np.ndarray,
+    view: np.ndarray,
+    cameras: list[Camera],
+    parts: np.ndarray,
+    sigma_m: float,
+) -> DepthHolds:
     """Depth holds at a pose for the joints carried by single-view parts.
 
     Parameters
@@ -119,9 +129,17 @@ def depth_holds(skel: Skeleton, theta: np.ndarray, root: np.ndarray, s: np.ndarr
     return DepthHolds(joint, d, x, np.full(len(joint), float(sigma_m)))
 
 
-def narrow_depth_holds(skel: Skeleton, theta: np.ndarray, root: np.ndarray, s: np.ndarray,
-                       seen: np.ndarray, cameras: list[Camera], parts: np.ndarray,
-                       sigma_m: float, max_spread_deg: float = 0.0) -> DepthHolds:
+def narrow_depth_holds(
+    skel: Skeleton,
+    theta: np.ndarray,
+    root: np.ndarray,
+    s: np.ndarray,
+    seen: np.ndarray,
+    cameras: list[Camera],
+    parts: np.ndarray,
+    sigma_m: float,
+    max_spread_deg: float = 0.0,
+) -> DepthHolds:
     """Depth holds for the joints of parts whose views look along nearly one direction.
 
     Views a few tens of degrees apart see almost the same occluding contour of a limb,
@@ -159,8 +177,9 @@ def narrow_depth_holds(skel: Skeleton, theta: np.ndarray, root: np.ndarray, s: n
     return DepthHolds(joint[keep], d, x[keep], np.full(int(keep.sum()), float(sigma_m)))
 
 
-def frame_depth_holds(skel: Skeleton, contours, hidden: np.ndarray, theta: np.ndarray,
-                      root: np.ndarray, s: np.ndarray) -> DepthHolds | None:
+def frame_depth_holds(
+    skel: Skeleton, contours, hidden: np.ndarray, theta: np.ndarray, root: np.ndarray, s: np.ndarray
+) -> DepthHolds | None:
     """The depth holds of one contours-alone frame.
 
     Parameters
@@ -182,5 +201,6 @@ def frame_depth_holds(skel: Skeleton, contours, hidden: np.ndarray, theta: np.nd
     seen = part_views(contours.pairs.bone, contours.pairs.camera, B, len(contours.cameras))
     shown = np.ones(B, bool)
     shown[skel.dof_bones()[np.asarray(hidden)]] = False
-    return narrow_depth_holds(skel, theta, root, s, seen, contours.cameras, shown, sigma,
-                              contours.cfg.depth_spread_deg)
+    return narrow_depth_holds(
+        skel, theta, root, s, seen, contours.cameras, shown, sigma, contours.cfg.depth_spread_deg
+    )

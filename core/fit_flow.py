@@ -141,14 +141,29 @@ class FlowObs:
         K = len(self.bone)
         zero = None if n_shape is None else np.zeros((2 * K, n_shape))
         r = np.where(np.isfinite(r), r, 0.0)
-        return (r.reshape(-1) * w, Jt.reshape(2 * K, -1) * w[:, None],
-                Jr.reshape(2 * K, 3) * w[:, None], Js.reshape(2 * K, -1) * w[:, None],
-                zero, None if zero is None else zero.copy())
+        return (
+            r.reshape(-1) * w,
+            Jt.reshape(2 * K, -1) * w[:, None],
+            Jr.reshape(2 * K, 3) * w[:, None],
+            Js.reshape(2 * K, -1) * w[:, None],
+            zero,
+            None if zero is None else zero.copy(),
+        )
 
 
-def lift_corners(skel: Skeleton, balls: Metaballs, theta, root, s, camera: Camera,
-                 image: np.ndarray, foreground: np.ndarray | None, cfg: FlowSettings,
-                 rays: np.ndarray | None = None, keep=None):
+def lift_corners(
+    skel: Skeleton,
+    balls: Metaballs,
+    theta,
+    root,
+    s,
+    camera: Camera,
+    image: np.ndarray,
+    foreground: np.ndarray | None,
+    cfg: FlowSettings,
+    rays: np.ndarray | None = None,
+    keep=None,
+):
     """Corners of one camera's image on the fitted body, lifted onto its surface.
 
     Parameters
@@ -189,8 +204,9 @@ def lift_corners(skel: Skeleton, balls: Metaballs, theta, root, s, camera: Camer
         x = pb[0, k_bone] + np.einsum("nij,nj->ni", Rb[0, k_bone], k_q0)
         iu = np.clip(np.rint(k_uv[:, 0]).astype(int), 0, camera.size[0] - 1)
         iv = np.clip(np.rint(k_uv[:, 1]).astype(int), 0, camera.size[1] - 1)
-        ok = ((np.linalg.norm(camera.project(x) - k_uv, axis=1) <= cfg.keep_px)
-              & (ren.part_id[iv, iu] == k_bone))
+        ok = (np.linalg.norm(camera.project(x) - k_uv, axis=1) <= cfg.keep_px) & (
+            ren.part_id[iv, iu] == k_bone
+        )
         if fg is not None:
             ok &= fg[iv, iu] > 0
         k_uv, k_bone, k_q0 = k_uv[ok], k_bone[ok], k_q0[ok]
@@ -208,8 +224,7 @@ def lift_corners(skel: Skeleton, balls: Metaballs, theta, root, s, camera: Camer
             m &= fg
         if m.sum() < 9:
             continue
-        pts = cv2.goodFeaturesToTrack(image, int(want), cfg.quality, cfg.min_distance_px,
-                                      mask=m)
+        pts = cv2.goodFeaturesToTrack(image, int(want), cfg.quality, cfg.min_distance_px, mask=m)
         if pts is None:
             continue
         uvs.append(pts.reshape(-1, 2).astype(float))
@@ -227,8 +242,7 @@ def lift_corners(skel: Skeleton, balls: Metaballs, theta, root, s, camera: Camer
     xyz = camera.center + depth[ok, None] * d
     b = bone[ok]
     q0 = np.einsum("nji,nj->ni", Rb[0, b], xyz - pb[0, b])
-    return (np.concatenate([k_uv, uv[ok]]), np.concatenate([k_bone, b]),
-            np.concatenate([k_q0, q0]))
+    return (np.concatenate([k_uv, uv[ok]]), np.concatenate([k_bone, b]), np.concatenate([k_q0, q0]))
 
 
 def follow_corners(img0: np.ndarray, img1: np.ndarray, uv: np.ndarray, cfg: FlowSettings):
@@ -237,15 +251,25 @@ def follow_corners(img0: np.ndarray, img1: np.ndarray, uv: np.ndarray, cfg: Flow
     if not len(uv):
         return np.zeros((0, 2)), np.zeros(0, bool)
     p0 = uv.astype(np.float32).reshape(-1, 1, 2)
-    lk = dict(winSize=(cfg.window_px, cfg.window_px), maxLevel=cfg.levels,
-              criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))
+    lk = dict(
+        winSize=(cfg.window_px, cfg.window_px),
+        maxLevel=cfg.levels,
+        criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01),
+    )
     p1, st1, _ = cv2.calcOpticalFlowPyrLK(img0, img1, p0, None, **lk)
     pb, st2, _ = cv2.calcOpticalFlowPyrLK(img1, img0, p1, None, **lk)
     fb = np.linalg.norm((pb - p0).reshape(-1, 2), axis=1)
     h, w = img0.shape
     uv1 = p1.reshape(-1, 2).astype(float)
-    ok = ((st1.ravel() == 1) & (st2.ravel() == 1) & (fb <= cfg.fb_px)
-          & (uv1[:, 0] >= 0) & (uv1[:, 0] <= w - 1) & (uv1[:, 1] >= 0) & (uv1[:, 1] <= h - 1))
+    ok = (
+        (st1.ravel() == 1)
+        & (st2.ravel() == 1)
+        & (fb <= cfg.fb_px)
+        & (uv1[:, 0] >= 0)
+        & (uv1[:, 0] <= w - 1)
+        & (uv1[:, 1] >= 0)
+        & (uv1[:, 1] <= h - 1)
+    )
     return uv1, ok
 
 
@@ -260,8 +284,13 @@ class FlowAnchors:
     rays : list (C) of (H, W, 3) cached viewing rays, optional
     """
 
-    def __init__(self, cameras: list[Camera], image, settings: FlowSettings | None = None,
-                 rays: list | None = None):
+    def __init__(
+        self,
+        cameras: list[Camera],
+        image,
+        settings: FlowSettings | None = None,
+        rays: list | None = None,
+    ):
         self.cameras = list(cameras)
         self.image = image
         self.cfg = settings or FlowSettings()
@@ -277,8 +306,16 @@ class FlowAnchors:
         self._cache = {}
         self._followed = {}
 
-    def set(self, skel: Skeleton, balls: Metaballs, theta, root, s, frame: int,
-            foreground: list | None = None) -> None:
+    def set(
+        self,
+        skel: Skeleton,
+        balls: Metaballs,
+        theta,
+        root,
+        s,
+        frame: int,
+        foreground: list | None = None,
+    ) -> None:
         """Lift the corners of every camera's image of ``frame`` onto the fitted body
         (``foreground`` (C) of (H, W) bool or None per camera); with
         ``settings.persist`` the corners followed into ``frame`` keep their points."""
@@ -287,10 +324,21 @@ class FlowAnchors:
         self.frame = frame
         for c, cam in enumerate(self.cameras):
             fg = None if foreground is None else foreground[c]
-            self._lifted.append(lift_corners(skel, balls, theta, root, s, cam,
-                                             self.image(c, frame), fg, self.cfg,
-                                             self.rays[c],
-                                             None if followed is None else followed[c]))
+            self._lifted.append(
+                lift_corners(
+                    skel,
+                    balls,
+                    theta,
+                    root,
+                    s,
+                    cam,
+                    self.image(c, frame),
+                    fg,
+                    self.cfg,
+                    self.rays[c],
+                    None if followed is None else followed[c],
+                )
+            )
 
     def observations(self, frame: int) -> FlowObs | None:
         """The lifted corners followed into ``frame`` (the stored frame ± 1), or None."""
@@ -304,8 +352,7 @@ class FlowAnchors:
             if not len(uv0):
                 followed.append((uv0, b, q))
                 continue
-            uv1, ok = follow_corners(self.image(c, self.frame), self.image(c, frame), uv0,
-                                     self.cfg)
+            uv1, ok = follow_corners(self.image(c, self.frame), self.image(c, frame), uv0, self.cfg)
             followed.append((uv1[ok], b[ok], q[ok]))
             bone.append(b[ok])
             q0.append(q[ok])
@@ -314,9 +361,15 @@ class FlowAnchors:
         obs = None
         if bone and sum(len(b) for b in bone):
             K = sum(len(b) for b in bone)
-            obs = FlowObs(self.cameras, np.concatenate(bone), np.concatenate(q0),
-                          np.concatenate(cam), np.concatenate(uv),
-                          np.full(K, self.cfg.sigma_px), self.cfg.robust_scale)
+            obs = FlowObs(
+                self.cameras,
+                np.concatenate(bone),
+                np.concatenate(q0),
+                np.concatenate(cam),
+                np.concatenate(uv),
+                np.full(K, self.cfg.sigma_px),
+                self.cfg.robust_scale,
+            )
         self._cache[frame] = obs
         self._followed[frame] = followed
         return obs

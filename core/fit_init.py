@@ -37,8 +37,16 @@ from .skeleton import TEMPLATE_JOINTS, Skeleton, make_skeleton
 REQUIRED_JOINTS = METRIC_JOINTS
 
 #: Scale groups fixed by the clicked joints (the others take their median).
-_OBSERVED_GROUPS = ("trunk", "neck", "clavicle", "upper_arm", "forearm", "hip_width",
-                    "thigh", "shin")
+_OBSERVED_GROUPS = (
+    "trunk",
+    "neck",
+    "clavicle",
+    "upper_arm",
+    "forearm",
+    "hip_width",
+    "thigh",
+    "shin",
+)
 
 
 @dataclass
@@ -63,11 +71,15 @@ class ClickPoints:
         out = []
         for joint, cam, before, after in self.dropped:
             if cam is None:
-                out.append(f"click of '{joint}' dropped: its cameras disagree "
-                           f"(reprojection RMS {before:.1f} px)")
+                out.append(
+                    f"click of '{joint}' dropped: its cameras disagree "
+                    f"(reprojection RMS {before:.1f} px)"
+                )
             else:
-                out.append(f"click of '{joint}' in {cam} dropped as a gross error "
-                           f"(reprojection RMS {before:.1f} px -> {after:.2f} px without it)")
+                out.append(
+                    f"click of '{joint}' in {cam} dropped as a gross error "
+                    f"(reprojection RMS {before:.1f} px -> {after:.2f} px without it)"
+                )
         return out
 
 
@@ -85,8 +97,13 @@ class Initialisation:
     joint_rmse_m: float
 
 
-def triangulate_clicks(clicks: dict, cameras: list[Camera], gross_px: float = 4.0,
-                       sigma_px: float = 1.0, path: str = "clicks.json") -> ClickPoints:
+def triangulate_clicks(
+    clicks: dict,
+    cameras: list[Camera],
+    gross_px: float = 4.0,
+    sigma_px: float = 1.0,
+    path: str = "clicks.json",
+) -> ClickPoints:
     """3-D key joints from ``clicks`` (as returned by :meth:`core.scene.Scene.clicks`).
 
     Parameters
@@ -104,8 +121,9 @@ def triangulate_clicks(clicks: dict, cameras: list[Camera], gross_px: float = 4.
     names = [j for j in joints if j in TEMPLATE_JOINTS]
     missing = [j for j in REQUIRED_JOINTS if j not in joints]
     if missing:
-        raise InputError(f"{path}: is missing the required joints {missing} "
-                         f"(needs {list(REQUIRED_JOINTS)})")
+        raise InputError(
+            f"{path}: is missing the required joints {missing} (needs {list(REQUIRED_JOINTS)})"
+        )
     cam_index = {c.name: i for i, c in enumerate(cameras)}
     C = len(cameras)
     uv = np.full((len(names), C, 2), np.nan)
@@ -138,11 +156,17 @@ def triangulate_clicks(clicks: dict, cameras: list[Camera], gross_px: float = 4.
     keep = np.isfinite(rms) & (rms <= gross_px) & np.all(np.isfinite(xyz), axis=1)
     for k in np.nonzero(~keep)[0]:
         if names[k] in REQUIRED_JOINTS:
-            raise InputError(f"{path}: the clicks of '{names[k]}' contradict each other "
-                             f"between the cameras (reprojection RMS {rms[k]:.1f} px)")
+            raise InputError(
+                f"{path}: the clicks of '{names[k]}' contradict each other "
+                f"between the cameras (reprojection RMS {rms[k]:.1f} px)"
+            )
         dropped.append((names[k], None, float(rms[k]), float("nan")))
-    return ClickPoints(names=[n for n, k in zip(names, keep, strict=True) if k],
-                       xyz=xyz[keep], rms_px=rms[keep], dropped=dropped)
+    return ClickPoints(
+        names=[n for n, k in zip(names, keep, strict=True) if k],
+        xyz=xyz[keep],
+        rms_px=rms[keep],
+        dropped=dropped,
+    )
 
 
 def _hip_offsets(pts: dict) -> dict:
@@ -166,8 +190,13 @@ def _hip_offsets(pts: dict) -> dict:
     return {"l_hip": np.array([ax, 0.0, az]), "r_hip": np.array([-ax, 0.0, az])}
 
 
-def initialise(clicks: dict, cameras: list[Camera], model: str = "simplified",
-               gross_px: float = 4.0, path: str = "clicks.json") -> Initialisation:
+def initialise(
+    clicks: dict,
+    cameras: list[Camera],
+    model: str = "simplified",
+    gross_px: float = 4.0,
+    path: str = "clicks.json",
+) -> Initialisation:
     """Posture, skeleton and scales of the clicked frame.
 
     Parameters
@@ -202,8 +231,9 @@ def initialise(clicks: dict, cameras: list[Camera], model: str = "simplified",
     theta[skel.dof_index("pelvis_z")] = np.arctan2(v[1], v[0])
     pel = pts.get("pelvis", 0.5 * (pts["l_hip"] + pts["r_hip"]))
     idx = np.array([skel.joint_index(j) for j in cp.names])
-    obs = Observations(joint_idx=idx, joint_xyz=cp.xyz, sigma_joint=0.01,
-                       theta_pred=theta.copy(), sigma_pred=1.0)
+    obs = Observations(
+        joint_idx=idx, joint_xyz=cp.xyz, sigma_joint=0.01, theta_pred=theta.copy(), sigma_pred=1.0
+    )
     balls = make_metaballs(skel, model, s)
     cfg = FitSettings(rounds=0, polish=False, shape_prior=True, max_nfev=200)
     # pose first (scales fixed), then pose and scales together
@@ -213,13 +243,19 @@ def initialise(clicks: dict, cameras: list[Camera], model: str = "simplified",
     obs_g = [skel.group_names.index(g) for g in _OBSERVED_GROUPS]
     med = float(np.median(s[obs_g]))
     for g in range(G):
-        if skel.group_names[g] not in _OBSERVED_GROUPS and g != skel.group_names.index(
-                "hip_width"):
+        if skel.group_names[g] not in _OBSERVED_GROUPS and g != skel.group_names.index("hip_width"):
             s[g] = med
     from .skeleton import joint_positions
 
     x = joint_positions(skel, r2.theta, r2.root_xyz, s)[idx]
     rmse = float(np.sqrt(np.mean(np.sum((x - cp.xyz) ** 2, axis=1))))
-    return Initialisation(skeleton=skel, s=s, theta=r2.theta, root_xyz=r2.root_xyz,
-                          metaballs=make_metaballs(skel, model, s),
-                          frame=int(clicks.get("frame", 0)), clicks=cp, joint_rmse_m=rmse)
+    return Initialisation(
+        skeleton=skel,
+        s=s,
+        theta=r2.theta,
+        root_xyz=r2.root_xyz,
+        metaballs=make_metaballs(skel, model, s),
+        frame=int(clicks.get("frame", 0)),
+        clicks=cp,
+        joint_rmse_m=rmse,
+    )

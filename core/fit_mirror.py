@@ -87,8 +87,9 @@ def mirror_pairs(skel: Skeleton, s: np.ndarray) -> tuple[np.ndarray, np.ndarray,
     return left, right, sign
 
 
-def legs_mirror_r2(skel: Skeleton, theta: np.ndarray, pairs, frames: np.ndarray,
-                   min_motion: float) -> float:
+def legs_mirror_r2(
+    skel: Skeleton, theta: np.ndarray, pairs, frames: np.ndarray, min_motion: float
+) -> float:
     """Share of the right leg's sagittal variance that the mirrored left leg explains.
 
     Parameters
@@ -112,10 +113,18 @@ def legs_mirror_r2(skel: Skeleton, theta: np.ndarray, pairs, frames: np.ndarray,
     return float(1.0 - ((a - b) ** 2).sum() / spread)
 
 
-def mirror_hidden(skel: Skeleton, theta: np.ndarray, s: np.ndarray, hidden: np.ndarray,
-                  diverged: np.ndarray | None = None, anchors: tuple = (),
-                  r2_min: float = 0.8, min_motion: float = 0.05, margin: int = 5,
-                  blend: int = 5) -> tuple[np.ndarray, np.ndarray, list[Mirroring]]:
+def mirror_hidden(
+    skel: Skeleton,
+    theta: np.ndarray,
+    s: np.ndarray,
+    hidden: np.ndarray,
+    diverged: np.ndarray | None = None,
+    anchors: tuple = (),
+    r2_min: float = 0.8,
+    min_motion: float = 0.05,
+    margin: int = 5,
+    blend: int = 5,
+) -> tuple[np.ndarray, np.ndarray, list[Mirroring]]:
     """Replace a hidden arm's angles by the other arm's, mirrored (see the module text).
 
     Parameters
@@ -159,8 +168,7 @@ def mirror_hidden(skel: Skeleton, theta: np.ndarray, s: np.ndarray, hidden: np.n
     for side, (dst, src) in (("r", (right, left)), ("l", (left, right))):
         dst, src, sg = dst[arm], src[arm], sign[arm]
         key = np.array([skel.dof_names[j][2:].startswith("shoulder") for j in dst])
-        stretch = (hidden[:, dst[key]].all(axis=1) & ~unseen[:, src[key]].any(axis=1)
-                   & ~div & ~fixed)
+        stretch = hidden[:, dst[key]].all(axis=1) & ~unseen[:, src[key]].any(axis=1) & ~div & ~fixed
         for a, b in hidden_runs(stretch):
             win = np.arange(max(0, a - margin), min(nf, b + margin))
             r2 = legs_mirror_r2(skel, source, pairs, win[~div[win]], min_motion)
@@ -177,8 +185,9 @@ def mirror_hidden(skel: Skeleton, theta: np.ndarray, s: np.ndarray, hidden: np.n
                     t = np.arange(c, d)
                     y = pred[c:d].copy()
                     if c > 0 and known[c - 1]:
-                        y += np.clip(1.0 - (t - (c - 1)) / blend, 0.0, 1.0) * \
-                            (theta[c - 1, j] - pred[c - 1])
+                        y += np.clip(1.0 - (t - (c - 1)) / blend, 0.0, 1.0) * (
+                            theta[c - 1, j] - pred[c - 1]
+                        )
                     if d < nf and known[d]:
                         y += np.clip(1.0 - (d - t) / blend, 0.0, 1.0) * (theta[d, j] - pred[d])
                     theta[c:d, j] = np.clip(y, skel.dof_lo[j], skel.dof_hi[j])

@@ -37,7 +37,7 @@ class PosePredictor:
         if self.ekf is not None:
             self.ekf.predict()
             q = self.ekf.q.copy()
-            sig = np.clip(self.ekf.q_sigma[:self.n], cfg.sigma_pred, cfg.sigma_pred_max)
+            sig = np.clip(self.ekf.q_sigma[: self.n], cfg.sigma_pred, cfg.sigma_pred_max)
             return q, sig
         h = self.hist
         q = h[-1] + (cfg.damping * (h[-1] - h[-2]) if len(h) > 1 else 0.0)
@@ -56,8 +56,8 @@ class PosePredictor:
                 sig = np.maximum(q_sigma[meas], 0.005)
                 H = np.eye(q.size)[meas]
                 self.ekf.update(q[meas], lambda x: x[meas], H, sig**2)
-            return self.ekf.q_sigma[:self.n].copy()
-        self.n_hidden = np.where(meas[:self.n], 0, getattr(self, "n_hidden", 0) + 1)
+            return self.ekf.q_sigma[: self.n].copy()
+        self.n_hidden = np.where(meas[: self.n], 0, getattr(self, "n_hidden", 0) + 1)
         return self.cfg.sigma_pred * np.sqrt(1.0 + self.n_hidden)
 
     def skip(self) -> None:

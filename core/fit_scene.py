@@ -53,8 +53,7 @@ def observations_from_tracks(path, n_frames: int) -> list[FramePoints]:
         raise InputError(f"{path}: is missing the array 'xyz' (F, P, 3)")
     xyz = np.asarray(data["xyz"], float)
     if xyz.ndim != 3 or xyz.shape[2] != 3 or xyz.shape[0] != n_frames:
-        raise InputError(f"{path}: 'xyz' has shape {list(xyz.shape)}, expected "
-                         f"({n_frames}, P, 3)")
+        raise InputError(f"{path}: 'xyz' has shape {list(xyz.shape)}, expected ({n_frames}, P, 3)")
     sigma = np.asarray(data.get("sigma", np.full(xyz.shape[:2], 0.003)), float)
     if "sigma" not in data and "sigma_xyz" in data:  # per-axis σ (F, P, 3): their RMS
         sx = np.asarray(data["sigma_xyz"], float)
@@ -70,8 +69,14 @@ def observations_from_tracks(path, n_frames: int) -> list[FramePoints]:
     out = []
     for f in range(n_frames):
         ok = np.all(np.isfinite(xyz[f]), axis=1) & np.isfinite(sigma[f]) & (sigma[f] > 0)
-        out.append(FramePoints(xyz=xyz[f, ok], sigma=sigma[f, ok], ids=ids[ok],
-                               views=None if views is None else views[f, ok]))
+        out.append(
+            FramePoints(
+                xyz=xyz[f, ok],
+                sigma=sigma[f, ok],
+                ids=ids[ok],
+                views=None if views is None else views[f, ok],
+            )
+        )
     return out
 
 
@@ -92,11 +97,20 @@ class SceneFit:
     hidden: np.ndarray | None = None  # (F, n) bool: DOFs held for want of observations
 
 
-def run_scene(scene, observations: str = "auto", model: str = "complete",
-              settings: SequenceSettings | None = None, progress: Progress | None = None,
-              n_points: int = 3000, seed: int = 0, frames: int | None = None,
-              cues: str = "texture", tracks=None, contour_settings=None,
-              flow="auto") -> SceneFit:
+def run_scene(
+    scene,
+    observations: str = "auto",
+    model: str = "complete",
+    settings: SequenceSettings | None = None,
+    progress: Progress | None = None,
+    n_points: int = 3000,
+    seed: int = 0,
+    frames: int | None = None,
+    cues: str = "texture",
+    tracks=None,
+    contour_settings=None,
+    flow="auto",
+) -> SceneFit:
     """The whole pipeline on a loaded :class:`core.scene.Scene`.
 
     Parameters
@@ -126,8 +140,10 @@ def run_scene(scene, observations: str = "auto", model: str = "complete",
     t0 = time.perf_counter()
     if not scene.calibration_path.is_file():
         if not scene.has_wand:
-            raise InputError(f"{scene.calibration_path}: not found and the scene has no "
-                             "wand/ sequence to calibrate from")
+            raise InputError(
+                f"{scene.calibration_path}: not found and the scene has no "
+                "wand/ sequence to calibrate from"
+            )
         from .calibrate import calibrate_scene
         from .calibration_io import write_calibration
 
@@ -156,30 +172,30 @@ def run_scene(scene, observations: str = "auto", model: str = "complete",
 
         if observations == "auto":
             msgs.append("no tracker output: using truth-derived observations (development)")
-        obs = truth_observations(scene.truth, cameras, n_points=n_points, seed=seed,
-                                 frames=range(nf))
+        obs = truth_observations(
+            scene.truth, cameras, n_points=n_points, seed=seed, frames=range(nf)
+        )
         timings["observations"] = time.perf_counter() - t1
     cframes = None
     if cues != "texture":
         contour_settings = _skip_settings(contour_settings)
         t3 = time.perf_counter()
-        cframes, cmsgs = _scene_contour_frames(scene, cameras, nf, cues, contour_settings,
-                                               progress)
+        cframes, cmsgs = _scene_contour_frames(scene, cameras, nf, cues, contour_settings, progress)
         msgs += cmsgs
         timings["contours"] = time.perf_counter() - t3
     t2 = time.perf_counter()
-    init = initialise(scene.clicks(), cameras, model=model,
-                      path=str(scene.root / "clicks.json"))
+    init = initialise(scene.clicks(), cameras, model=model, path=str(scene.root / "clicks.json"))
     msgs += init.clicks.messages()
     if init.frame >= nf:
-        raise InputError(f"{scene.root / 'clicks.json'}: clicked frame {init.frame} is "
-                         f"outside the {nf} fitted frames")
+        raise InputError(
+            f"{scene.root / 'clicks.json'}: clicked frame {init.frame} is "
+            f"outside the {nf} fitted frames"
+        )
     min_points = (settings or SequenceSettings()).min_points
     silhouette_shaped = False
     if cframes is not None and (cues == "contours" or len(obs[init.frame].xyz) < min_points):
         # no points to shape the body at the clicked frame: the silhouettes do
-        init = _shape_from_silhouettes(init, cameras, cframes[init.frame], msgs,
-                                       contour_settings)
+        init = _shape_from_silhouettes(init, cameras, cframes[init.frame], msgs, contour_settings)
         silhouette_shaped = True
         # the shape is the silhouettes': no further shape frames, however the fit is
         # called (core fit passes its own settings and had two until da6b412, the add-on
@@ -195,22 +211,42 @@ def run_scene(scene, observations: str = "auto", model: str = "complete",
         flow = cues == "both"
     if flow:
         anchors = _flow_anchors(scene, cameras, flow, cframes)
-    kw = dict(fps=scene.fps, source_scene=str(scene.root), metaball_model=model,
-              progress=progress, cameras=cameras, flow=anchors)
+    kw = dict(
+        fps=scene.fps,
+        source_scene=str(scene.root),
+        metaball_model=model,
+        progress=progress,
+        cameras=cameras,
+        flow=anchors,
+    )
     res = fit_sequence(obs, init, settings, contours=cframes, **kw)
-    if (silhouette_shaped and anchors is None and settings.silhouette_second_pass
-            and settings.shape == "fit" and res.shape is not None and res.shape.frame_ok.any()):
-        res = _second_pass(obs, init, settings, res, cframes, anchors, kw, timings,
-                           time.perf_counter() - t2)
+    if (
+        silhouette_shaped
+        and anchors is None
+        and settings.silhouette_second_pass
+        and settings.shape == "fit"
+        and res.shape is not None
+        and res.shape.frame_ok.any()
+    ):
+        res = _second_pass(
+            obs, init, settings, res, cframes, anchors, kw, timings, time.perf_counter() - t2
+        )
     timings["fit"] = time.perf_counter() - t2
     timings["total"] = time.perf_counter() - t0
     if res.shape is not None:
         timings["shape_fit"] = res.shape.seconds
-    return SceneFit(state=res.state, messages=msgs + res.messages, timings=timings,
-                    source=source, n_points=res.n_points, shape=res.shape, cues=cues,
-                    contour_matches=None if cframes is None else res.contour_matches,
-                    contour_rms_px=None if cframes is None else res.contour_rms_px,
-                    hidden=res.hidden)
+    return SceneFit(
+        state=res.state,
+        messages=msgs + res.messages,
+        timings=timings,
+        source=source,
+        n_points=res.n_points,
+        shape=res.shape,
+        cues=cues,
+        contour_matches=None if cframes is None else res.contour_matches,
+        contour_rms_px=None if cframes is None else res.contour_rms_px,
+        hidden=res.hidden,
+    )
 
 
 def _second_pass(obs, init, settings, first, cframes, anchors, kw, timings, seconds):
@@ -225,15 +261,24 @@ def _second_pass(obs, init, settings, first, cframes, anchors, kw, timings, seco
     from .fit_contours import ContourFrame
 
     timings["first_pass"] = seconds
-    fresh = [None if cf is None else ContourFrame(cf.cameras, cf.contours, cf.cfg, rays=cf.rays)
-             for cf in cframes]
+    fresh = [
+        None if cf is None else ContourFrame(cf.cameras, cf.contours, cf.cfg, rays=cf.rays)
+        for cf in cframes
+    ]
     if anchors is not None:
         anchors.clear()
-    res = fit_sequence(obs, replace(init, metaballs=first.state.metaballs),
-                       replace(settings, shape="template"), contours=fresh, **kw)
-    note = ("second pass: the motion tracked with the first pass's whole-body shape "
-            f"({int(first.state.quality.diverged.sum())} -> "
-            f"{int(res.state.quality.diverged.sum())} diverged frames)")
+    res = fit_sequence(
+        obs,
+        replace(init, metaballs=first.state.metaballs),
+        replace(settings, shape="template"),
+        contours=fresh,
+        **kw,
+    )
+    note = (
+        "second pass: the motion tracked with the first pass's whole-body shape "
+        f"({int(first.state.quality.diverged.sum())} -> "
+        f"{int(res.state.quality.diverged.sum())} diverged frames)"
+    )
     shape_msgs = [m for m in first.messages if m.startswith("whole-body shape")]
     return replace(res, shape=first.shape, messages=shape_msgs + [note] + res.messages)
 
@@ -271,15 +316,19 @@ def _scene_contour_frames(scene, cameras, nf: int, cues: str, cfg, progress):
     msgs = list(sc.messages)
     if not sc.camera_ok.any():
         if cues == "contours":
-            raise InputError(f"{scene.root / 'images'}: no camera gives a usable foreground "
-                             "(a plausible person mask in at least half of the frames), so "
-                             "--cues contours has no silhouettes to fit")
+            raise InputError(
+                f"{scene.root / 'images'}: no camera gives a usable foreground "
+                "(a plausible person mask in at least half of the frames), so "
+                "--cues contours has no silhouettes to fit"
+            )
         msgs.append("no camera gives a usable foreground: the contours are not used")
         return None, msgs
     missing = int((~sc.view_ok[:, sc.camera_ok]).sum())
     if missing:
-        msgs.append(f"{missing} camera views of usable cameras gave no plausible foreground "
-                    "(no contours there)")
+        msgs.append(
+            f"{missing} camera views of usable cameras gave no plausible foreground "
+            "(no contours there)"
+        )
     return contour_frames(cameras, sc.contours, cfg), msgs
 
 
@@ -318,20 +367,35 @@ def _shape_from_silhouettes(init, cameras, cframe, msgs, cfg=None):
     from .contour_track import ContourTrackSettings, fit_shape_to_contours
 
     tight = ContourTrackSettings(q_sigma_theta=0.01, q_sigma_root=0.002)
-    balls, th, rt, rms = fit_shape_to_contours(init.skeleton, init.s, init.metaballs,
-                                               init.theta, init.root_xyz, cameras,
-                                               cframe.contours, tight, rays=cframe.rays,
-                                               center_prior_m=_center_sigma(
-                                                   init.skeleton, init.metaballs, cfg))
+    balls, th, rt, rms = fit_shape_to_contours(
+        init.skeleton,
+        init.s,
+        init.metaballs,
+        init.theta,
+        init.root_xyz,
+        cameras,
+        cframe.contours,
+        tight,
+        rays=cframe.rays,
+        center_prior_m=_center_sigma(init.skeleton, init.metaballs, cfg),
+    )
     if not np.isfinite(rms) or not (np.all(np.isfinite(th)) and np.all(np.isfinite(rt))):
-        msgs.append(f"frame {init.frame}: too few silhouette contour pairs for the shape: "
-                    "the template shape is kept")
+        msgs.append(
+            f"frame {init.frame}: too few silhouette contour pairs for the shape: "
+            "the template shape is kept"
+        )
         return init
     moved = np.linalg.norm(balls.center0 - init.metaballs.center0, axis=1) * 100
-    shift = (f"; {int((moved > 0).sum())} metaball centres moved, {np.median(moved[moved > 0]):.1f}"
-             f" cm median, {moved.max():.1f} cm at most" if moved.max() > 0 else "")
-    msgs.append(f"shape fitted to frame {init.frame}'s silhouettes (contour RMS {rms:.2f} px "
-                f"before the last step{shift})")
+    shift = (
+        f"; {int((moved > 0).sum())} metaball centres moved, {np.median(moved[moved > 0]):.1f}"
+        f" cm median, {moved.max():.1f} cm at most"
+        if moved.max() > 0
+        else ""
+    )
+    msgs.append(
+        f"shape fitted to frame {init.frame}'s silhouettes (contour RMS {rms:.2f} px "
+        f"before the last step{shift})"
+    )
     return replace(init, metaballs=balls, theta=th, root_xyz=rt)
 
 
@@ -344,8 +408,10 @@ def fit_scene(scene, progress: Progress | None = None, **kwargs) -> FitState:
 def _tracker_available() -> bool:
     import importlib.util
 
-    return (importlib.util.find_spec("core.tracking") is not None
-            and importlib.util.find_spec("core.track_cli") is not None)
+    return (
+        importlib.util.find_spec("core.tracking") is not None
+        and importlib.util.find_spec("core.track_cli") is not None
+    )
 
 
 def _choose_source(scene, observations: str) -> str:
@@ -353,18 +419,23 @@ def _choose_source(scene, observations: str) -> str:
         raise ValueError(f"unknown observation source {observations!r}")
     if observations == "truth":
         if not scene.has_truth:
-            raise InputError(f"{scene.root / 'truth.npz'}: truth-derived observations need "
-                             "the scene's truth")
+            raise InputError(
+                f"{scene.root / 'truth.npz'}: truth-derived observations need the scene's truth"
+            )
         return "truth"
     have = (scene.root / "tracks.npz").is_file() or _tracker_available()
     if observations == "tracks" or have:
         if not have:
-            raise InputError(f"{scene.root / 'tracks.npz'}: not found and the tracker "
-                             "(core.tracking) is not available")
+            raise InputError(
+                f"{scene.root / 'tracks.npz'}: not found and the tracker "
+                "(core.tracking) is not available"
+            )
         return "tracks"
     if not scene.has_truth:
-        raise InputError(f"{scene.root}: has no tracks.npz, the tracker is not available "
-                         "and there is no truth.npz to derive observations from")
+        raise InputError(
+            f"{scene.root}: has no tracks.npz, the tracker is not available "
+            "and there is no truth.npz to derive observations from"
+        )
     return "truth"
 
 
@@ -379,8 +450,10 @@ def _run_tracker(scene, out, progress) -> None:
 
     args = build_parser().parse_args(["track", str(scene.root), "-o", str(out)])
     if getattr(args, "_missing", None):
-        raise InputError(f"{scene.root / 'tracks.npz'}: not found and the tracker "
-                         "(core.tracking) is not available")
+        raise InputError(
+            f"{scene.root / 'tracks.npz'}: not found and the tracker "
+            "(core.tracking) is not available"
+        )
     with single_blas_thread():  # as `python -m core track` runs it
         rc = int(args._run(args) or 0)
     if rc != 0 or not out.is_file():

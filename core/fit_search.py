@@ -48,15 +48,25 @@ from .free_space import DEPTHS, Probes, occlusion_cost
 from .metaballs import Metaballs, world_frames
 from .skeleton import Skeleton, forward, joint_positions
 
-_LEG_GRID = (("hip_x", (-75, -50, -25, 0, 25, 50, 75)), ("hip_y", (-30, 0, 30)),
-             ("knee_x", (-60, -30, 0, 30, 60)))
-_ARM_GRID = (("shoulder_x", (-75, -50, -25, 0, 25, 50, 75)),
-             ("shoulder_y", (-50, -25, 0, 25, 50)), ("elbow_x", (-60, -30, 0, 30, 60)))
+_LEG_GRID = (
+    ("hip_x", (-75, -50, -25, 0, 25, 50, 75)),
+    ("hip_y", (-30, 0, 30)),
+    ("knee_x", (-60, -30, 0, 30, 60)),
+)
+_ARM_GRID = (
+    ("shoulder_x", (-75, -50, -25, 0, 25, 50, 75)),
+    ("shoulder_y", (-50, -25, 0, 25, 50)),
+    ("elbow_x", (-60, -30, 0, 30, 60)),
+)
 
 
 def _limb(side: str, bones: tuple, root_joint: str, tail_joint: str, grid: tuple) -> tuple:
-    return (tuple(side + b for b in bones), side + root_joint, side + tail_joint,
-            tuple((side + d, g) for d, g in grid))
+    return (
+        tuple(side + b for b in bones),
+        side + root_joint,
+        side + tail_joint,
+        tuple((side + d, g) for d, g in grid),
+    )
 
 
 #: Limbs searched by :func:`search_limbs`: name -> (bones moved, root joint, tail
@@ -64,15 +74,30 @@ def _limb(side: str, bones: tuple, root_joint: str, tail_joint: str, grid: tuple
 LIMBS = {
     f"{side}{name}": _limb(side, *spec)
     for side in ("l_", "r_")
-    for name, spec in (("leg", (("hip", "knee", "ankle"), "hip", "ankle", _LEG_GRID)),
-                       ("arm", (("shoulder", "elbow", "wrist"), "shoulder", "wrist",
-                                _ARM_GRID)))
+    for name, spec in (
+        ("leg", (("hip", "knee", "ankle"), "hip", "ankle", _LEG_GRID)),
+        ("arm", (("shoulder", "elbow", "wrist"), "shoulder", "wrist", _ARM_GRID)),
+    )
 }
 
 
-def _limb_move(xyz, skel, balls, s, radii, theta, root, limb, tau, sigma, sigma_prior,
-               explained_m, min_points: int = 10, max_points: int = 200,
-               probes: Probes | None = None) -> tuple[float, np.ndarray | None]:
+def _limb_move(
+    xyz,
+    skel,
+    balls,
+    s,
+    radii,
+    theta,
+    root,
+    limb,
+    tau,
+    sigma,
+    sigma_prior,
+    explained_m,
+    min_points: int = 10,
+    max_points: int = 200,
+    probes: Probes | None = None,
+) -> tuple[float, np.ndarray | None]:
     """Best grid pose of one limb: (cost decrease, theta (n,)) or (0, None)."""
     bones, root_joint, tail_joint, grid = limb
     on = np.isin(balls.bone, [skel.bone_index(b) for b in bones])
@@ -96,8 +121,9 @@ def _limb_move(xyz, skel, balls, s, radii, theta, root, limb, tau, sigma, sigma_
         cand = np.flatnonzero(in_reach & close & ~near & ~inside)
         if len(cand):
             pc = probes.select(cand)
-            d_self = _distance(*log_field(pc.xyz.reshape(-1, 3), Rw[:, on], cw[:, on],
-                                          radii[on]))[0]
+            d_self = _distance(*log_field(pc.xyz.reshape(-1, 3), Rw[:, on], cw[:, on], radii[on]))[
+                0
+            ]
             hides = np.zeros(len(xyz), bool)
             hides[cand] = occlusion_cost(d_self.reshape(pc.valid.shape), pc.valid) > 0
             inside |= hides
@@ -123,8 +149,9 @@ def _limb_move(xyz, skel, balls, s, radii, theta, root, limb, tau, sigma, sigma_
         c = _rho(d, tau, sigma).sum(axis=1)
         if probes is not None:
             dp = _distance(*_combine(Lp, gp, *log_field(px, Rw[:, on], cw[:, on], radii[on])))
-            c = c + occlusion_cost(dp.reshape(len(th), *pr.valid.shape), pr.valid,
-                                   tau=tau, sigma=sigma).sum(axis=1)
+            c = c + occlusion_cost(
+                dp.reshape(len(th), *pr.valid.shape), pr.valid, tau=tau, sigma=sigma
+            ).sum(axis=1)
         return c
 
     cost0 = float(cost(theta[None])[0])
@@ -170,25 +197,52 @@ def _rho(d: np.ndarray, tau: float, sigma: float) -> np.ndarray:
     return np.minimum(np.abs(d), tau) ** 2 / sigma**2
 
 
-def keeps_points(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarray,
-                 radii: np.ndarray, root: np.ndarray, tau: float = 0.05,
-                 probes: Probes | None = None):
+def keeps_points(
+    xyz: np.ndarray,
+    skel: Skeleton,
+    balls: Metaballs,
+    s: np.ndarray,
+    radii: np.ndarray,
+    root: np.ndarray,
+    tau: float = 0.05,
+    probes: Probes | None = None,
+):
     """A veto for the silhouette limb search in a frame with points
     (:func:`core.silhouette_search.search_limbs_silhouette` ``allowed``): a move from
     ``theta`` (n,) to ``candidate`` (n,), the root (3,) held, is allowed when the body
     explains the points ``xyz`` (N, 3) no worse (:func:`explain_cost`).  The silhouettes
     then place a limb the tracker lost, but do not take a limb off its points."""
+
     def allowed(theta, candidate):
-        c = explain_cost(xyz, skel, balls, s, radii, np.stack([theta, candidate]),
-                         np.stack([root, root]), tau, probes=probes)
+        c = explain_cost(
+            xyz,
+            skel,
+            balls,
+            s,
+            radii,
+            np.stack([theta, candidate]),
+            np.stack([root, root]),
+            tau,
+            probes=probes,
+        )
         return bool(c[1] <= c[0])
+
     return allowed
 
 
-def explain_cost(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarray,
-                 radii: np.ndarray, theta: np.ndarray, root: np.ndarray,
-                 tau: float = 0.05, sigma: float = 0.01, chunk: int = 16,
-                 probes: Probes | None = None) -> np.ndarray:
+def explain_cost(
+    xyz: np.ndarray,
+    skel: Skeleton,
+    balls: Metaballs,
+    s: np.ndarray,
+    radii: np.ndarray,
+    theta: np.ndarray,
+    root: np.ndarray,
+    tau: float = 0.05,
+    sigma: float = 0.01,
+    chunk: int = 16,
+    probes: Probes | None = None,
+) -> np.ndarray:
     """Robust cost (H,) of H poses: how badly the body leaves the points unexplained.
 
     Parameters
@@ -214,23 +268,33 @@ def explain_cost(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarra
     if not len(xyz) and (probes is None or not len(probes)):
         return out
     for a in range(0, len(theta), chunk):
-        pose = forward(skel, theta[a:a + chunk], root[a:a + chunk], s)
+        pose = forward(skel, theta[a : a + chunk], root[a : a + chunk], s)
         Rw, cw = world_frames(skel, pose, balls, s)
         if len(xyz):
-            out[a:a + chunk] = _rho(_distance(*log_field(xyz, Rw, cw, radii)), tau,
-                                    sigma).sum(axis=1)
+            out[a : a + chunk] = _rho(_distance(*log_field(xyz, Rw, cw, radii)), tau, sigma).sum(
+                axis=1
+            )
         if probes is None or not len(probes):
             continue
         for h in range(len(Rw)):  # K probes per point: one pose at a time bounds memory
-            dp = _distance(*log_field(probes.xyz.reshape(-1, 3), Rw[h:h + 1], cw[h:h + 1],
-                                      radii))
-            out[a + h] += occlusion_cost(dp.reshape(probes.valid.shape), probes.valid,
-                                         tau=tau, sigma=sigma).sum()
+            dp = _distance(
+                *log_field(probes.xyz.reshape(-1, 3), Rw[h : h + 1], cw[h : h + 1], radii)
+            )
+            out[a + h] += occlusion_cost(
+                dp.reshape(probes.valid.shape), probes.valid, tau=tau, sigma=sigma
+            ).sum()
     return out
 
 
-def explain_distance(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarray,
-                     radii: np.ndarray, theta: np.ndarray, root: np.ndarray) -> np.ndarray:
+def explain_distance(
+    xyz: np.ndarray,
+    skel: Skeleton,
+    balls: Metaballs,
+    s: np.ndarray,
+    radii: np.ndarray,
+    theta: np.ndarray,
+    root: np.ndarray,
+) -> np.ndarray:
     """Distance (N,) metres of each point to the body surface ``Σ f = 0.5`` in one pose
     (first order, positive inside); the ``d_i`` of :func:`explain_cost`."""
     xyz = np.asarray(xyz, float).reshape(-1, 3)
@@ -250,8 +314,15 @@ def _grid(skel: Skeleton, theta0: np.ndarray, grid) -> tuple[np.ndarray, np.ndar
     return th, idx
 
 
-def grid_search(skel: Skeleton, theta: np.ndarray, grid, cost, cost0: float,
-                prior_weight: float, levels: int = 3) -> tuple[np.ndarray, float]:
+def grid_search(
+    skel: Skeleton,
+    theta: np.ndarray,
+    grid,
+    cost,
+    cost0: float,
+    prior_weight: float,
+    levels: int = 3,
+) -> tuple[np.ndarray, float]:
     """Lowest-cost pose of one limb over a grid around ``theta``, then finer grids.
 
     Parameters
@@ -275,8 +346,9 @@ def grid_search(skel: Skeleton, theta: np.ndarray, grid, cost, cost0: float,
             th, idx = _grid(skel, best, grid)
         else:
             step = [np.diff(g).min() / 2**level for _, g in grid]
-            th, idx = _grid(skel, best, [(d, (-st, 0.0, st)) for (d, _), st in zip(
-                grid, step, strict=True)])
+            th, idx = _grid(
+                skel, best, [(d, (-st, 0.0, st)) for (d, _), st in zip(grid, step, strict=True)]
+            )
         c = cost(th) + prior_weight * np.sum((th[:, idx] - theta[idx][None]) ** 2, axis=1)
         k = int(np.argmin(c))
         if c[k] < best_cost - 1e-9:
@@ -284,12 +356,24 @@ def grid_search(skel: Skeleton, theta: np.ndarray, grid, cost, cost0: float,
     return best, best_cost
 
 
-def search_limbs(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarray,
-                 radii: np.ndarray, theta0: np.ndarray, root: np.ndarray,
-                 limbs: tuple | None = None, tau: float = 0.05, sigma: float = 0.01,
-                 sigma_prior: float = 0.6, explained_m: float = 0.01,
-                 rounds: int = 2, min_gain: float = 0.0,
-                 prune: bool = True, probes: Probes | None = None) -> SearchResult:
+def search_limbs(
+    xyz: np.ndarray,
+    skel: Skeleton,
+    balls: Metaballs,
+    s: np.ndarray,
+    radii: np.ndarray,
+    theta0: np.ndarray,
+    root: np.ndarray,
+    limbs: tuple | None = None,
+    tau: float = 0.05,
+    sigma: float = 0.01,
+    sigma_prior: float = 0.6,
+    explained_m: float = 0.01,
+    rounds: int = 2,
+    min_gain: float = 0.0,
+    prune: bool = True,
+    probes: Probes | None = None,
+) -> SearchResult:
     """Place each limb at the grid pose that best explains the points near it.
 
     Parameters
@@ -320,8 +404,11 @@ def search_limbs(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarra
     theta = np.asarray(theta0, float).copy()
     root = np.asarray(root, float).reshape(3)
     names = tuple(LIMBS) if limbs is None else tuple(limbs)
-    before = float(explain_cost(xyz, skel, balls, s, radii, theta[None], root[None],
-                                tau, sigma, probes=probes)[0])
+    before = float(
+        explain_cost(
+            xyz, skel, balls, s, radii, theta[None], root[None], tau, sigma, probes=probes
+        )[0]
+    )
     if len(xyz) == 0:
         return SearchResult(theta, before, before, [])
 
@@ -331,8 +418,21 @@ def search_limbs(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarra
         for _ in range(rounds * len(allowed)):
             best_gain, best_theta, best_name = min_gain, None, None
             for name in allowed:
-                gain, th = _limb_move(xyz, skel, balls, s, radii, theta, root, LIMBS[name],
-                                      tau, sigma, sigma_prior, explained_m, probes=probes)
+                gain, th = _limb_move(
+                    xyz,
+                    skel,
+                    balls,
+                    s,
+                    radii,
+                    theta,
+                    root,
+                    LIMBS[name],
+                    tau,
+                    sigma,
+                    sigma_prior,
+                    explained_m,
+                    probes=probes,
+                )
                 if gain > best_gain:
                     best_gain, best_theta, best_name = gain, th, name
             if best_theta is None:
@@ -340,8 +440,11 @@ def search_limbs(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarra
             theta = best_theta
             if best_name not in moved:
                 moved.append(best_name)
-        cost = float(explain_cost(xyz, skel, balls, s, radii, theta[None], root[None],
-                                  tau, sigma, probes=probes)[0])
+        cost = float(
+            explain_cost(
+                xyz, skel, balls, s, radii, theta[None], root[None], tau, sigma, probes=probes
+            )[0]
+        )
         return theta, moved, cost
 
     grid_dofs = [skel.dof_index(d) for m in names for d, _ in LIMBS[m][3]]
@@ -359,8 +462,11 @@ def search_limbs(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarra
             idx = [skel.dof_index(d) for d, _ in LIMBS[name][3]]
             back[idx] = theta0[idx]
             others = tuple(m for m in names if m != name)
-            cost_back = float(explain_cost(xyz, skel, balls, s, radii, back[None],
-                                           root[None], tau, sigma, probes=probes)[0])
+            cost_back = float(
+                explain_cost(
+                    xyz, skel, balls, s, radii, back[None], root[None], tau, sigma, probes=probes
+                )[0]
+            )
             if cost_back <= after + min_gain:  # the move no longer pays: put back
                 theta, after, names = back, cost_back, others
                 moved.remove(name)
@@ -379,9 +485,14 @@ def search_limbs(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, s: np.ndarra
 RECENTRE_OFFSETS = (-0.2, -0.1, 0.0, 0.1, 0.2)
 
 
-def recentred_starts(xyz: np.ndarray, q: np.ndarray, ref_xyz: np.ndarray,
-                     ref_root: np.ndarray, up: np.ndarray,
-                     offsets: tuple = RECENTRE_OFFSETS) -> np.ndarray:
+def recentred_starts(
+    xyz: np.ndarray,
+    q: np.ndarray,
+    ref_xyz: np.ndarray,
+    ref_root: np.ndarray,
+    up: np.ndarray,
+    offsets: tuple = RECENTRE_OFFSETS,
+) -> np.ndarray:
     """Starts for re-finding a body that the prediction has lost: ``q`` moved onto the
     points, across the floor.
 

@@ -40,8 +40,14 @@ def cauchy_row_weights(r: np.ndarray, sigma: np.ndarray, robust_scale: float) ->
     return w
 
 
-def bone_local(skel: Skeleton, theta: np.ndarray, root: np.ndarray, s: np.ndarray,
-               xyz: np.ndarray, bone: np.ndarray) -> np.ndarray:
+def bone_local(
+    skel: Skeleton,
+    theta: np.ndarray,
+    root: np.ndarray,
+    s: np.ndarray,
+    xyz: np.ndarray,
+    bone: np.ndarray,
+) -> np.ndarray:
     """Coordinates (N, 3) metres of world points ``xyz`` (N, 3) in the anatomical frames
     of their bones ``bone`` (N,) at the pose ``theta`` (n,) radians, ``root`` (3,) metres,
     bone scales ``s`` (G,)."""
@@ -102,9 +108,14 @@ class TrajectoryObs:
         w = np.repeat(self.weights, 3)
         K = len(self.bone)
         zero = None if n_shape is None else np.zeros((3 * K, n_shape))
-        return (r.reshape(-1) * w, Jt.reshape(3 * K, -1) * w[:, None],
-                np.tile(np.eye(3), (K, 1)) * w[:, None], Js.reshape(3 * K, -1) * w[:, None],
-                zero, None if zero is None else zero.copy())
+        return (
+            r.reshape(-1) * w,
+            Jt.reshape(3 * K, -1) * w[:, None],
+            np.tile(np.eye(3), (K, 1)) * w[:, None],
+            Js.reshape(3 * K, -1) * w[:, None],
+            zero,
+            None if zero is None else zero.copy(),
+        )
 
 
 class TrajectoryAnchors:
@@ -137,8 +148,9 @@ class TrajectoryAnchors:
         self.q0 = bone_local(skel, theta, root, s, np.asarray(xyz)[use][order], self.bone)
         self.sigma = np.asarray(sigma, float)[use][order]
 
-    def observations(self, xyz, sigma, ids, slip_m: float, robust_scale: float,
-                     min_points: int = 1) -> TrajectoryObs | None:
+    def observations(
+        self, xyz, sigma, ids, slip_m: float, robust_scale: float, min_points: int = 1
+    ) -> TrajectoryObs | None:
         """The trajectory observations of a frame's points ``xyz`` (N, 3), σ (N,) and
         ``ids`` (N,), or None when fewer than ``min_points`` continue a stored one."""
         if ids is None or not len(self.ids):
@@ -150,5 +162,10 @@ class TrajectoryAnchors:
             return None
         k = pos[have]
         sig = np.sqrt(np.asarray(sigma, float)[have] ** 2 + self.sigma[k] ** 2 + slip_m**2)
-        return TrajectoryObs(bone=self.bone[k], q0=self.q0[k], xyz=np.asarray(xyz)[have],
-                             sigma=sig, robust_scale=robust_scale)
+        return TrajectoryObs(
+            bone=self.bone[k],
+            q0=self.q0[k],
+            xyz=np.asarray(xyz)[have],
+            sigma=sig,
+            robust_scale=robust_scale,
+        )

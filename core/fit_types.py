@@ -165,9 +165,9 @@ class SequenceSettings:
     #: the ellipsoids the contours render instead of swelling where metaballs overlap
     shape_fit_deflate: bool = True
     shape_fit: ShapeSettings | None = None  # its settings (None: its defaults)
-    fit: FitSettings = field(default_factory=lambda: FitSettings(members="neighbours",
-                                                                 irls_rounds=2,
-                                                                 robust="cauchy"))
+    fit: FitSettings = field(
+        default_factory=lambda: FitSettings(members="neighbours", irls_rounds=2, robust="cauchy")
+    )
 
 
 @dataclass
@@ -220,15 +220,27 @@ def point_sigma(sigma_m: np.ndarray, model_m: float) -> np.ndarray:
     return np.sqrt(np.asarray(sigma_m, float) ** 2 + model_m**2)
 
 
-def frame_observations(pts: FramePoints, part: np.ndarray, q_pred, sig_pred, n: int,
-                       joints=None, model_m: float = 0.004) -> Observations:
+def frame_observations(
+    pts: FramePoints,
+    part: np.ndarray,
+    q_pred,
+    sig_pred,
+    n: int,
+    joints=None,
+    model_m: float = 0.004,
+) -> Observations:
     """The points of one frame assigned to a part (``part`` (N,) bone index, −1: left
     out) as :class:`core.fitting.Observations`, with the prior on the angles
     (``q_pred`` (≥ n,) radians or None, σ ``sig_pred`` (n,)) and optional joint
     observations ``joints`` = (indices, xyz (K, 3) metres, σ metres)."""
     use = part >= 0
-    o = Observations(xyz=pts.xyz[use], part=part[use], sigma=point_sigma(pts.sigma[use], model_m),
-                     theta_pred=None if q_pred is None else q_pred[:n], sigma_pred=sig_pred)
+    o = Observations(
+        xyz=pts.xyz[use],
+        part=part[use],
+        sigma=point_sigma(pts.sigma[use], model_m),
+        theta_pred=None if q_pred is None else q_pred[:n],
+        sigma_pred=sig_pred,
+    )
     if joints is not None:
         o.joint_idx, o.joint_xyz, o.sigma_joint = joints
     return o

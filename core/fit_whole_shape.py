@@ -23,10 +23,23 @@ def has_outline(cframe) -> bool:
     return cframe is not None and any(len(c) for c in cframe.contours)
 
 
-def written_shape(skel: Skeleton, start: Metaballs, s: np.ndarray, theta: np.ndarray,
-                  root: np.ndarray, frames: list[FramePoints], contours: list | None,
-                  fitted: np.ndarray, n_points: np.ndarray, unobserved: np.ndarray, f0: int,
-                  cfg, cameras: list | None, msgs: list, progress=None):
+def written_shape(
+    skel: Skeleton,
+    start: Metaballs,
+    s: np.ndarray,
+    theta: np.ndarray,
+    root: np.ndarray,
+    frames: list[FramePoints],
+    contours: list | None,
+    fitted: np.ndarray,
+    n_points: np.ndarray,
+    unobserved: np.ndarray,
+    f0: int,
+    cfg,
+    cameras: list | None,
+    msgs: list,
+    progress=None,
+):
     """The whole-body shape written to the state after the motion (``SequenceSettings``
     ``shape = "fit"``, ``shape_fit_track = False``).
 
@@ -45,20 +58,33 @@ def written_shape(skel: Skeleton, start: Metaballs, s: np.ndarray, theta: np.nda
     (a message says so).
     """
     nf = len(frames)
-    outline = np.array([has_outline(None if contours is None else contours[f])
-                        for f in range(nf)])
+    outline = np.array([has_outline(None if contours is None else contours[f]) for f in range(nf)])
     good = np.flatnonzero(fitted & ((n_points >= cfg.min_points) | outline))
-    use = shape_fit_frames(good, f0, cfg.shape_fit_frames,
-                           cfg.shape_fit_silhouette_frames if outline.any() else 0)
+    use = shape_fit_frames(
+        good, f0, cfg.shape_fit_frames, cfg.shape_fit_silhouette_frames if outline.any() else 0
+    )
     if not len(use):
-        msgs.append("whole-body shape fit: no fitted frame with points or silhouettes, the "
-                    "shape tracked with is kept")
+        msgs.append(
+            "whole-body shape fit: no fitted frame with points or silhouettes, the "
+            "shape tracked with is kept"
+        )
         return None, None
     skip = next((contours[f].cfg.skip_parts for f in use if outline[f]), ())
-    balls, _, rec = whole_body_shape(skel, start, s, theta, root, frames, use.tolist(),
-                                     cameras, cfg.shape_fit, msgs, progress,
-                                     contours=contours if outline.any() else None,
-                                     parts=measured_parts(skel, unobserved, always=skip))
+    balls, _, rec = whole_body_shape(
+        skel,
+        start,
+        s,
+        theta,
+        root,
+        frames,
+        use.tolist(),
+        cameras,
+        cfg.shape_fit,
+        msgs,
+        progress,
+        contours=contours if outline.any() else None,
+        parts=measured_parts(skel, unobserved, always=skip),
+    )
     return balls, rec
 
 
@@ -98,12 +124,21 @@ def shape_fit_frames(good: np.ndarray, f0: int, near: int, spread: int) -> np.nd
     return np.sort(good[np.argsort(np.abs(good - f0), kind="stable")][:near])
 
 
-def whole_body_shape(skel: Skeleton, template: Metaballs, s: np.ndarray, theta: np.ndarray,
-                     root: np.ndarray, frames: list[FramePoints], use: list[int],
-                     cameras: list | None, settings: ShapeSettings | None,
-                     msgs: list, progress=None, contours: list | None = None,
-                     parts: np.ndarray | None = None
-                     ) -> tuple[Metaballs, np.ndarray, ShapeRecord]:
+def whole_body_shape(
+    skel: Skeleton,
+    template: Metaballs,
+    s: np.ndarray,
+    theta: np.ndarray,
+    root: np.ndarray,
+    frames: list[FramePoints],
+    use: list[int],
+    cameras: list | None,
+    settings: ShapeSettings | None,
+    msgs: list,
+    progress=None,
+    contours: list | None = None,
+    parts: np.ndarray | None = None,
+) -> tuple[Metaballs, np.ndarray, ShapeRecord]:
     """The whole-body shape of ``frames[use]`` at their held poses.
 
     Runs :func:`core.shape_fit.fit_shape` from the ``template`` metaballs (its prior)
@@ -126,32 +161,51 @@ def whole_body_shape(skel: Skeleton, template: Metaballs, s: np.ndarray, theta: 
     use = np.asarray(use, int)
     if not len(use):
         msgs.append("whole-body shape fit: no fitted shape frame, the template is kept")
-        rec = ShapeRecord(use, np.zeros(0, bool), np.zeros(0), False,
-                          "no fitted shape frame", 0.0)
+        rec = ShapeRecord(use, np.zeros(0, bool), np.zeros(0), False, "no fitted shape frame", 0.0)
         return template.copy(), template.radii.copy(), rec
-    cf = None if contours is None else [contours[f] if has_outline(contours[f]) else None
-                                        for f in use]
+    cf = (
+        None
+        if contours is None
+        else [contours[f] if has_outline(contours[f]) else None for f in use]
+    )
     if cf is not None and not any(c is not None for c in cf):
         cf = None
     if cf is not None and cameras is None:  # the silhouettes' own cameras
         cameras = next(c.cameras for c in cf if c is not None)
-    sf = fit_shape(skel, template, s, theta[use], root[use], [frames[f].xyz for f in use],
-                   cameras, sigma=[np.maximum(frames[f].sigma, sc.sigma_point) for f in use],
-                   settings=sc,
-                   progress=None if progress is None else
-                   (lambda k, n: progress.update(k, n, "whole-body shape")),
-                   contours=None if cf is None else [None if c is None else c.contours
-                                                     for c in cf],
-                   rays=None if cf is None else next(c.rays for c in cf if c is not None),
-                   parts=None if parts is None else [parts[f] for f in use])
-    rec = ShapeRecord(use, sf.frame_ok.copy(), sf.rms_m.copy(), bool(sf.converged), sf.message,
-                      time.perf_counter() - t0)
+    sf = fit_shape(
+        skel,
+        template,
+        s,
+        theta[use],
+        root[use],
+        [frames[f].xyz for f in use],
+        cameras,
+        sigma=[np.maximum(frames[f].sigma, sc.sigma_point) for f in use],
+        settings=sc,
+        progress=None
+        if progress is None
+        else (lambda k, n: progress.update(k, n, "whole-body shape")),
+        contours=None if cf is None else [None if c is None else c.contours for c in cf],
+        rays=None if cf is None else next(c.rays for c in cf if c is not None),
+        parts=None if parts is None else [parts[f] for f in use],
+    )
+    rec = ShapeRecord(
+        use,
+        sf.frame_ok.copy(),
+        sf.rms_m.copy(),
+        bool(sf.converged),
+        sf.message,
+        time.perf_counter() - t0,
+    )
     rms = sf.rms_m[sf.frame_ok & np.isfinite(sf.rms_m)]
     sil = sf.silhouette_rms_px[np.isfinite(sf.silhouette_rms_px)]
-    stats = ([f"surface RMS {1e3 * np.mean(rms):.2f} mm"] if len(rms) else []) + \
-        ([f"silhouette RMS {np.mean(sil):.2f} px"] if len(sil) else [])
-    msgs.append(f"whole-body shape fit of frames {use.tolist()}: {sf.message}"
-                + (f" ({', '.join(stats)})" if stats else ""))
+    stats = ([f"surface RMS {1e3 * np.mean(rms):.2f} mm"] if len(rms) else []) + (
+        [f"silhouette RMS {np.mean(sil):.2f} px"] if len(sil) else []
+    )
+    msgs.append(
+        f"whole-body shape fit of frames {use.tolist()}: {sf.message}"
+        + (f" ({', '.join(stats)})" if stats else "")
+    )
     if not sf.frame_ok.any():
         return template.copy(), template.radii.copy(), rec
     out = sf.metaballs
@@ -160,8 +214,9 @@ def whole_body_shape(skel: Skeleton, template: Metaballs, s: np.ndarray, theta: 
     return out, out.radii.copy(), rec
 
 
-def blend_scale(skel: Skeleton, balls: Metaballs, s: np.ndarray, theta: np.ndarray,
-                root: np.ndarray) -> np.ndarray:
+def blend_scale(
+    skel: Skeleton, balls: Metaballs, s: np.ndarray, theta: np.ndarray, root: np.ndarray
+) -> np.ndarray:
     """``visible_scale`` (M, 3) whose ellipsoids follow the blended surface.
 
     The median over the poses ``theta`` (K, n) / ``root`` (K, 3) of
@@ -173,6 +228,8 @@ def blend_scale(skel: Skeleton, balls: Metaballs, s: np.ndarray, theta: np.ndarr
     from .metaballs import render_radii
     from .skeleton import forward
 
-    vis = [render_radii(skel, forward(skel, th[None], rt[None], s), balls, s)
-           for th, rt in zip(np.atleast_2d(theta), np.atleast_2d(root), strict=True)]
+    vis = [
+        render_radii(skel, forward(skel, th[None], rt[None], s), balls, s)
+        for th, rt in zip(np.atleast_2d(theta), np.atleast_2d(root), strict=True)
+    ]
     return np.median(np.stack(vis), axis=0) / balls.radii

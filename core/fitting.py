@@ -152,9 +152,16 @@ class FitSettings:
 class _Problem:
     """Residuals and Jacobian for any subset of the unknown blocks, one or more frames."""
 
-    def __init__(self, skel: Skeleton, balls: Metaballs, obs: list[Observations],
-                 settings: FitSettings, radii0: np.ndarray, centers0: np.ndarray,
-                 shape_ref: Metaballs | None = None):
+    def __init__(
+        self,
+        skel: Skeleton,
+        balls: Metaballs,
+        obs: list[Observations],
+        settings: FitSettings,
+        radii0: np.ndarray,
+        centers0: np.ndarray,
+        shape_ref: Metaballs | None = None,
+    ):
         self.skel, self.balls, self.obs, self.cfg = skel, balls, obs, settings
         self.anc = skel.ancestors()
         self.radii0 = radii0
@@ -166,8 +173,9 @@ class _Problem:
             idx, ok = gather(table, valid, o.part)
             use = ok.any(axis=1)
             sig = np.broadcast_to(np.asarray(o.sigma, float), (len(o.xyz),))[use]
-            self.gathers.append((np.asarray(o.xyz, float).reshape(-1, 3)[use], idx[use],
-                                 ok[use], sig))
+            self.gathers.append(
+                (np.asarray(o.xyz, float).reshape(-1, 3)[use], idx[use], ok[use], sig)
+            )
         self.frozen: list | None = None
 
     def freeze(self, theta, root, s, radii, centers) -> None:
@@ -178,8 +186,9 @@ class _Problem:
         for f in range(len(self.obs)):
             if self.obs[f].contours is not None:  # contour pairs and weights, this state
                 b0 = self.balls
-                self.obs[f].contours.freeze(self.skel, b0.with_parts(centers, radii),
-                                            theta[f], root[f], s)
+                self.obs[f].contours.freeze(
+                    self.skel, b0.with_parts(centers, radii), theta[f], root[f], s
+                )
             if self.obs[f].trajectory is not None:  # rigid-motion weights, this state
                 self.obs[f].trajectory.freeze(self.skel, theta[f], root[f], s)
             if self.obs[f].flow is not None:  # image-motion weights, this state
@@ -192,8 +201,11 @@ class _Problem:
             w = att.inv_g / sig
             if self.cfg.robust_scale:
                 r = (att.L - LN_T) * w
-                w = w * (_huber_weights(r, self.cfg.robust_scale) if self.cfg.robust == "huber"
-                         else _cauchy_weights(r, self.cfg.robust_scale))
+                w = w * (
+                    _huber_weights(r, self.cfg.robust_scale)
+                    if self.cfg.robust == "huber"
+                    else _cauchy_weights(r, self.cfg.robust_scale)
+                )
             out.append(w)
         self.frozen = out
 
@@ -216,16 +228,22 @@ class _Problem:
         rows = []
 
         def zeros(k):
-            return (np.zeros((k, skel.n_dof)), np.zeros((k, 3)), np.zeros((k, skel.n_groups)),
-                    np.zeros((k, M3)) if shape else None, np.zeros((k, M3)) if shape else None)
+            return (
+                np.zeros((k, skel.n_dof)),
+                np.zeros((k, 3)),
+                np.zeros((k, skel.n_groups)),
+                np.zeros((k, M3)) if shape else None,
+                np.zeros((k, M3)) if shape else None,
+            )
 
         for f, o in enumerate(self.obs):
             parts = []
             x, idx, ok, sig = self.gathers[f]
             if len(x):
                 pose, balls, att = self.attractors(f, theta, root, s, radii, centers)
-                jac = attractor_jacobians(skel, pose, balls, s, x, idx, att, radii, self.anc,
-                                          shape=shape)
+                jac = attractor_jacobians(
+                    skel, pose, balls, s, x, idx, att, radii, self.anc, shape=shape
+                )
                 w = att.inv_g / sig if self.frozen is None else self.frozen[f]
                 Jr_ = [jac[0] * w[:, None], jac[1] * w[:, None], jac[2] * w[:, None]]
                 if shape:
@@ -237,21 +255,33 @@ class _Problem:
                 parts.append(("point", (att.L - LN_T) * w, *Jr_))
             if o.contours is not None:
                 b0 = self.balls
-                cb = o.contours.block(skel, b0.with_parts(centers, radii),
-                                      theta[f], root[f], s, self.anc, shape=shape)
+                cb = o.contours.block(
+                    skel, b0.with_parts(centers, radii), theta[f], root[f], s, self.anc, shape=shape
+                )
                 if len(cb[0]):
                     parts.append(("contour", *cb))
-                hb = o.contours.containment_block(skel, b0.with_parts(centers, radii),
-                                                  theta[f], root[f], s)
+                hb = o.contours.containment_block(
+                    skel, b0.with_parts(centers, radii), theta[f], root[f], s
+                )
                 if hb is not None and len(hb[0]):
                     z = zeros(len(hb[0]))
                     parts.append(("containment", *hb, *z[2:]))
             if o.trajectory is not None and len(o.trajectory):
-                parts.append(("trajectory", *o.trajectory.block(
-                    skel, theta[f], root[f], s, self.anc, M3 if shape else None)))
+                parts.append(
+                    (
+                        "trajectory",
+                        *o.trajectory.block(
+                            skel, theta[f], root[f], s, self.anc, M3 if shape else None
+                        ),
+                    )
+                )
             if o.flow is not None and len(o.flow):
-                parts.append(("flow", *o.flow.block(
-                    skel, theta[f], root[f], s, self.anc, M3 if shape else None)))
+                parts.append(
+                    (
+                        "flow",
+                        *o.flow.block(skel, theta[f], root[f], s, self.anc, M3 if shape else None),
+                    )
+                )
             if o.depth is not None and len(o.depth):
                 db = o.depth.block(skel, theta[f], root[f], s)
                 z = zeros(len(db[0]))
@@ -261,10 +291,17 @@ class _Problem:
                 w = 1.0 / o.sigma_joint
                 k = len(o.joint_idx)
                 z = zeros(3 * k)
-                parts.append(("joint", ((xj[0, o.joint_idx] - o.joint_xyz) * w).ravel(),
-                              Jt[0, o.joint_idx].reshape(3 * k, -1) * w,
-                              np.tile(np.eye(3), (k, 1)) * w,
-                              Js[0, o.joint_idx].reshape(3 * k, -1) * w, z[3], z[4]))
+                parts.append(
+                    (
+                        "joint",
+                        ((xj[0, o.joint_idx] - o.joint_xyz) * w).ravel(),
+                        Jt[0, o.joint_idx].reshape(3 * k, -1) * w,
+                        np.tile(np.eye(3), (k, 1)) * w,
+                        Js[0, o.joint_idx].reshape(3 * k, -1) * w,
+                        z[3],
+                        z[4],
+                    )
+                )
             if o.theta_pred is not None:
                 w = 1.0 / np.broadcast_to(np.asarray(o.sigma_pred, float), (skel.n_dof,))
                 z = zeros(skel.n_dof)
@@ -302,14 +339,14 @@ def _solve(prob: _Problem, theta, root, s, radii, centers, free: str, max_nfev: 
     def unpack(x):
         th, rt, ss, rd, ce = theta, root, s, radii, centers
         if pose_free:
-            th = x[:nf * n].reshape(nf, n)
-            rt = x[nf * n:nf * (n + 3)].reshape(nf, 3)
+            th = x[: nf * n].reshape(nf, n)
+            rt = x[nf * n : nf * (n + 3)].reshape(nf, 3)
         if shape_free:
             i = m_pose
-            ss = x[i:i + G] if G else s
-            rd = x[i + G:i + G + M3].reshape(radii.shape)
+            ss = x[i : i + G] if G else s
+            rd = x[i + G : i + G + M3].reshape(radii.shape)
             if C3:
-                ce = x[i + G + M3:i + G + M3 + C3].reshape(centers.shape)
+                ce = x[i + G + M3 : i + G + M3 + C3].reshape(centers.shape)
         return th, rt, ss, rd, ce
 
     x0 = []
@@ -331,15 +368,15 @@ def _solve(prob: _Problem, theta, root, s, radii, centers, free: str, max_nfev: 
             for _kind, r, Jt, Jr, Js, Jrad, Jc in parts:
                 J = np.zeros((len(r), len(x)))
                 if pose_free:
-                    J[:, f * n:(f + 1) * n] = Jt
-                    J[:, nf * n + 3 * f:nf * n + 3 * f + 3] = Jr
+                    J[:, f * n : (f + 1) * n] = Jt
+                    J[:, nf * n + 3 * f : nf * n + 3 * f + 3] = Jr
                 if shape_free:
                     i = m_pose
                     if G:
-                        J[:, i:i + G] = Js
-                    J[:, i + G:i + G + M3] = Jrad
+                        J[:, i : i + G] = Js
+                    J[:, i + G : i + G + M3] = Jrad
                     if C3:
-                        J[:, i + G + M3:] = Jc
+                        J[:, i + G + M3 :] = Jc
                 res.append(r)
                 jac.append(J)
         if shape_free and cfg.shape_prior:
@@ -347,13 +384,13 @@ def _solve(prob: _Problem, theta, root, s, radii, centers, free: str, max_nfev: 
             w = 1.0 / cfg.sigma_radius
             res.append((rd.ravel() - prob.radii0.ravel()) * w)
             J = np.zeros((M3, len(x)))
-            J[:, i + G:i + G + M3] = np.eye(M3) * w
+            J[:, i + G : i + G + M3] = np.eye(M3) * w
             jac.append(J)
             if C3:
                 w = 1.0 / cfg.sigma_center
                 res.append((ce.ravel() - prob.centers0.ravel()) * w)
                 J = np.zeros((C3, len(x)))
-                J[:, i + G + M3:] = np.eye(C3) * w
+                J[:, i + G + M3 :] = np.eye(C3) * w
                 jac.append(J)
         out = (np.concatenate(res), np.concatenate(jac, axis=0))
         cache.clear()
@@ -362,10 +399,10 @@ def _solve(prob: _Problem, theta, root, s, radii, centers, free: str, max_nfev: 
 
     lo, hi = np.full(len(x0), -np.inf), np.full(len(x0), np.inf)
     if shape_free:
-        lo[m_pose:m_pose + G] = 0.2
-        lo[m_pose + G:m_pose + G + M3], hi[m_pose + G:m_pose + G + M3] = _radius_bounds(prob)
+        lo[m_pose : m_pose + G] = 0.2
+        lo[m_pose + G : m_pose + G + M3], hi[m_pose + G : m_pose + G + M3] = _radius_bounds(prob)
         if C3:
-            lo[m_pose + G + M3:], hi[m_pose + G + M3:] = _center_bounds(prob)
+            lo[m_pose + G + M3 :], hi[m_pose + G + M3 :] = _center_bounds(prob)
     x = np.clip(x0, lo, hi)
     nfev = 0
     for _ in range(max(cfg.irls_rounds, 1)):  # weights frozen per round (IRLS)
@@ -399,12 +436,19 @@ def _center_bounds(prob: _Problem) -> tuple[np.ndarray, np.ndarray]:
     return (c - reach).ravel(), (c + reach).ravel()
 
 
-def fit(skel: Skeleton, balls: Metaballs, obs: Observations | list[Observations],
-        theta0: np.ndarray, root0: np.ndarray, s0: np.ndarray,
-        radii0: np.ndarray | None = None, solve: str = "alternate",
-        settings: FitSettings | None = None,
-        centers0: np.ndarray | None = None,
-        shape_ref: Metaballs | None = None) -> FitResult | list[FitResult]:
+def fit(
+    skel: Skeleton,
+    balls: Metaballs,
+    obs: Observations | list[Observations],
+    theta0: np.ndarray,
+    root0: np.ndarray,
+    s0: np.ndarray,
+    radii0: np.ndarray | None = None,
+    solve: str = "alternate",
+    settings: FitSettings | None = None,
+    centers0: np.ndarray | None = None,
+    shape_ref: Metaballs | None = None,
+) -> FitResult | list[FitResult]:
     """Fit pose and/or shape to one frame's (or several frames') observations.
 
     Parameters
@@ -435,14 +479,19 @@ def fit(skel: Skeleton, balls: Metaballs, obs: Observations | list[Observations]
     radii = np.array(balls.radii if radii0 is None else radii0, float)
     centers = np.array(balls.center0 if centers0 is None else centers0, float)
     prob = _Problem(skel, balls, obs_l, cfg, radii.copy(), centers.copy(), shape_ref)
-    steps = {"pose": ["pose"], "shape": ["shape"], "all": ["all"],
-             "alternate": ["pose", "shape"] * cfg.rounds + (["all"] if cfg.polish else [])}
+    steps = {
+        "pose": ["pose"],
+        "shape": ["shape"],
+        "all": ["all"],
+        "alternate": ["pose", "shape"] * cfg.rounds + (["all"] if cfg.polish else []),
+    }
     if solve not in steps:
         raise ValueError(f"unknown solve mode {solve!r}")
     sol = None
     for step in steps[solve]:
-        theta, root, s, radii, centers, sol = _solve(prob, theta, root, s, radii, centers,
-                                                     step, cfg.max_nfev)
+        theta, root, s, radii, centers, sol = _solve(
+            prob, theta, root, s, radii, centers, step, cfg.max_nfev
+        )
     results = _report(prob, theta, root, s, radii, centers, sol)
     return results[0] if single else results
 
@@ -457,7 +506,7 @@ def _report(prob: _Problem, theta, root, s, radii, centers, sol) -> list[FitResu
         if len(prob.gathers[f][0]):
             att = prob.attractors(f, theta, root, s, radii, centers)[2]
             rmse_field = float(np.sqrt(np.mean((att.L - LN_T) ** 2)))
-            rmse_m = float(np.sqrt(np.mean(att.dist ** 2)))
+            rmse_m = float(np.sqrt(np.mean(att.dist**2)))
         J = np.concatenate([np.concatenate([p[2], p[3]], axis=1) for p in parts], axis=0)
         r = np.concatenate([p[1] for p in parts])
         dof = max(len(r) - J.shape[1], 1)
@@ -465,17 +514,27 @@ def _report(prob: _Problem, theta, root, s, radii, centers, sol) -> list[FitResu
         N = J.T @ J
         try:
             cov = np.linalg.pinv(N, rcond=1e-12, hermitian=True) * max(s0sq, 1e-30)
-            sig = np.sqrt(np.clip(np.diag(cov)[:skel.n_dof], 0, None))
+            sig = np.sqrt(np.clip(np.diag(cov)[: skel.n_dof], 0, None))
         except np.linalg.LinAlgError:
             sig = np.full(skel.n_dof, np.nan)
         finite = bool(np.all(np.isfinite(theta[f])) and np.all(np.isfinite(root[f])))
         ok = bool(sol is not None and sol.status > 0 and finite)
-        out.append(FitResult(theta=theta[f].copy(), root_xyz=root[f].copy(), s=s.copy(),
-                             radii=radii.copy(), centers=centers.copy(),
-                             rmse_field=rmse_field, rmse_m=rmse_m,
-                             theta_sigma=sig, converged=ok, diverged=not finite,
-                             message="" if sol is None else sol.message,
-                             nfev=0 if sol is None else int(sol.nfev)))
+        out.append(
+            FitResult(
+                theta=theta[f].copy(),
+                root_xyz=root[f].copy(),
+                s=s.copy(),
+                radii=radii.copy(),
+                centers=centers.copy(),
+                rmse_field=rmse_field,
+                rmse_m=rmse_m,
+                theta_sigma=sig,
+                converged=ok,
+                diverged=not finite,
+                message="" if sol is None else sol.message,
+                nfev=0 if sol is None else int(sol.nfev),
+            )
+        )
     return out
 
 
@@ -488,9 +547,15 @@ class _LMResult:
     message: str
 
 
-def _levenberg_marquardt(system, x0: np.ndarray, lo: np.ndarray, max_nfev: int,
-                         tol: float, max_step: float = 0.2,
-                         hi: np.ndarray | None = None) -> _LMResult:
+def _levenberg_marquardt(
+    system,
+    x0: np.ndarray,
+    lo: np.ndarray,
+    max_nfev: int,
+    tol: float,
+    max_step: float = 0.2,
+    hi: np.ndarray | None = None,
+) -> _LMResult:
     """Levenberg–Marquardt on the normal equations (Marquardt's diagonal scaling),
     with bounds (``lo``, optional ``hi``) by projection.  ``system(x) -> (r, J)``."""
     hi = np.full(len(x0), np.inf) if hi is None else hi

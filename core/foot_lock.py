@@ -16,8 +16,13 @@ from __future__ import annotations
 import numpy as np
 
 
-def contact_mask(xyz: np.ndarray, fps: float, max_height: float = 0.05,
-                 max_speed: float = 0.25, min_frames: int = 3) -> np.ndarray:
+def contact_mask(
+    xyz: np.ndarray,
+    fps: float,
+    max_height: float = 0.05,
+    max_speed: float = 0.25,
+    min_frames: int = 3,
+) -> np.ndarray:
     """Frames (F,) bool on which a foot (ankle path ``xyz`` (F, 3), m) is in contact.
 
     Height is measured above the clip's lowest point; speed (m/s) is horizontal.
@@ -52,8 +57,9 @@ def pinned_targets(xyz: np.ndarray, contact: np.ndarray) -> np.ndarray:
     return out
 
 
-def two_bone_ik(hip: np.ndarray, knee: np.ndarray, ankle: np.ndarray,
-                target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def two_bone_ik(
+    hip: np.ndarray, knee: np.ndarray, ankle: np.ndarray, target: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """New knee and ankle positions (F, 3) reaching ``target`` with the hip fixed.
 
     Bone lengths |knee − hip| and |ankle − knee| are kept; the knee stays in the plane
@@ -88,8 +94,16 @@ def skate_mm(xyz: np.ndarray, contact: np.ndarray) -> float:
     return float(step[both].sum() * 1000.0)
 
 
-def lock_leg(hip: np.ndarray, R_thigh: np.ndarray, R_shin: np.ndarray, thigh_len: float,
-             shin_len: float, fps: float, axis: int = 1, **contact_kw):
+def lock_leg(
+    hip: np.ndarray,
+    R_thigh: np.ndarray,
+    R_shin: np.ndarray,
+    thigh_len: float,
+    shin_len: float,
+    fps: float,
+    axis: int = 1,
+    **contact_kw,
+):
     """Lock one foot: new world rotations of thigh and shin so the ankle stays put in contact.
 
     Parameters

@@ -51,9 +51,13 @@ def read_qca(path: str | Path, binning: int = 1) -> list[Camera]:
             a = it.attrib
             fu, fv = float(a["focalLengthU"]), float(a["focalLengthV"])
             cu, cv = float(a["centerPointU"]), float(a["centerPointV"])
-            dist = [float(a["radialDistortion1"]), float(a["radialDistortion2"]),
-                    float(a["tangentalDistortion1"]), float(a["tangentalDistortion2"]),
-                    float(a["radialDistortion3"])]
+            dist = [
+                float(a["radialDistortion1"]),
+                float(a["radialDistortion2"]),
+                float(a["tangentalDistortion1"]),
+                float(a["tangentalDistortion2"]),
+                float(a["radialDistortion3"]),
+            ]
             w = int(fov.attrib["right"]) - int(fov.attrib["left"]) + 1
             h = int(fov.attrib["bottom"]) - int(fov.attrib["top"]) + 1
         except KeyError as exc:
@@ -67,10 +71,12 @@ def read_qca(path: str | Path, binning: int = 1) -> list[Camera]:
     return cams
 
 
-_YAML_KEYS = {"K": ("camera_matrix", "K", "cameraMatrix"),
-              "dist": ("distortion_coefficients", "dist_coeffs", "D", "distCoeffs", "dist"),
-              "R": ("R", "rotation_matrix", "rvec", "rotation"),
-              "t": ("T", "t", "tvec", "translation")}
+_YAML_KEYS = {
+    "K": ("camera_matrix", "K", "cameraMatrix"),
+    "dist": ("distortion_coefficients", "dist_coeffs", "D", "distCoeffs", "dist"),
+    "R": ("R", "rotation_matrix", "rvec", "rotation"),
+    "t": ("T", "t", "tvec", "translation"),
+}
 
 
 def read_opencv_yaml(path: str | Path, name: str | None = None) -> Camera:
@@ -88,12 +94,16 @@ def read_opencv_yaml(path: str | Path, name: str | None = None) -> Camera:
     if not fs.isOpened():
         raise InputError(f"{path}: cannot be read by OpenCV FileStorage")
     try:
+
         def node(kind, required=True):
             for key in _YAML_KEYS[kind]:
                 n = fs.getNode(key)
                 if not n.empty():
-                    return n.mat() if n.isMap() or n.isSeq() is False else np.array(
-                        [n.at(i).real() for i in range(n.size())])
+                    return (
+                        n.mat()
+                        if n.isMap() or n.isSeq() is False
+                        else np.array([n.at(i).real() for i in range(n.size())])
+                    )
             if required:
                 raise InputError(f"{path}: is missing the key '{_YAML_KEYS[kind][0]}'")
             return None
@@ -117,8 +127,14 @@ def read_opencv_yaml(path: str | Path, name: str | None = None) -> Camera:
         R = cv2.Rodrigues(R.reshape(3))[0]
     if K is None or np.asarray(K).shape != (3, 3) or R.shape != (3, 3):
         raise InputError(f"{path}: camera matrix and rotation must be 3x3")
-    return Camera(name or path.stem, size, K, np.zeros(5) if dist is None else dist, R,
-                  np.asarray(t, dtype=float).reshape(3))
+    return Camera(
+        name or path.stem,
+        size,
+        K,
+        np.zeros(5) if dist is None else dist,
+        R,
+        np.asarray(t, dtype=float).reshape(3),
+    )
 
 
 def write_opencv_yaml(path: str | Path, cam: Camera) -> Path:
@@ -135,8 +151,7 @@ def write_opencv_yaml(path: str | Path, cam: Camera) -> Path:
     return path
 
 
-def checkerboard_intrinsics(images: list[str | Path], corners: tuple[int, int],
-                            square_m: float):
+def checkerboard_intrinsics(images: list[str | Path], corners: tuple[int, int], square_m: float):
     """Intrinsics from checkerboard images with ``cv2.calibrateCamera``.
 
     Parameters
@@ -158,21 +173,28 @@ def checkerboard_intrinsics(images: list[str | Path], corners: tuple[int, int],
         if img is None:
             raise InputError(f"{p}: cannot be read as an image")
         size = (img.shape[1], img.shape[0])
-        for pat in ([pattern] if pattern else [tuple(corners), tuple(corners)[::-1]]):
-            ok, c = cv2.findChessboardCorners(img, pat, cv2.CALIB_CB_ADAPTIVE_THRESH
-                                              + cv2.CALIB_CB_NORMALIZE_IMAGE)
+        for pat in [pattern] if pattern else [tuple(corners), tuple(corners)[::-1]]:
+            ok, c = cv2.findChessboardCorners(
+                img, pat, cv2.CALIB_CB_ADAPTIVE_THRESH + cv2.CALIB_CB_NORMALIZE_IMAGE
+            )
             if ok:
                 pattern = pat
-                c = cv2.cornerSubPix(img, c, (5, 5), (-1, -1),
-                                     (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50,
-                                      1e-4))
+                c = cv2.cornerSubPix(
+                    img,
+                    c,
+                    (5, 5),
+                    (-1, -1),
+                    (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-4),
+                )
                 grid = np.zeros((pat[0] * pat[1], 3), np.float32)
-                grid[:, :2] = np.mgrid[0:pat[0], 0:pat[1]].T.reshape(-1, 2) * square_m
+                grid[:, :2] = np.mgrid[0 : pat[0], 0 : pat[1]].T.reshape(-1, 2) * square_m
                 obj.append(grid)
                 img_pts.append(c)
                 break
     if len(obj) < 3:
-        raise InputError(f"{Path(images[0]).parent if images else '?'}: the checkerboard was "
-                         f"found in only {len(obj)} images (need 3)")
+        raise InputError(
+            f"{Path(images[0]).parent if images else '?'}: the checkerboard was "
+            f"found in only {len(obj)} images (need 3)"
+        )
     rms, K, dist, _, _ = cv2.calibrateCamera(obj, img_pts, size, None, None)
     return K, dist.ravel()[:5], float(rms), size, len(obj)

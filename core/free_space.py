@@ -52,8 +52,9 @@ class Probes:
         return Probes(self.xyz[keep], self.valid[keep])
 
 
-def probes(xyz: np.ndarray, views: np.ndarray, centres: np.ndarray,
-           depths: tuple = DEPTHS) -> Probes:
+def probes(
+    xyz: np.ndarray, views: np.ndarray, centres: np.ndarray, depths: tuple = DEPTHS
+) -> Probes:
     """Probes along every point's lines of sight.
 
     Parameters
@@ -80,8 +81,13 @@ def probes(xyz: np.ndarray, views: np.ndarray, centres: np.ndarray,
     return Probes(p.reshape(len(xyz), -1, 3), valid.reshape(len(xyz), -1))
 
 
-def occlusion_cost(d_probe: np.ndarray, valid: np.ndarray, margin: float = 0.01,
-                   tau: float = 0.05, sigma: float = 0.01) -> np.ndarray:
+def occlusion_cost(
+    d_probe: np.ndarray,
+    valid: np.ndarray,
+    margin: float = 0.01,
+    tau: float = 0.05,
+    sigma: float = 0.01,
+) -> np.ndarray:
     """Per-point cost of body in the line of sight.
 
     Parameters
@@ -122,8 +128,13 @@ class FrameProbes:
 
     def __call__(self, f: int) -> Probes | None:
         pts = self.frames[f]
-        if (not self.enabled or self.centres is None or pts.views is None
-                or not len(pts.xyz) or pts.views.shape[1] != len(self.centres)):
+        if (
+            not self.enabled
+            or self.centres is None
+            or pts.views is None
+            or not len(pts.xyz)
+            or pts.views.shape[1] != len(self.centres)
+        ):
             return None
         if f not in self._cache:
             self._cache.clear()  # one frame at a time

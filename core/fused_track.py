@@ -37,13 +37,23 @@ from .progress import Progress
 from .skeleton import Skeleton
 
 
-def track_fused(skel: Skeleton, s: np.ndarray, balls: Metaballs, theta0: np.ndarray,
-                root0: np.ndarray, cameras: list[Camera],
-                contours: list[list[list[Contour]]], q_points: np.ndarray,
-                q_sigma: np.ndarray, cfg: ContourTrackSettings | None = None,
-                sigma_floor_theta: float = 0.1, sigma_floor_root: float = 0.03,
-                gate: float = 3.0, progress: Progress | None = None,
-                silhouettes: bool = False) -> tuple[list[FrameTrack], np.ndarray]:
+def track_fused(
+    skel: Skeleton,
+    s: np.ndarray,
+    balls: Metaballs,
+    theta0: np.ndarray,
+    root0: np.ndarray,
+    cameras: list[Camera],
+    contours: list[list[list[Contour]]],
+    q_points: np.ndarray,
+    q_sigma: np.ndarray,
+    cfg: ContourTrackSettings | None = None,
+    sigma_floor_theta: float = 0.1,
+    sigma_floor_root: float = 0.03,
+    gate: float = 3.0,
+    progress: Progress | None = None,
+    silhouettes: bool = False,
+) -> tuple[list[FrameTrack], np.ndarray]:
     """Track a pose through F frames with point-fit poses and contours.
 
     Parameters
@@ -79,8 +89,10 @@ def track_fused(skel: Skeleton, s: np.ndarray, balls: Metaballs, theta0: np.ndar
     q_points = np.asarray(q_points, float)
     q_sigma = np.asarray(q_sigma, float)
     if q_points.shape != (len(contours), m) or q_sigma.shape != q_points.shape:
-        raise ValueError(f"q_points {q_points.shape} and q_sigma {q_sigma.shape} must both be "
-                         f"({len(contours)}, {m})")
+        raise ValueError(
+            f"q_points {q_points.shape} and q_sigma {q_sigma.shape} must both be "
+            f"({len(contours)}, {m})"
+        )
     floor = np.concatenate([np.full(n, sigma_floor_theta), np.full(3, sigma_floor_root)])
     rays = [camera_rays(c) for c in cameras]
     ekf = start_filter(skel, np.asarray(theta0, float), np.asarray(root0, float), cfg)
@@ -99,9 +111,19 @@ def track_fused(skel: Skeleton, s: np.ndarray, balls: Metaballs, theta0: np.ndar
             H = np.eye(m)[k]
             ekf.update(q_points[f, k], lambda q, k=k: q[k], H, sig[k] ** 2)
             n_used[f] = len(k)
-        out.append(update_with_contours(ekf, skel, s, balls, cameras, frame_contours, cfg,
-                                        rays=rays, fields=frame_fields(cameras, frame_contours)
-                                        if silhouettes else None))
+        out.append(
+            update_with_contours(
+                ekf,
+                skel,
+                s,
+                balls,
+                cameras,
+                frame_contours,
+                cfg,
+                rays=rays,
+                fields=frame_fields(cameras, frame_contours) if silhouettes else None,
+            )
+        )
         if progress is not None:
             progress.update(f + 1, len(contours), f"texture + contour tracking: frame {f + 1}")
     return out, n_used

@@ -28,7 +28,7 @@ def _cardinal_spline_taps(n: int = 6) -> np.ndarray:
     d = np.arange(-n + 1, n + 1)
     s = 0.5 - d[:, None] - k[None, :]
     a = np.abs(s)
-    beta = np.where(a < 1, 2 / 3 - a ** 2 + a ** 3 / 2, np.where(a < 2, (2 - a) ** 3 / 6, 0.0))
+    beta = np.where(a < 1, 2 / 3 - a**2 + a**3 / 2, np.where(a < 2, (2 - a) ** 3 / 6, 0.0))
     w = (np.sqrt(3.0) * z ** np.abs(k) * beta).sum(axis=1)
     return w / w.sum()
 
@@ -47,11 +47,13 @@ def upsample2(img: np.ndarray) -> np.ndarray:
     img = np.ascontiguousarray(img, dtype=np.float32)
     h, w = img.shape
     n = len(_HALF_TAPS) // 2
-    hx = cv2.filter2D(img, -1, _HALF_TAPS[None, :], anchor=(n - 1, 0),
-                      borderType=cv2.BORDER_REFLECT_101)
-    even = cv2.merge([img, hx]).reshape(h, 2 * w)                 # columns interleaved
-    odd = cv2.filter2D(even, -1, _HALF_TAPS[:, None], anchor=(0, n - 1),
-                       borderType=cv2.BORDER_REFLECT_101)
+    hx = cv2.filter2D(
+        img, -1, _HALF_TAPS[None, :], anchor=(n - 1, 0), borderType=cv2.BORDER_REFLECT_101
+    )
+    even = cv2.merge([img, hx]).reshape(h, 2 * w)  # columns interleaved
+    odd = cv2.filter2D(
+        even, -1, _HALF_TAPS[:, None], anchor=(0, n - 1), borderType=cv2.BORDER_REFLECT_101
+    )
     out = np.empty((h, 2, 2 * w), np.float32)
     out[:, 0] = even
     out[:, 1] = odd
@@ -83,8 +85,11 @@ def _tile(arr: np.ndarray, gap: int, narrow: bool = False):
         tiles[:m] = np.pad(np.asarray(arr, np.float32), ((0, 0), (g, g), (g, g)), mode="edge")
     else:
         tiles[:m] = arr
-    mosaic = tiles.reshape(rows, cols, h + 2 * g, w + 2 * g).transpose(0, 2, 1, 3).reshape(
-        rows * (h + 2 * g), cols * (w + 2 * g))
+    mosaic = (
+        tiles.reshape(rows, cols, h + 2 * g, w + 2 * g)
+        .transpose(0, 2, 1, 3)
+        .reshape(rows * (h + 2 * g), cols * (w + 2 * g))
+    )
     k = np.arange(m)
     return np.ascontiguousarray(mosaic), (k % cols) * (w + 2 * g) + g, (k // cols) * (h + 2 * g) + g
 
@@ -107,7 +112,7 @@ class ImageStack:
 
     def __init__(self, images):
         if isinstance(images, ImageStack):
-            self.__dict__ = images.__dict__      # share the cached mosaics
+            self.__dict__ = images.__dict__  # share the cached mosaics
             return
         arr = images if not isinstance(images, list | tuple) else np.stack(images)
         arr = np.asarray(arr)
@@ -119,7 +124,7 @@ class ImageStack:
         self.images = arr
         self._mosaic = None
         self._up = None
-        self._lock = threading.RLock()       # threads sharing the stack build it once
+        self._lock = threading.RLock()  # threads sharing the stack build it once
 
     def _build(self):
         mosaic, self.origin_u, self.origin_v = _tile(self.images, self.GAP)
@@ -156,15 +161,14 @@ class ImageStack:
         iv = np.clip(np.asarray(iv, np.int64), 0, h - 1)
         return self.images[np.asarray(index, np.int64), iv, iu].astype(np.float32)
 
-    def windows(self, index: np.ndarray, u0: np.ndarray, v0: np.ndarray,
-                size: int) -> np.ndarray:
+    def windows(self, index: np.ndarray, u0: np.ndarray, v0: np.ndarray, size: int) -> np.ndarray:
         """Square windows ``size`` × ``size`` with top-left pixels ``(u0, v0)`` (N,), which
         must lie inside the image: (N, size, size) float32."""
         view = np.lib.stride_tricks.sliding_window_view(self.images, (size, size), axis=(1, 2))
         return view[np.asarray(index, np.int64), v0, u0].astype(np.float32)
 
 
-_TAP_MARGIN = len(_HALF_TAPS) // 2 - 1     # input pixels beyond a window that its taps read
+_TAP_MARGIN = len(_HALF_TAPS) // 2 - 1  # input pixels beyond a window that its taps read
 
 
 @functools.lru_cache(maxsize=16)
@@ -176,7 +180,7 @@ def _half_matrix(wr: int) -> np.ndarray:
     n = len(_HALF_TAPS) // 2
     H = np.zeros((2 * (wr + m) + 1, 2 * wr), np.float32)
     for k in range(2 * wr):
-        H[m + k - n + 1:m + k + n + 1, k] = _HALF_TAPS
+        H[m + k - n + 1 : m + k + n + 1, k] = _HALF_TAPS
     return H
 
 
@@ -192,8 +196,14 @@ def _upsample_matrix(wr: int) -> np.ndarray:
     return U
 
 
-def _windows(stack: ImageStack, index: np.ndarray, u0: np.ndarray, v0: np.ndarray,
-             ws: int, transposed: bool = False) -> np.ndarray:
+def _windows(
+    stack: ImageStack,
+    index: np.ndarray,
+    u0: np.ndarray,
+    v0: np.ndarray,
+    ws: int,
+    transposed: bool = False,
+) -> np.ndarray:
     """Windows ``ws`` × ``ws`` with top-left pixels ``(u0, v0)`` (N,), float32 (N, ws, ws)
     (row = v, or row = u when ``transposed``); pixels outside the image repeat its border."""
     _, h, w = stack.shape
@@ -230,10 +240,10 @@ def _upsample_windows(win_t: np.ndarray, wr: int) -> np.ndarray:
     """
     n, ws, _ = win_t.shape
     m = _TAP_MARGIN
-    H = _half_matrix(wr)                              # (ws, 2 wr): odd outputs only
+    H = _half_matrix(wr)  # (ws, 2 wr): odd outputs only
     size = 4 * wr + 1
-    x = np.empty((n, size, ws), np.float32)           # (n, v', u)
-    x[:, 0::2, :] = win_t[:, :, m:m + 2 * wr + 1].transpose(0, 2, 1)
+    x = np.empty((n, size, ws), np.float32)  # (n, v', u)
+    x[:, 0::2, :] = win_t[:, :, m : m + 2 * wr + 1].transpose(0, 2, 1)
     x[:, 1::2, :] = (win_t.reshape(n * ws, ws) @ H).reshape(n, ws, 2 * wr).transpose(0, 2, 1)
     return (x.reshape(n * size, ws) @ _upsample_matrix(wr)).reshape(n, size, size)
 
@@ -266,10 +276,17 @@ class PatchSource:
         :func:`core.lsm_kernel.upsampled_windows`); default the numpy GEMMs.
     """
 
-    MAX_ROWS = 32000           # cv2.remap: images and maps below 32767 rows
+    MAX_ROWS = 32000  # cv2.remap: images and maps below 32767 rows
 
-    def __init__(self, stack: ImageStack, index: np.ndarray, centre: np.ndarray,
-                 reach: np.ndarray | float, upsample: bool = True, upsampler=None):
+    def __init__(
+        self,
+        stack: ImageStack,
+        index: np.ndarray,
+        centre: np.ndarray,
+        reach: np.ndarray | float,
+        upsample: bool = True,
+        upsampler=None,
+    ):
         n = len(index)
         f = 2 if upsample else 1
         self.f = float(f)
@@ -277,10 +294,13 @@ class PatchSource:
         reach = np.broadcast_to(np.asarray(reach, float), (n,))
         # Windows of ±wr px around the rounded centres (reach + 0.5 px of rounding).
         wr = int(np.ceil(reach.max() + 0.51)) if n else 0
-        size = 2 * f * wr + 1                           # samples per window side
+        size = 2 * f * wr + 1  # samples per window side
         cached = stack._up if upsample else stack._mosaic
-        if n == 0 or cached is not None or n * size * size >= (
-                f * f * m * (h + 2 * stack.GAP) * (w + 2 * stack.GAP)):
+        if (
+            n == 0
+            or cached is not None
+            or n * size * size >= (f * f * m * (h + 2 * stack.GAP) * (w + 2 * stack.GAP))
+        ):
             self.up = stack.up if upsample else stack.mosaic
             self.rows_per_chunk = max(n, 1)
             self.bu = f * stack.origin_u[index].astype(np.float64)
@@ -295,8 +315,14 @@ class PatchSource:
         if upsample and upsampler is not None:
             win = upsampler(stack, index, c[:, 0] - wr, c[:, 1] - wr, wr)
         else:
-            win = _windows(stack, index, c[:, 0] - wr - mg, c[:, 1] - wr - mg,
-                           2 * (wr + mg) + 1, transposed=upsample)
+            win = _windows(
+                stack,
+                index,
+                c[:, 0] - wr - mg,
+                c[:, 1] - wr - mg,
+                2 * (wr + mg) + 1,
+                transposed=upsample,
+            )
             if upsample:
                 win = _upsample_windows(win, wr)
         self.up = win.reshape(n * size, size)
@@ -308,8 +334,13 @@ class PatchSource:
         self.lo = (c - wr + 0.01).astype(np.float64)
         self.hi = (c + wr - 0.01).astype(np.float64)
 
-    def sample(self, pu: np.ndarray, pv: np.ndarray, rows: np.ndarray | None = None,
-               out: np.ndarray | None = None) -> np.ndarray:
+    def sample(
+        self,
+        pu: np.ndarray,
+        pv: np.ndarray,
+        rows: np.ndarray | None = None,
+        out: np.ndarray | None = None,
+    ) -> np.ndarray:
         """Values at positions ``pu``, ``pv`` (n_a, P) float32 of patches ``rows``.
 
         ``rows`` (n_a,) ascending indices of the patches (default all, in order);
@@ -322,8 +353,14 @@ class PatchSource:
         if self._whole:
             for i in range(0, na, self.MAX_ROWS):
                 j = slice(i, i + self.MAX_ROWS)
-                cv2.remap(self.up, pu[j], pv[j], cv2.INTER_LINEAR, dst=out[j],
-                          borderMode=cv2.BORDER_REPLICATE)
+                cv2.remap(
+                    self.up,
+                    pu[j],
+                    pv[j],
+                    cv2.INTER_LINEAR,
+                    dst=out[j],
+                    borderMode=cv2.BORDER_REPLICATE,
+                )
             return out
         rows = np.arange(na) if rows is None else rows
         rpc = self.rows_per_chunk
@@ -334,10 +371,11 @@ class PatchSource:
             if stop > start:
                 ch = rows[start] // rpc
                 r0 = ch * rpc * self.size
-                img = self.up[r0:r0 + rpc * self.size]
+                img = self.up[r0 : r0 + rpc * self.size]
                 j = slice(start, stop)
-                cv2.remap(img, pu[j], pv[j], cv2.INTER_LINEAR, dst=out[j],
-                          borderMode=cv2.BORDER_REPLICATE)
+                cv2.remap(
+                    img, pu[j], pv[j], cv2.INTER_LINEAR, dst=out[j], borderMode=cv2.BORDER_REPLICATE
+                )
             start = stop
         return out
 
@@ -352,8 +390,8 @@ def resampling_noise_factor(u: np.ndarray, v: np.ndarray, upsample: bool = True)
     is the sum of the squared weights.  Same shapes as ``u``, ``v``; float32.
     """
     n = len(_HALF_TAPS) // 2
-    rho_h = float(np.sum(_HALF_TAPS.astype(np.float64) ** 2))   # half-pixel value
-    c = float(_HALF_TAPS[n - 1])                                 # its weight on a neighbour
+    rho_h = float(np.sum(_HALF_TAPS.astype(np.float64) ** 2))  # half-pixel value
+    c = float(_HALF_TAPS[n - 1])  # its weight on a neighbour
 
     def axis(p):
         q = np.asarray(p, np.float32) * np.float32(2.0 if upsample else 1.0)
@@ -373,6 +411,15 @@ def remap_bilinear(img: np.ndarray, mu: np.ndarray, mv: np.ndarray) -> np.ndarra
     rows = mu.shape[0]
     if rows <= 32000:
         return cv2.remap(img, mu, mv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return np.concatenate([
-        cv2.remap(img, mu[i:i + 32000], mv[i:i + 32000], cv2.INTER_LINEAR,
-                  borderMode=cv2.BORDER_REPLICATE) for i in range(0, rows, 32000)])
+    return np.concatenate(
+        [
+            cv2.remap(
+                img,
+                mu[i : i + 32000],
+                mv[i : i + 32000],
+                cv2.INTER_LINEAR,
+                borderMode=cv2.BORDER_REPLICATE,
+            )
+            for i in range(0, rows, 32000)
+        ]
+    )

@@ -56,7 +56,7 @@ def _dlt(cameras: list[Camera], uv: np.ndarray, seen: np.ndarray) -> np.ndarray:
             xy = cam.undistort_points(np.where(seen[:, j, None], uv[:, j], 0.0))
         good = seen[:, j] & np.all(np.isfinite(xy), axis=1) & np.all(np.abs(xy) < 1e6, axis=1)
         xy = np.where(good[:, None], xy, 0.0)
-        Rt = np.hstack([cam.R, cam.t[:, None]])                  # (3, 4)
+        Rt = np.hstack([cam.R, cam.t[:, None]])  # (3, 4)
         w = good[:, None].astype(float)
         A[:, 2 * j] = w * (xy[:, 0, None] * Rt[2] - Rt[0])
         A[:, 2 * j + 1] = w * (xy[:, 1, None] * Rt[2] - Rt[1])
@@ -69,8 +69,13 @@ def _dlt(cameras: list[Camera], uv: np.ndarray, seen: np.ndarray) -> np.ndarray:
         return X[:, :3] / X[:, 3:4]
 
 
-def triangulate(cameras: list[Camera], uv: np.ndarray, sigma_px: float = 0.1,
-                iterations: int = 10, tol_m: float = 1e-10) -> Intersection:
+def triangulate(
+    cameras: list[Camera],
+    uv: np.ndarray,
+    sigma_px: float = 0.1,
+    iterations: int = 10,
+    tol_m: float = 1e-10,
+) -> Intersection:
     """Forward intersection of N points seen in C cameras.
 
     Parameters
@@ -99,7 +104,7 @@ def triangulate(cameras: list[Camera], uv: np.ndarray, sigma_px: float = 0.1,
     seen = np.all(np.isfinite(uv), axis=2)
     n_views = seen.sum(axis=1)
     enough = n_views >= 2
-    params = np.stack([pack_camera(cam) for cam in cameras])    # (C, 15)
+    params = np.stack([pack_camera(cam) for cam in cameras])  # (C, 15)
 
     xyz = np.full((n, 3), np.nan)
     if np.any(enough):
@@ -119,8 +124,11 @@ def triangulate(cameras: list[Camera], uv: np.ndarray, sigma_px: float = 0.1,
         for j in range(c):
             with np.errstate(over="ignore", invalid="ignore"):
                 pred, _, J_xyz = project_params(params[j], xyz[idx])
-            ok_j = (seen[idx, j] & np.all(np.isfinite(pred), axis=1)
-                    & np.all(np.isfinite(J_xyz), axis=(1, 2)))
+            ok_j = (
+                seen[idx, j]
+                & np.all(np.isfinite(pred), axis=1)
+                & np.all(np.isfinite(J_xyz), axis=(1, 2))
+            )
             front[idx, j] = ok_j | ~seen[idx, j]
             r[:, j] = np.where(ok_j[:, None], uv[idx, j] - pred, 0.0)
             J[:, j] = np.where(ok_j[:, None, None], J_xyz, 0.0)

@@ -86,8 +86,15 @@ from .lsm_design import (
     template_patches,
 )
 
-__all__ = ["ImageStack", "LSMResult", "Status", "epipolar_lines", "match", "template_patches",
-           "upsample2"]
+__all__ = [
+    "ImageStack",
+    "LSMResult",
+    "Status",
+    "epipolar_lines",
+    "match",
+    "template_patches",
+    "upsample2",
+]
 
 
 #: Drift allowed for in a search window beyond the patch footprint, px (then a new window).
@@ -101,14 +108,14 @@ class Status(IntEnum):
     """Per-match outcome of :func:`match` (``LSMResult.status``)."""
 
     OK = 0
-    NOT_CONVERGED = 1     #: no convergence within ``max_iter`` iterations
-    LARGE_SIGMA = 2       #: σ of the shifts above ``max_sigma_px``
-    WEAK_TEXTURE = 3      #: template without texture (small gradient energy)
-    OUT_OF_SEARCH = 4     #: the shift drifted more than ``max_shift_px`` from its start
-    OUT_OF_IMAGE = 5      #: template or warped patch leaves its image
-    DEGENERATE = 6        #: singular normal matrix, affine scale / gain out of range, or a
+    NOT_CONVERGED = 1  #: no convergence within ``max_iter`` iterations
+    LARGE_SIGMA = 2  #: σ of the shifts above ``max_sigma_px``
+    WEAK_TEXTURE = 3  #: template without texture (small gradient energy)
+    OUT_OF_SEARCH = 4  #: the shift drifted more than ``max_shift_px`` from its start
+    OUT_OF_IMAGE = 5  #: template or warped patch leaves its image
+    DEGENERATE = 6  #: singular normal matrix, affine scale / gain out of range, or a
     #: flat search patch (grey-level spread below :data:`core.lsm_design.FLAT_SD`)
-    INVALID = 7           #: NaN start position
+    INVALID = 7  #: NaN start position
 
 
 @dataclass
@@ -157,12 +164,28 @@ class LSMResult:
 
 
 @single_blas_thread()
-def match(template_images, search_images, uv_template, uv_search, *, half: int = 6,
-          affine=None, template_index=None, search_index=None, upsample: bool = True,
-          tol_px: float = 0.01, max_iter: int = 20, max_shift_px: float = 4.0,
-          max_sigma_px: float = 0.15, min_texture: float = 3.0, lines=None,
-          sigma_line_px: float = 0.05, sigma_grey: float = 2.0,
-          weight_sigma: float | None = None, workers: int = 1) -> LSMResult:
+def match(
+    template_images,
+    search_images,
+    uv_template,
+    uv_search,
+    *,
+    half: int = 6,
+    affine=None,
+    template_index=None,
+    search_index=None,
+    upsample: bool = True,
+    tol_px: float = 0.01,
+    max_iter: int = 20,
+    max_shift_px: float = 4.0,
+    max_sigma_px: float = 0.15,
+    min_texture: float = 3.0,
+    lines=None,
+    sigma_line_px: float = 0.05,
+    sigma_grey: float = 2.0,
+    weight_sigma: float | None = None,
+    workers: int = 1,
+) -> LSMResult:
     """Least squares matching of N template patches into search images.
 
     Parameters
@@ -216,19 +239,29 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
     n = len(uv_t)
     if uv_s0.shape != uv_t.shape:
         raise ValueError(f"uv_template {uv_t.shape} and uv_search {uv_s0.shape} differ")
-    ti = np.zeros(n, np.int64) if template_index is None else np.asarray(template_index,
-                                                                         np.int64)
+    ti = np.zeros(n, np.int64) if template_index is None else np.asarray(template_index, np.int64)
     si = np.zeros(n, np.int64) if search_index is None else np.asarray(search_index, np.int64)
-    if not (np.all((ti >= 0) & (ti < tstack.shape[0]))
-            and np.all((si >= 0) & (si < sstack.shape[0]))):
+    if not (
+        np.all((ti >= 0) & (ti < tstack.shape[0])) and np.all((si >= 0) & (si < sstack.shape[0]))
+    ):
         raise ValueError("template_index / search_index outside the image stacks")
-    A = np.broadcast_to(np.eye(2) if affine is None else np.asarray(affine, float),
-                        (n, 2, 2)).copy()
+    A = np.broadcast_to(
+        np.eye(2) if affine is None else np.asarray(affine, float), (n, 2, 2)
+    ).copy()
     if lines is not None:
         lines = (np.asarray(lines[0], float).reshape(n, 2), np.asarray(lines[1], float).reshape(n))
-    opts = dict(half=half, upsample=upsample, tol_px=tol_px, max_iter=max_iter,
-                max_shift_px=max_shift_px, max_sigma_px=max_sigma_px, min_texture=min_texture,
-                sigma_line_px=sigma_line_px, sigma_grey=sigma_grey, weight_sigma=weight_sigma)
+    opts = dict(
+        half=half,
+        upsample=upsample,
+        tol_px=tol_px,
+        max_iter=max_iter,
+        max_shift_px=max_shift_px,
+        max_sigma_px=max_sigma_px,
+        min_texture=min_texture,
+        sigma_line_px=sigma_line_px,
+        sigma_grey=sigma_grey,
+        weight_sigma=weight_sigma,
+    )
     nw = _n_workers(workers, n)
 
     def part(k=slice(None)):
@@ -236,7 +269,7 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
         ln = None if lines is None else (lines[0][k], lines[1][k])
         try:
             return _match_part(*args, A[k].copy(), ln, **opts)
-        except lsm_kernel.KernelError:           # compiling failed: the numpy path
+        except lsm_kernel.KernelError:  # compiling failed: the numpy path
             return _match_part(*args, A[k].copy(), ln, **opts)
 
     if nw <= 1:
@@ -244,8 +277,9 @@ def match(template_images, search_images, uv_template, uv_search, *, half: int =
 
     with ThreadPoolExecutor(nw) as ex:
         res = list(ex.map(part, np.array_split(np.arange(n), nw)))
-    return LSMResult(**{f.name: np.concatenate([getattr(r, f.name) for r in res])
-                        for f in fields(LSMResult)})
+    return LSMResult(
+        **{f.name: np.concatenate([getattr(r, f.name) for r in res]) for f in fields(LSMResult)}
+    )
 
 
 def _n_workers(workers: int, n: int) -> int:
@@ -253,14 +287,32 @@ def _n_workers(workers: int, n: int) -> int:
         return max(1, min(int(workers), n))
     try:
         cores = len(os.sched_getaffinity(0))
-    except AttributeError:                       # not on every platform
+    except AttributeError:  # not on every platform
         cores = os.cpu_count() or 1
     return max(1, min(cores, n // MIN_PATCHES_PER_WORKER))
 
 
-def _match_part(tstack: ImageStack, sstack: ImageStack, uv_t, uv_s0, ti, si, A, lines, *,
-                half, upsample, tol_px, max_iter, max_shift_px, max_sigma_px, min_texture,
-                sigma_line_px, sigma_grey, weight_sigma) -> LSMResult:
+def _match_part(
+    tstack: ImageStack,
+    sstack: ImageStack,
+    uv_t,
+    uv_s0,
+    ti,
+    si,
+    A,
+    lines,
+    *,
+    half,
+    upsample,
+    tol_px,
+    max_iter,
+    max_shift_px,
+    max_sigma_px,
+    min_texture,
+    sigma_line_px,
+    sigma_grey,
+    weight_sigma,
+) -> LSMResult:
     """:func:`match` of validated arrays (uv_t, uv_s0 (n, 2), ti, si (n,), A (n, 2, 2)
     owned here, lines None or (normal (n, 2), d (n,)))."""
     n = len(uv_t)
@@ -271,8 +323,11 @@ def _match_part(tstack: ImageStack, sstack: ImageStack, uv_t, uv_s0, ti, si, A, 
     sigma0 = np.full(n, np.nan)
     cov = np.full((n, 2, 2), np.nan)
 
-    finite = (np.all(np.isfinite(uv_t), axis=1) & np.all(np.isfinite(uv_s0), axis=1)
-              & np.all(np.isfinite(A), axis=(1, 2)))
+    finite = (
+        np.all(np.isfinite(uv_t), axis=1)
+        & np.all(np.isfinite(uv_s0), axis=1)
+        & np.all(np.isfinite(A), axis=(1, 2))
+    )
     status[~finite] = Status.INVALID
     uv_t = np.where(finite[:, None], uv_t, 0.0)
     uv = np.where(finite[:, None], uv_s0, 0.0)
@@ -281,28 +336,29 @@ def _match_part(tstack: ImageStack, sstack: ImageStack, uv_t, uv_s0, ti, si, A, 
     status[finite & ~t_in] = Status.OUT_OF_IMAGE
 
     # Template, its gradients and texture (smaller eigenvalue of the structure tensor).
-    kernel = lines is None and lsm_kernel.enabled()     # compiled steps (core.lsm_kernel)
-    T, tx, ty = template_patches(tstack, np.where(t_in[:, None], uv_t, half + 1.0), half, ti,
-                                 upsample, kernel)
+    kernel = lines is None and lsm_kernel.enabled()  # compiled steps (core.lsm_kernel)
+    T, tx, ty = template_patches(
+        tstack, np.where(t_in[:, None], uv_t, half + 1.0), half, ti, upsample, kernel
+    )
     npx = T[0].size
     T = T.reshape(n, npx)
     gx = tx.reshape(n, npx)
     gy = ty.reshape(n, npx)
     t_mean, t_sd = row_mean_sd(T)
-    t_sq = npx * (t_sd ** 2 + t_mean ** 2)                      # Σ T²
+    t_sq = npx * (t_sd**2 + t_mean**2)  # Σ T²
     # Normal matrix of the inverse compositional step, inverted once per patch.
     xg, yg = _grid(half)
     xs = xg.ravel().astype(np.float32)
     ys = yg.ravel().astype(np.float32)
-    basis = np.stack([np.ones_like(xs), xs, ys])                # (3, P)
+    basis = np.stack([np.ones_like(xs), xs, ys])  # (3, P)
     if weight_sigma is None:
         wpx = np.ones(npx, np.float32)
         Tw = T
     else:
-        wpx = np.exp(-(xs * xs + ys * ys) / (2.0 * weight_sigma ** 2)).astype(np.float32)
+        wpx = np.exp(-(xs * xs + ys * ys) / (2.0 * weight_sigma**2)).astype(np.float32)
         Tw = T * wpx
     # b = Jᵀ W e: (w gx e, w gy e, w e) against 1, x, y (three GEMVs, faster than a GEMM).
-    basis_w = basis * wpx                                       # (3, P)
+    basis_w = basis * wpx  # (3, P)
     if kernel:
         T, gx, gy = (np.ascontiguousarray(x) for x in (T, gx, gy))
         N = lsm_kernel.normal_matrices(T, gx, gy, wpx, xs, ys)
@@ -317,7 +373,7 @@ def _match_part(tstack: ImageStack, sstack: ImageStack, uv_t, uv_s0, ti, si, A, 
     sw = float(wpx.sum())
     # Texture: smaller eigenvalue of the (weighted) structure tensor, mean of ∇T ∇Tᵀ.
     sxx, syy, sxy = N[:, 0, 0] / sw, N[:, 3, 3] / sw, N[:, 0, 3] / sw
-    lam_min = 0.5 * (sxx + syy) - np.sqrt(0.25 * (sxx - syy) ** 2 + sxy ** 2)
+    lam_min = 0.5 * (sxx + syy) - np.sqrt(0.25 * (sxx - syy) ** 2 + sxy**2)
     texture = np.sqrt(np.maximum(lam_min, 0.0))
     status[finite & t_in & (texture < min_texture)] = Status.WEAK_TEXTURE
     if kernel:
@@ -333,7 +389,7 @@ def _match_part(tstack: ImageStack, sstack: ImageStack, uv_t, uv_s0, ti, si, A, 
     sub = [0, 3, 6, 7]
     shift_only = np.ones(n, bool)
     side = 2 * half + 1
-    even = slice(half % 2, side, 2)                             # even offsets x, y
+    even = slice(half % 2, side, 2)  # even offsets x, y
 
     def coarse(X):
         return np.ascontiguousarray(X.reshape(-1, side, side)[:, even, even]).reshape(len(X), -1)
@@ -357,7 +413,7 @@ def _match_part(tstack: ImageStack, sstack: ImageStack, uv_t, uv_s0, ti, si, A, 
     _, h_img, w_img = sstack.shape
     img_lo = np.array([1.0, 1.0])
     img_hi = np.array([w_img - 2.0, h_img - 2.0])
-    fresh = np.ones(n, bool)             # radiometry not yet initialised
+    fresh = np.ones(n, bool)  # radiometry not yet initialised
     it_left = np.full(n, max_iter, np.int64)
     uv_s0 = np.ascontiguousarray(uv_s0)
 
@@ -367,20 +423,67 @@ def _match_part(tstack: ImageStack, sstack: ImageStack, uv_t, uv_s0, ti, si, A, 
         # ``_DRIFT_PX`` of drift; patches that walk out of their window (within
         # max_shift_px) get a new one in the next round.
         reach = half * np.max(np.abs(A[todo]).sum(axis=2), axis=1) + _DRIFT_PX
-        src = PatchSource(sstack, si[todo], uv[todo], reach, upsample,
-                          lsm_kernel.upsampled_windows if kernel else None)
+        src = PatchSource(
+            sstack,
+            si[todo],
+            uv[todo],
+            reach,
+            upsample,
+            lsm_kernel.upsampled_windows if kernel else None,
+        )
         f = src.f
         bases, w_lo, w_hi = np.stack([src.bu, src.bv]), src.lo, src.hi
         if kernel:
             rew = np.zeros(len(todo), bool)
             lsm_kernel.iterate_round(
-                src.up, src.rows_per_chunk if not src._whole else 0, getattr(src, "size", 0),
-                src.bu, src.bv, src.lo, src.hi, float(f), todo, T, gx, gy, wpx, xs, ys,
-                T_c, gx_c, gy_c, basis_c[1], basis_c[2], mom_c, Ninv, N, pd, uv, A, gain,
-                offset, fresh, shift_only, iters, it_left, sigma0, status, uv_s0, t_mean, t_sd,
-                t_sq, dof, float(dof_c),
-                float(tol_px), float(max_shift_px), float(half), float(img_hi[0]),
-                float(img_hi[1]), weight_sigma is not None, rew)
+                src.up,
+                src.rows_per_chunk if not src._whole else 0,
+                getattr(src, "size", 0),
+                src.bu,
+                src.bv,
+                src.lo,
+                src.hi,
+                float(f),
+                todo,
+                T,
+                gx,
+                gy,
+                wpx,
+                xs,
+                ys,
+                T_c,
+                gx_c,
+                gy_c,
+                basis_c[1],
+                basis_c[2],
+                mom_c,
+                Ninv,
+                N,
+                pd,
+                uv,
+                A,
+                gain,
+                offset,
+                fresh,
+                shift_only,
+                iters,
+                it_left,
+                sigma0,
+                status,
+                uv_s0,
+                t_mean,
+                t_sd,
+                t_sq,
+                dof,
+                float(dof_c),
+                float(tol_px),
+                float(max_shift_px),
+                float(half),
+                float(img_hi[0]),
+                float(img_hi[1]),
+                weight_sigma is not None,
+                rew,
+            )
             todo = todo[rew]
             continue
         # Working set: the patches still iterating in this window round, with their
@@ -401,15 +504,15 @@ def _match_part(tstack: ImageStack, sstack: ImageStack, uv_t, uv_s0, ti, si, A, 
             # below starts from the snapped warp actually sampled.
             so = shift_only[a]
             coarse = lines is None and so.all()
-            base = bases[:, wrow]                                   # (2, n_a)
-            M = np.empty((2, na, 3))                                # [u; v] x (1, x, y)
+            base = bases[:, wrow]  # (2, n_a)
+            M = np.empty((2, na, 3))  # [u; v] x (1, x, y)
             M[:, :, 0] = base + f * uv[a].T
             M[:, :, 1:] = f * Aa.transpose(1, 0, 2)
             M = np.rint(M * 32.0) * (1 / 32.0)
             uv_s = ((M[:, :, 0] - base) / f).T
             A_s = M[:, :, 1:].transpose(1, 0, 2) / f
             puv = M.reshape(2 * na, 3).astype(np.float32) @ (basis_c if coarse else basis)
-            S = src.sample(puv[:na], puv[na:], wrow)                # (n_a, P or P/4)
+            S = src.sample(puv[:na], puv[na:], wrow)  # (n_a, P or P/4)
             new = fresh[a]
             flat = np.zeros(na, bool)
             if new.any():
@@ -425,8 +528,9 @@ def _match_part(tstack: ImageStack, sstack: ImageStack, uv_t, uv_s0, ti, si, A, 
             g_old, o_old = gain[a], offset[a]
             if coarse:
                 rows = slice(None) if na == n else a
-                dq, b, vv = coarse_shift_step(S, g_old, o_old, T_c[rows], gx_c[rows], gy_c[rows],
-                                         w_c, mom_c[rows])
+                dq, b, vv = coarse_shift_step(
+                    S, g_old, o_old, T_c[rows], gx_c[rows], gy_c[rows], w_c, mom_c[rows]
+                )
                 dof_a = dof_c
             else:
                 # Residuals e = r1 S + r0 - T; b = Jᵀ W e (n_a, 8) and vᵀWv.
@@ -443,8 +547,8 @@ def _match_part(tstack: ImageStack, sstack: ImageStack, uv_t, uv_s0, ti, si, A, 
                 b[:, [0, 3, 6]] = (Q2 @ basis_w[0]).reshape(3, na).T
                 b[:, 1] = Q2[:na] @ basis_w[1]
                 b[:, 2] = Q2[:na] @ basis_w[2]
-                b[:, 4] = Q2[na:2 * na] @ basis_w[1]
-                b[:, 5] = Q2[na:2 * na] @ basis_w[2]
+                b[:, 4] = Q2[na : 2 * na] @ basis_w[1]
+                b[:, 5] = Q2[na : 2 * na] @ basis_w[2]
                 b[:, 7] = np.einsum("np,np->n", Twa, e)
                 ew = e if weight_sigma is None else e * wpx
                 vv = np.einsum("np,np->n", ew, e).astype(np.float64)
@@ -455,7 +559,8 @@ def _match_part(tstack: ImageStack, sstack: ImageStack, uv_t, uv_s0, ti, si, A, 
                     k = np.flatnonzero(so)
                     blk = np.zeros((len(k), 8, 8))
                     blk[:, np.ix_(sub, sub)[0], np.ix_(sub, sub)[1]] = inverse_blocks(
-                        N[a[k]][:, sub][:, :, sub], pd[a[k]])
+                        N[a[k]][:, sub][:, :, sub], pd[a[k]]
+                    )
                     Ninv_a[k] = blk
                 if lines is not None:
                     Ninv_a, jv, mis = line_update(Ninv_a, Aa, ln_n[a], ln_d[a], uv[a], w_line)
@@ -467,7 +572,7 @@ def _match_part(tstack: ImageStack, sstack: ImageStack, uv_t, uv_s0, ti, si, A, 
             # Compose W <- W ∘ ΔW⁻¹ with ΔW(x) = Δt + (I + ΔA) x; radiometry likewise.
             An, step = compose_inverse(A_s, dq)
             uv_new = uv_s - step
-            change = uv_new - uv[a]              # of the estimate since the last iteration
+            change = uv_new - uv[a]  # of the estimate since the last iteration
             uv[a] = uv_new
             A[a] = An
             den = 1.0 + dq[:, 7]
@@ -505,7 +610,7 @@ def _match_part(tstack: ImageStack, sstack: ImageStack, uv_t, uv_s0, ti, si, A, 
                 if weight_sigma is None:
                     # Mean and spread of S = (e + T - r0) / r1 from Σe, ΣTe, Σe² (b, vv).
                     m_et = b67[conv, 0] / npx + t_mean[k]
-                    v_et = (vv0[conv] + 2.0 * b67[conv, 1] + t_sq[k]) / npx - m_et ** 2
+                    v_et = (vv0[conv] + 2.0 * b67[conv, 1] + t_sq[k]) / npx - m_et**2
                     go = np.where(np.abs(g_old[conv]) > 1e-9, g_old[conv], 1e-9)
                     s_mean = (m_et - o_old[conv]) / go
                     s_sd = np.sqrt(np.maximum(v_et, 0.0)) / np.abs(go)
@@ -542,7 +647,7 @@ def _match_part(tstack: ImageStack, sstack: ImageStack, uv_t, uv_s0, ti, si, A, 
     # κ = (1 + r1²) / (1 + r1² ρ), ρ the mean variance factor of the resampling over
     # the patch at the match (:func:`resampling_noise_factor`).
     sub_grid = np.stack(np.meshgrid(*2 * [np.linspace(-half, half, 5)]), 0).reshape(2, -1)
-    pos = uv[done, :, None] + Ad @ sub_grid                  # (n_d, 2, 25): a 5 × 5 subgrid
+    pos = uv[done, :, None] + Ad @ sub_grid  # (n_d, 2, 25): a 5 × 5 subgrid
     rho = resampling_noise_factor(pos[:, 0], pos[:, 1], upsample).mean(axis=1)
     g2 = gain[done] ** 2
     kappa = (1.0 + g2) / (1.0 + g2 * rho)
@@ -550,15 +655,30 @@ def _match_part(tstack: ImageStack, sstack: ImageStack, uv_t, uv_s0, ti, si, A, 
     sig = np.sqrt(np.abs(np.diagonal(cov, axis1=1, axis2=2)))
     big = (status == Status.OK) & ~(np.all(sig <= max_sigma_px, axis=1))
     status[big] = Status.LARGE_SIGMA
-    return LSMResult(uv=uv, affine=A, gain=gain, offset=offset, sigma0=sigma0, cov_uv=cov,
-                     iterations=iters, status=status, texture=texture)
+    return LSMResult(
+        uv=uv,
+        affine=A,
+        gain=gain,
+        offset=offset,
+        sigma0=sigma0,
+        cov_uv=cov,
+        iterations=iters,
+        status=status,
+        texture=texture,
+    )
 
 
 # -- geometric constraint -------------------------------------------------------------
 
-def epipolar_lines(cam_template: Camera, cam_search: Camera, uv_template: np.ndarray,
-                   uv_near: np.ndarray, depth_range=(0.3, 30.0),
-                   n_samples: int = 256) -> tuple[np.ndarray, np.ndarray]:
+
+def epipolar_lines(
+    cam_template: Camera,
+    cam_search: Camera,
+    uv_template: np.ndarray,
+    uv_near: np.ndarray,
+    depth_range=(0.3, 30.0),
+    n_samples: int = 256,
+) -> tuple[np.ndarray, np.ndarray]:
     """Local epipolar lines in the search camera, with lens distortion.
 
     The ray of each template point is sampled in depth, projected into the search
@@ -584,10 +704,10 @@ def epipolar_lines(cam_template: Camera, cam_search: Camera, uv_template: np.nda
     """
     uv_template = np.asarray(uv_template, float).reshape(-1, 2)
     uv_near = np.asarray(uv_near, float).reshape(-1, 2)
-    origin, ray = cam_template.rays(uv_template)                    # (N, 3)
+    origin, ray = cam_template.rays(uv_template)  # (N, 3)
     s = np.geomspace(depth_range[0], depth_range[1], n_samples)
-    xyz = origin + ray[:, None, :] * s[None, :, None]               # (N, S, 3)
-    p = cam_search.project(xyz)                                     # (N, S, 2)
+    xyz = origin + ray[:, None, :] * s[None, :, None]  # (N, S, 3)
+    p = cam_search.project(xyz)  # (N, S, 2)
     dist = np.linalg.norm(p - uv_near[:, None], axis=2)
     dist = np.where(np.isfinite(dist), dist, np.inf)
     k = np.clip(np.argmin(dist, axis=1), 1, n_samples - 2)

@@ -64,10 +64,11 @@ def template_slopes(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     n, s, _ = P.shape
     m = s - 2 * BORDER
     D = derivative_matrix(m)
-    rows = np.ascontiguousarray(P[:, BORDER:s - BORDER, :], dtype=np.float32).reshape(n * m, s)
+    rows = np.ascontiguousarray(P[:, BORDER : s - BORDER, :], dtype=np.float32).reshape(n * m, s)
     gu = (rows @ D).reshape(n, m, m)
-    cols = np.ascontiguousarray(P.transpose(0, 2, 1)[:, BORDER:s - BORDER, :],
-                                dtype=np.float32).reshape(n * m, s)
+    cols = np.ascontiguousarray(
+        P.transpose(0, 2, 1)[:, BORDER : s - BORDER, :], dtype=np.float32
+    ).reshape(n * m, s)
     gv = np.ascontiguousarray((cols @ D).reshape(n, m, m).transpose(0, 2, 1))
     return gu, gv
 
@@ -102,8 +103,9 @@ def _normal_index():
 _N_SRC = _normal_index()
 
 
-def normal_matrix(T: np.ndarray, gx: np.ndarray, gy: np.ndarray, xs: np.ndarray,
-                   ys: np.ndarray, w: np.ndarray) -> np.ndarray:
+def normal_matrix(
+    T: np.ndarray, gx: np.ndarray, gy: np.ndarray, xs: np.ndarray, ys: np.ndarray, w: np.ndarray
+) -> np.ndarray:
     """``N = JᵀWJ`` (n, 8, 8) of the design ``J = [gx·(1, x, y), gy·(1, x, y), 1, T]``.
 
     Built from weighted moments with two GEMMs: T, gx, gy (n, P) float32; xs, ys (P,)
@@ -125,10 +127,12 @@ def normal_matrix(T: np.ndarray, gx: np.ndarray, gy: np.ndarray, xs: np.ndarray,
     np.multiply(gx, T, out=R[2])
     np.multiply(gy, T, out=R[3])
     sums = np.empty((n, 33))
-    sums[:, 0:18] = (Q.reshape(3 * n, npx) @ m6).reshape(3, n, 8)[:, :, :6].transpose(
-        1, 0, 2).reshape(n, 18)
-    sums[:, 18:30] = (R.reshape(4 * n, npx) @ m6).reshape(4, n, 8)[:, :, :3].transpose(
-        1, 0, 2).reshape(n, 12)
+    sums[:, 0:18] = (
+        (Q.reshape(3 * n, npx) @ m6).reshape(3, n, 8)[:, :, :6].transpose(1, 0, 2).reshape(n, 18)
+    )
+    sums[:, 18:30] = (
+        (R.reshape(4 * n, npx) @ m6).reshape(4, n, 8)[:, :, :3].transpose(1, 0, 2).reshape(n, 12)
+    )
     sums[:, 30] = float(np.sum(w))
     wT = T * w.astype(np.float32)
     sums[:, 31] = wT.sum(axis=1)
@@ -178,12 +182,12 @@ def solve_shift_radiometry(m: np.ndarray, b: np.ndarray) -> np.ndarray:
     """
     sxx, sxy, syy, sx1, sy1, sxt, syt, s11, s1t, stt = m.T
     with np.errstate(divide="ignore", invalid="ignore"):
-        dc = s11 * stt - s1t * s1t                         # det of the radiometric block
-        c00, c01, c11 = stt / dc, -s1t / dc, s11 / dc      # its inverse
+        dc = s11 * stt - s1t * s1t  # det of the radiometric block
+        c00, c01, c11 = stt / dc, -s1t / dc, s11 / dc  # its inverse
         # K = B C⁻¹ with B = [[sx1, sxt], [sy1, syt]] (rows: a0, b0).
         k00, k01 = sx1 * c00 + sxt * c01, sx1 * c01 + sxt * c11
         k10, k11 = sy1 * c00 + syt * c01, sy1 * c01 + syt * c11
-        a00 = sxx - (k00 * sx1 + k01 * sxt)                # Schur complement A - K Bᵀ
+        a00 = sxx - (k00 * sx1 + k01 * sxt)  # Schur complement A - K Bᵀ
         a01 = sxy - (k00 * sy1 + k01 * syt)
         a11 = syy - (k10 * sy1 + k11 * syt)
         r0 = b[:, 0] - (k00 * b[:, 2] + k01 * b[:, 3])
@@ -197,8 +201,16 @@ def solve_shift_radiometry(m: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(out), out, np.nan)
 
 
-def coarse_shift_step(S: np.ndarray, gain: np.ndarray, offset: np.ndarray, T: np.ndarray,
-                      gx: np.ndarray, gy: np.ndarray, w: np.ndarray, mom: np.ndarray):
+def coarse_shift_step(
+    S: np.ndarray,
+    gain: np.ndarray,
+    offset: np.ndarray,
+    T: np.ndarray,
+    gx: np.ndarray,
+    gy: np.ndarray,
+    w: np.ndarray,
+    mom: np.ndarray,
+):
     """Shift-and-radiometry step of the first iteration on the coarse pixel subset.
 
     S, T, gx, gy (n_a, P') float32, w (P') weights, mom (n_a, 10) the subset's
@@ -254,12 +266,18 @@ def compose_inverse(A: np.ndarray, dq: np.ndarray) -> tuple[np.ndarray, np.ndarr
     An[:, 0, 1] = A[:, 0, 0] * i01 + A[:, 0, 1] * i11
     An[:, 1, 0] = A[:, 1, 0] * i00 + A[:, 1, 1] * i10
     An[:, 1, 1] = A[:, 1, 0] * i01 + A[:, 1, 1] * i11
-    step = np.stack([An[:, 0, 0] * dq[:, 0] + An[:, 0, 1] * dq[:, 3],
-                     An[:, 1, 0] * dq[:, 0] + An[:, 1, 1] * dq[:, 3]], axis=1)
+    step = np.stack(
+        [
+            An[:, 0, 0] * dq[:, 0] + An[:, 0, 1] * dq[:, 3],
+            An[:, 1, 0] * dq[:, 0] + An[:, 1, 1] * dq[:, 3],
+        ],
+        axis=1,
+    )
     return An, step
 
 
 # -- template patches ---------------------------------------------------------------
+
 
 def _grid(half: int, border: int = 0) -> tuple[np.ndarray, np.ndarray]:
     r = np.arange(-half - border, half + border + 1, dtype=np.float64)
@@ -267,9 +285,9 @@ def _grid(half: int, border: int = 0) -> tuple[np.ndarray, np.ndarray]:
     return x, y
 
 
-def template_patches(images, uv: np.ndarray, half: int = 6, index=None,
-                     upsample: bool = True,
-                     kernel: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def template_patches(
+    images, uv: np.ndarray, half: int = 6, index=None, upsample: bool = True, kernel: bool = False
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Patches around ``uv`` (N, 2), with their gradients.
 
     Integer centres are read directly (pixels beyond the image border repeat it);

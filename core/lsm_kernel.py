@@ -41,8 +41,8 @@ from .lsm_kernel_linalg import _inv4, _normal_matrices, _solve4, _spd_inverses
 from .lsm_kernel_sample import _bilinear, _sample_grid, _upsampled_windows
 
 _LOCK = threading.Lock()
-_COMPILED: dict = {}                         # argument types -> seconds of the first call
-_FAILED = {"error": None}                    # why a first call failed (kernel off then)
+_COMPILED: dict = {}  # argument types -> seconds of the first call
+_FAILED = {"error": None}  # why a first call failed (kernel off then)
 
 
 class KernelError(RuntimeError):
@@ -104,11 +104,55 @@ def _sums_coarse(S, T, gx, gy, g, o, b):
 
 
 @jit()
-def _iterate_round(img, rpc, size, bu, bv, w_lo, w_hi, f, todo,
-                   T, gx, gy, wpx, xs, ys, T_c, gx_c, gy_c, xs_c, ys_c, mom_c, Ninv, N, pd,
-                   uv, A, gain, offset, fresh, shift_only, iters, it_left, sigma0, status,
-                   uv_s0, t_mean, t_sd, t_sq, dof, dof_c, tol_px, max_shift_px, half,
-                   img_hi_u, img_hi_v, weighted, rewindow):
+def _iterate_round(
+    img,
+    rpc,
+    size,
+    bu,
+    bv,
+    w_lo,
+    w_hi,
+    f,
+    todo,
+    T,
+    gx,
+    gy,
+    wpx,
+    xs,
+    ys,
+    T_c,
+    gx_c,
+    gy_c,
+    xs_c,
+    ys_c,
+    mom_c,
+    Ninv,
+    N,
+    pd,
+    uv,
+    A,
+    gain,
+    offset,
+    fresh,
+    shift_only,
+    iters,
+    it_left,
+    sigma0,
+    status,
+    uv_s0,
+    t_mean,
+    t_sd,
+    t_sq,
+    dof,
+    dof_c,
+    tol_px,
+    max_shift_px,
+    half,
+    img_hi_u,
+    img_hi_v,
+    weighted,
+    rewindow,
+):
     """The iterations of one window round of :func:`core.lsm._match_part` (see there).
 
     ``todo`` (n_t,) the patches of the round, row k of the window arrays (``bu``,
@@ -128,7 +172,7 @@ def _iterate_round(img, rpc, size, bu, bv, w_lo, w_hi, f, todo,
     Nb = np.empty((4, 4))
     An = np.empty((2, 2))
     active = np.arange(n_t)
-    hx = 0.0                                 # largest |x|, |y| of a template pixel
+    hx = 0.0  # largest |x|, |y| of a template pixel
     for j in range(npx):
         hx = max(hx, abs(np.float64(xs[j])), abs(np.float64(ys[j])))
     # The square grids of template offsets (full, coarse: every other pixel).
@@ -176,12 +220,26 @@ def _iterate_round(img, rpc, size, bu, bv, w_lo, w_hi, f, todo,
             # All four neighbours of every sample inside the source: no clamping.
             ru = hx * (abs(mu1) + abs(mu2))
             rv = hx * (abs(mv1) + abs(mv2))
-            if (mu0 - ru >= 0.0 and mu0 + ru < img.shape[1] - 1.0 and mv0 - rv >= 0.0
-                    and mv0 + rv < rows - 1.0):
-                _sample_grid(img, r0, int(mu0 * 32.0), int(mv0 * 32.0), int(mu1 * 32.0),
-                             int(mu2 * 32.0), int(mv1 * 32.0), int(mv2 * 32.0),
-                             g0c if coarse else g0f, 2 if coarse else 1,
-                             gnc if coarse else gnf, S)
+            if (
+                mu0 - ru >= 0.0
+                and mu0 + ru < img.shape[1] - 1.0
+                and mv0 - rv >= 0.0
+                and mv0 + rv < rows - 1.0
+            ):
+                _sample_grid(
+                    img,
+                    r0,
+                    int(mu0 * 32.0),
+                    int(mv0 * 32.0),
+                    int(mu1 * 32.0),
+                    int(mu2 * 32.0),
+                    int(mv1 * 32.0),
+                    int(mv2 * 32.0),
+                    g0c if coarse else g0f,
+                    2 if coarse else 1,
+                    gnc if coarse else gnf,
+                    S,
+                )
             else:
                 for j in range(npt):
                     pu = m_u0 + m_u1 * xs_s[j] + m_u2 * ys_s[j]
@@ -286,14 +344,19 @@ def _iterate_round(img, rpc, size, bu, bv, w_lo, w_hi, f, todo,
             drift = np.hypot(un - uv_s0[a, 0], vn - uv_s0[a, 1]) > max_shift_px
             eu = half * (abs(An[0, 0]) + abs(An[0, 1]))
             ev = half * (abs(An[1, 0]) + abs(An[1, 1]))
-            in_img = (un - eu >= 1.0 and vn - ev >= 1.0 and un + eu <= img_hi_u
-                      and vn + ev <= img_hi_v)
-            in_win = (un - eu >= w_lo[k, 0] and vn - ev >= w_lo[k, 1]
-                      and un + eu <= w_hi[k, 0] and vn + ev <= w_hi[k, 1])
+            in_img = (
+                un - eu >= 1.0 and vn - ev >= 1.0 and un + eu <= img_hi_u and vn + ev <= img_hi_v
+            )
+            in_win = (
+                un - eu >= w_lo[k, 0]
+                and vn - ev >= w_lo[k, 1]
+                and un + eu <= w_hi[k, 0]
+                and vn + ev <= w_hi[k, 1]
+            )
             sc = abs(An[0, 0] * An[1, 1] - An[0, 1] * An[1, 0])
             g = gain[a]
             degen = (not ok_step) or sc < 0.25 or sc > 4.0 or g < 0.1 or g > 10.0 or flat
-            st = 1                                   # Status.NOT_CONVERGED
+            st = 1  # Status.NOT_CONVERGED
             if conv:
                 st = 0
             if drift:
@@ -333,14 +396,21 @@ def _iterate_round(img, rpc, size, bu, bv, w_lo, w_hi, f, todo,
         n_act = n_keep
 
 
-
 def upsampled_windows(stack, index, u0, v0, wr):
     """:func:`_upsampled_windows` compiled, as ``PatchSource(upsampler=...)`` calls it."""
     n = len(index)
     out = np.empty((n, 4 * wr + 1, 4 * wr + 1), np.float32)
-    _first_call(_upsampled_windows, "windows", np.ascontiguousarray(stack.images),
-                np.ascontiguousarray(index, np.int64), np.ascontiguousarray(u0, np.int64),
-                np.ascontiguousarray(v0, np.int64), int(wr), _HALF_TAPS, out)
+    _first_call(
+        _upsampled_windows,
+        "windows",
+        np.ascontiguousarray(stack.images),
+        np.ascontiguousarray(index, np.int64),
+        np.ascontiguousarray(u0, np.int64),
+        np.ascontiguousarray(v0, np.int64),
+        int(wr),
+        _HALF_TAPS,
+        out,
+    )
     return out
 
 
@@ -348,8 +418,15 @@ def _first_call(fn, key, *args):
     """Call a compiled function; its first call with these argument types compiles it
     (or loads it from the disk cache) under a lock, numba's warnings silenced (e.g.
     an unwritable cache), and records the seconds in :func:`compile_seconds`."""
-    sig = (key, *((a.dtype, a.ndim, a.flags.c_contiguous, a.flags.writeable)
-                  if isinstance(a, np.ndarray) else type(a) for a in args))
+    sig = (
+        key,
+        *(
+            (a.dtype, a.ndim, a.flags.c_contiguous, a.flags.writeable)
+            if isinstance(a, np.ndarray)
+            else type(a)
+            for a in args
+        ),
+    )
     if sig not in _COMPILED:
         with _LOCK:
             if sig not in _COMPILED:
@@ -358,7 +435,7 @@ def _first_call(fn, key, *args):
                     with warnings.catch_warnings():
                         warnings.simplefilter("ignore")
                         fn(*args)
-                except Exception as exc:     # e.g. a numba version that cannot type it
+                except Exception as exc:  # e.g. a numba version that cannot type it
                     _FAILED["error"] = f"{key}: {type(exc).__name__}: {exc}"[:1000]
                     raise KernelError(_FAILED["error"]) from exc
                 _COMPILED[sig] = time.perf_counter() - t0

@@ -21,9 +21,9 @@ def env_off() -> bool:
 
 numba = None
 if not env_off():
-    try:                                     # numba is optional (not in the add-on)
+    try:  # numba is optional (not in the add-on)
         import numba
-    except Exception:                        # pragma: no cover - missing or broken
+    except Exception:  # pragma: no cover - missing or broken
         numba = None
 
 
@@ -37,11 +37,13 @@ def jit(fastmath=False):
     process instead.  ``fastmath`` as numba's (a set of LLVM flags: this package uses
     ``{"reassoc"}`` only, for vectorised sums, never finite-math assumptions).
     """
+
     def deco(fn):
         if numba is None:
             return fn
         try:
             return numba.njit(cache=True, nogil=True, fastmath=fastmath)(fn)
-        except RuntimeError:                 # no cache locator: compile per process
+        except RuntimeError:  # no cache locator: compile per process
             return numba.njit(cache=False, nogil=True, fastmath=fastmath)(fn)
+
     return deco

@@ -181,8 +181,18 @@ def _solve4(m, b0, b1, b2, b3, out):
     """Closed-form solve of the shift-and-radiometry system (moments m (10,), see
     :func:`core.lsm_design.solve_shift_radiometry`); writes (du, dv, dr0, dr1) to out,
     NaN when singular."""
-    sxx, sxy, syy, sx1, sy1, sxt, syt, s11, s1t, stt = (m[0], m[1], m[2], m[3], m[4], m[5],
-                                                       m[6], m[7], m[8], m[9])
+    sxx, sxy, syy, sx1, sy1, sxt, syt, s11, s1t, stt = (
+        m[0],
+        m[1],
+        m[2],
+        m[3],
+        m[4],
+        m[5],
+        m[6],
+        m[7],
+        m[8],
+        m[9],
+    )
     dc = s11 * stt - s1t * s1t
     if dc == 0.0:
         out[:] = np.nan

@@ -59,9 +59,12 @@ def _sample_grid(img, r0, iu0, iv0, du_x, du_y, dv_x, dv_y, g0, gs, gn, S):
             base = (r0 + (iv >> 5)) * ncol + (iu >> 5)
             fx = wt[iu & 31]
             fy = wt[iv & 31]
-            S[j] = (flat[base] * ((one - fy) * (one - fx)) + flat[base + 1] * ((one - fy) * fx)
-                    + flat[base + ncol] * (fy * (one - fx))
-                    + flat[base + ncol + 1] * (fy * fx))
+            S[j] = (
+                flat[base] * ((one - fy) * (one - fx))
+                + flat[base + 1] * ((one - fy) * fx)
+                + flat[base + ncol] * (fy * (one - fx))
+                + flat[base + ncol + 1] * (fy * fx)
+            )
             iu += sx_u
             iv += sx_v
             j += 1
@@ -75,7 +78,7 @@ def _upsampled_windows(images, index, u0, v0, wr, taps, out):
     n = index.size
     _, h, w = images.shape
     nt = taps.size
-    m = nt // 2 - 1                          # pixels beyond the window that taps read
+    m = nt // 2 - 1  # pixels beyond the window that taps read
     ws = 2 * (wr + m) + 1
     size = 4 * wr + 1
     W = np.empty((ws, ws), np.float32)
@@ -113,4 +116,3 @@ def _upsampled_windows(images, index, u0, v0, wr, taps, out):
                 out[k, i, 2 * j] = X[i, m + j]
                 out[k, i, 2 * j + 1] = Y[j]
             out[k, i, size - 1] = X[i, m + 2 * wr]
-

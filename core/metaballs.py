@@ -28,21 +28,39 @@ THRESHOLD = 0.5
 VISIBLE = float(np.sqrt(np.log(2.0) / 2.0))
 
 #: Limb segments of the simplified model (three metaballs each, as in the paper).
-LIMB_BONES = ("l_shoulder", "l_elbow", "r_shoulder", "r_elbow",
-              "l_hip", "l_knee", "r_hip", "r_knee")
+LIMB_BONES = (
+    "l_shoulder",
+    "l_elbow",
+    "r_shoulder",
+    "r_elbow",
+    "l_hip",
+    "l_knee",
+    "r_hip",
+    "r_knee",
+)
 
 #: Visible half-thickness (metres) of each bone's flesh: (across x, across y) for the
 #: template body; the along-bone radius follows from the bone length and the count.
 _THICKNESS = {
-    "lowerback": (0.14, 0.10), "spine": (0.14, 0.10),
-    "chest": (0.15, 0.11), "neck": (0.05, 0.05), "head": (0.08, 0.09),
-    "l_clavicle": (0.05, 0.06), "r_clavicle": (0.05, 0.06),
-    "l_shoulder": (0.05, 0.05), "r_shoulder": (0.05, 0.05),
-    "l_elbow": (0.04, 0.04), "r_elbow": (0.04, 0.04),
-    "l_wrist": (0.02, 0.04), "r_wrist": (0.02, 0.04),
-    "l_hip": (0.08, 0.08), "r_hip": (0.08, 0.08),
-    "l_knee": (0.055, 0.055), "r_knee": (0.055, 0.055),
-    "l_ankle": (0.045, 0.05), "r_ankle": (0.045, 0.05),
+    "lowerback": (0.14, 0.10),
+    "spine": (0.14, 0.10),
+    "chest": (0.15, 0.11),
+    "neck": (0.05, 0.05),
+    "head": (0.08, 0.09),
+    "l_clavicle": (0.05, 0.06),
+    "r_clavicle": (0.05, 0.06),
+    "l_shoulder": (0.05, 0.05),
+    "r_shoulder": (0.05, 0.05),
+    "l_elbow": (0.04, 0.04),
+    "r_elbow": (0.04, 0.04),
+    "l_wrist": (0.02, 0.04),
+    "r_wrist": (0.02, 0.04),
+    "l_hip": (0.08, 0.08),
+    "r_hip": (0.08, 0.08),
+    "l_knee": (0.055, 0.055),
+    "r_knee": (0.055, 0.055),
+    "l_ankle": (0.045, 0.05),
+    "r_ankle": (0.045, 0.05),
 }
 
 
@@ -88,21 +106,40 @@ class Metaballs:
 
     def with_parts(self, center0: np.ndarray, radii: np.ndarray) -> Metaballs:
         """The same metaballs with other centres (M, 3) and radii (M, 3)."""
-        return Metaballs(self.bone, np.asarray(center0, float), self.group, self.rot,
-                         np.asarray(radii, float).reshape(-1, 3), self.visible_scale)
+        return Metaballs(
+            self.bone,
+            np.asarray(center0, float),
+            self.group,
+            self.rot,
+            np.asarray(radii, float).reshape(-1, 3),
+            self.visible_scale,
+        )
 
     def copy(self, radii: np.ndarray | None = None) -> Metaballs:
         vs = None if self.visible_scale is None else self.visible_scale.copy()
-        return Metaballs(self.bone.copy(), self.center0.copy(), self.group.copy(),
-                         self.rot.copy(), self.radii.copy() if radii is None else
-                         np.asarray(radii, dtype=float).reshape(-1, 3).copy(), vs)
+        return Metaballs(
+            self.bone.copy(),
+            self.center0.copy(),
+            self.group.copy(),
+            self.rot.copy(),
+            self.radii.copy()
+            if radii is None
+            else np.asarray(radii, dtype=float).reshape(-1, 3).copy(),
+            vs,
+        )
 
     def to_dict(self, skel: Skeleton) -> list[dict]:
         """JSON-able list (bones by name), see :mod:`core.state`."""
-        out = [{"bone": skel.bone_names[int(self.bone[m])],
-                "center": self.center0[m].tolist(), "scale_group": int(self.group[m]),
-                "rotation": self.rot[m].round(15).tolist(), "radii": self.radii[m].tolist()}
-               for m in range(len(self))]
+        out = [
+            {
+                "bone": skel.bone_names[int(self.bone[m])],
+                "center": self.center0[m].tolist(),
+                "scale_group": int(self.group[m]),
+                "rotation": self.rot[m].round(15).tolist(),
+                "radii": self.radii[m].tolist(),
+            }
+            for m in range(len(self))
+        ]
         if self.visible_scale is not None:
             for m, item in enumerate(out):
                 item["visible_scale"] = self.visible_scale[m].tolist()
@@ -117,13 +154,20 @@ class Metaballs:
             group=np.array([int(v["scale_group"]) for v in items], dtype=int),
             rot=np.array([v["rotation"] for v in items], dtype=float).reshape(-1, 3, 3),
             radii=np.array([v["radii"] for v in items], dtype=float).reshape(-1, 3),
-            visible_scale=(np.array([v["visible_scale"] for v in items], dtype=float)
-                           .reshape(-1, 3) if items and "visible_scale" in items[0] else None),
+            visible_scale=(
+                np.array([v["visible_scale"] for v in items], dtype=float).reshape(-1, 3)
+                if items and "visible_scale" in items[0]
+                else None
+            ),
         )
 
 
-def make_metaballs(skel: Skeleton, model: str = "simplified", s: np.ndarray | None = None,
-                   per_limb: int | None = None) -> Metaballs:
+def make_metaballs(
+    skel: Skeleton,
+    model: str = "simplified",
+    s: np.ndarray | None = None,
+    per_limb: int | None = None,
+) -> Metaballs:
     """Default metaballs along every bone.
 
     Parameters
@@ -150,7 +194,7 @@ def make_metaballs(skel: Skeleton, model: str = "simplified", s: np.ndarray | No
         if name == "pelvis":  # the hip girdle, off the hip axis so that it fixes the root
             w = float(np.linalg.norm(skel.joint_offset[skel.joint_index("l_hip")]))
             hg = int(skel.joint_group[skel.joint_index("l_hip")])
-            for cx in ((0.0,) if model == "simplified" else (-0.5, 0.0, 0.5)):
+            for cx in (0.0,) if model == "simplified" else (-0.5, 0.0, 0.5):
                 bone.append(b)
                 center.append(np.array([cx * w, 0.01, -0.04]))
                 group.append(hg)
@@ -177,8 +221,13 @@ def make_metaballs(skel: Skeleton, model: str = "simplified", s: np.ndarray | No
             group.append(g)
             rot.append(R)
             radii.append((tx / VISIBLE, ty / VISIBLE, lz))
-    return Metaballs(np.array(bone, dtype=int), np.array(center, dtype=float),
-                     np.array(group, dtype=int), np.array(rot), np.array(radii, dtype=float))
+    return Metaballs(
+        np.array(bone, dtype=int),
+        np.array(center, dtype=float),
+        np.array(group, dtype=int),
+        np.array(rot),
+        np.array(radii, dtype=float),
+    )
 
 
 def _align_z(direction: np.ndarray) -> np.ndarray:
@@ -207,8 +256,13 @@ def local_coords(x: np.ndarray, Rw: np.ndarray, cw: np.ndarray) -> np.ndarray:
     return np.swapaxes(d @ Rw, 0, 1)
 
 
-def field(x: np.ndarray, Rw: np.ndarray, cw: np.ndarray, radii: np.ndarray,
-          member: np.ndarray | None = None):
+def field(
+    x: np.ndarray,
+    Rw: np.ndarray,
+    cw: np.ndarray,
+    radii: np.ndarray,
+    member: np.ndarray | None = None,
+):
     """Field value and gradient at points of one frame.
 
     Parameters
@@ -248,9 +302,18 @@ def radius_jacobian(f: np.ndarray, y: np.ndarray, radii: np.ndarray) -> np.ndarr
     return 4.0 * f[..., None] * y**2 / radii[None] ** 3
 
 
-def pose_jacobian(skel: Skeleton, pose_f: Pose, balls: Metaballs, s: np.ndarray,
-                  x: np.ndarray, f: np.ndarray, y: np.ndarray, radii: np.ndarray,
-                  frame: int = 0, anc: np.ndarray | None = None):
+def pose_jacobian(
+    skel: Skeleton,
+    pose_f: Pose,
+    balls: Metaballs,
+    s: np.ndarray,
+    x: np.ndarray,
+    f: np.ndarray,
+    y: np.ndarray,
+    radii: np.ndarray,
+    frame: int = 0,
+    anc: np.ndarray | None = None,
+):
     """Jacobians of the field at fixed world points w.r.t. pose and scales.
 
     Moving a metaball by a small rotation ``δθ_k`` about axis ``ω_k`` through ``p_k``
@@ -307,12 +370,21 @@ def pose_jacobian(skel: Skeleton, pose_f: Pose, balls: Metaballs, s: np.ndarray,
 
 
 def _one(pose: Pose, frame: int) -> Pose:
-    return Pose(R=pose.R[frame:frame + 1], p=pose.p[frame:frame + 1],
-                R_parent=pose.R_parent[frame:frame + 1])
+    return Pose(
+        R=pose.R[frame : frame + 1],
+        p=pose.p[frame : frame + 1],
+        R_parent=pose.R_parent[frame : frame + 1],
+    )
 
 
-def project_to_surface(x: np.ndarray, Rw: np.ndarray, cw: np.ndarray, radii: np.ndarray,
-                       iterations: int = 30, tol: float = 1e-9):
+def project_to_surface(
+    x: np.ndarray,
+    Rw: np.ndarray,
+    cw: np.ndarray,
+    radii: np.ndarray,
+    iterations: int = 30,
+    tol: float = 1e-9,
+):
     """Move points onto the iso-surface ``F = 0.5`` by Newton steps along the gradient.
 
     Parameters
@@ -339,8 +411,15 @@ def project_to_surface(x: np.ndarray, Rw: np.ndarray, cw: np.ndarray, radii: np.
     return x, ok
 
 
-def sample_surface(skel: Skeleton, pose: Pose, balls: Metaballs, s: np.ndarray,
-                   per_ball: int = 200, frame: int = 0, seed: int = 0):
+def sample_surface(
+    skel: Skeleton,
+    pose: Pose,
+    balls: Metaballs,
+    s: np.ndarray,
+    per_ball: int = 200,
+    frame: int = 0,
+    seed: int = 0,
+):
     """Points on the whole-body surface of one frame (for evaluation and tests).
 
     Starts from points on each metaball's lone visible ellipsoid and projects them by
@@ -360,12 +439,19 @@ def fibonacci_sphere(n: int) -> np.ndarray:
     """``n`` unit vectors (n, 3) spread evenly over the sphere (a Fibonacci lattice)."""
     k = np.arange(n) + 0.5
     z = 1.0 - 2.0 * k / n
-    phi = np.pi * (1.0 + 5.0 ** 0.5) * k
+    phi = np.pi * (1.0 + 5.0**0.5) * k
     return np.stack([np.sqrt(1 - z**2) * np.cos(phi), np.sqrt(1 - z**2) * np.sin(phi), z], 1)
 
 
-def render_radii(skel: Skeleton, pose: Pose, balls: Metaballs, s: np.ndarray,
-                 per_ball: int = 64, frame: int = 0, max_scale: float = 2.0) -> np.ndarray:
+def render_radii(
+    skel: Skeleton,
+    pose: Pose,
+    balls: Metaballs,
+    s: np.ndarray,
+    per_ball: int = 64,
+    frame: int = 0,
+    max_scale: float = 2.0,
+) -> np.ndarray:
     """Semi-axes (M, 3) of ellipsoids whose union approximates the blended surface.
 
     A lone metaball's visible surface is the ellipsoid ``radii · VISIBLE``; where
@@ -408,8 +494,15 @@ def render_radii(skel: Skeleton, pose: Pose, balls: Metaballs, s: np.ndarray,
     return np.clip(a, lone, lone * max_scale)
 
 
-def deflate(skel: Skeleton, balls: Metaballs, s: np.ndarray, per_ball: int = 48,
-            iterations: int = 12, prior: float = 1.0, per_part: bool = True) -> Metaballs:
+def deflate(
+    skel: Skeleton,
+    balls: Metaballs,
+    s: np.ndarray,
+    per_ball: int = 48,
+    iterations: int = 12,
+    prior: float = 1.0,
+    per_part: bool = True,
+) -> Metaballs:
     """Shrink metaballs until their blended surface follows their rendered ellipsoids.
 
     A template sized so that each lone metaball's iso-surface is the flesh around its
@@ -450,9 +543,8 @@ def deflate(skel: Skeleton, balls: Metaballs, s: np.ndarray, per_ball: int = 48,
     v = balls.visible
     M = len(balls)
     u = fibonacci_sphere(per_ball)
-    x = (cw[:, None]
-         + np.einsum("mij,mpj->mpi", Rw, u[None] * v[:, None])).reshape(-1, 3)
-    y = local_coords(x, Rw, cw)                                           # (N, M, 3)
+    x = (cw[:, None] + np.einsum("mij,mpj->mpi", Rw, u[None] * v[:, None])).reshape(-1, 3)
+    y = local_coords(x, Rw, cw)  # (N, M, 3)
     own = np.repeat(np.arange(M), per_ball)
     inside = np.sum((y / v[None]) ** 2, axis=-1) < 1.0 - 1e-9
     inside[np.arange(len(x)), own] = False
@@ -466,12 +558,13 @@ def deflate(skel: Skeleton, balls: Metaballs, s: np.ndarray, per_ball: int = 48,
     logr0 = np.log(v / VISIBLE)
     logr = logr0.copy()
     for _ in range(iterations):
-        q = (y / np.exp(logr)[None]) ** 2                                  # (n, M, 3)
-        f = np.exp(-2.0 * q.sum(axis=-1)) * member                         # (n, M)
+        q = (y / np.exp(logr)[None]) ** 2  # (n, M, 3)
+        f = np.exp(-2.0 * q.sum(axis=-1)) * member  # (n, M)
         F = np.maximum(f.sum(axis=1), 1e-300)
         r = np.concatenate([np.log(F) - np.log(THRESHOLD), (logr - logr0).ravel() / prior])
-        J = np.concatenate([(4.0 * f[..., None] * q / F[:, None, None]).reshape(n, 3 * M),
-                            np.eye(3 * M) / prior])
+        J = np.concatenate(
+            [(4.0 * f[..., None] * q / F[:, None, None]).reshape(n, 3 * M), np.eye(3 * M) / prior]
+        )
         step = np.linalg.lstsq(J, -r, rcond=None)[0].reshape(M, 3)
         logr = logr + np.clip(step, -0.5, 0.5)
     out = balls.copy(radii=np.exp(logr))

@@ -52,12 +52,19 @@ class RimPoints:
         return len(self.xyz)
 
     def select(self, keep: np.ndarray) -> RimPoints:
-        return RimPoints(self.xyz[keep], self.normal[keep], self.uv[keep], self.part[keep],
-                         self.ellipsoid[keep])
+        return RimPoints(
+            self.xyz[keep], self.normal[keep], self.uv[keep], self.part[keep], self.ellipsoid[keep]
+        )
 
 
-def inside_any(xyz: np.ndarray, centers: np.ndarray, axes: np.ndarray, radii: np.ndarray,
-               exclude: np.ndarray | None = None, shrink: float = 0.999) -> np.ndarray:
+def inside_any(
+    xyz: np.ndarray,
+    centers: np.ndarray,
+    axes: np.ndarray,
+    radii: np.ndarray,
+    exclude: np.ndarray | None = None,
+    shrink: float = 0.999,
+) -> np.ndarray:
     """Whether each point lies strictly inside any ellipsoid, shape (M,) bool.
 
     ``exclude`` (M,) gives, per point, one ellipsoid index not to test (its own).
@@ -67,9 +74,16 @@ def inside_any(xyz: np.ndarray, centers: np.ndarray, axes: np.ndarray, radii: np
     return field_kernel.inside_any(xyz, A, centers, exclude, shrink**2)
 
 
-def rim_points(camera: Camera, centers: np.ndarray, axes: np.ndarray, radii: np.ndarray,
-               part: np.ndarray, n_per: int = 48, render: PartRender | None = None,
-               depth_tol: float = 0.01) -> RimPoints:
+def rim_points(
+    camera: Camera,
+    centers: np.ndarray,
+    axes: np.ndarray,
+    radii: np.ndarray,
+    part: np.ndarray,
+    n_per: int = 48,
+    render: PartRender | None = None,
+    depth_tol: float = 0.01,
+) -> RimPoints:
     """Sample the visible occluding contour of a body of ellipsoids.
 
     Parameters
@@ -107,8 +121,9 @@ def rim_points(camera: Camera, centers: np.ndarray, axes: np.ndarray, radii: np.
     e2 = np.cross(w, e1)
     rad = np.sqrt(np.clip(1.0 - 1.0 / n2, 0.0, None))
     centre = op / n2[:, None]
-    circle = (np.cos(phi)[None, :, None] * e1[:, None, :]
-              + np.sin(phi)[None, :, None] * e2[:, None, :])
+    circle = (
+        np.cos(phi)[None, :, None] * e1[:, None, :] + np.sin(phi)[None, :, None] * e2[:, None, :]
+    )
     p = centre[:, None, :] + rad[:, None, None] * circle
     # back to world: x = c + axes @ (r * p); normal ∝ A^T p
     xyz = centers[:, None, :] + np.einsum("eij,ekj->eki", axes, p * radii[:, None, :])
@@ -126,8 +141,12 @@ def rim_points(camera: Camera, centers: np.ndarray, axes: np.ndarray, radii: np.
         h, w_img = render.depth.shape
         iu = np.clip(np.round(uv[:, 0]).astype(int), 0, w_img - 1)
         iv = np.clip(np.round(uv[:, 1]).astype(int), 0, h - 1)
-        inside_img = (uv[:, 0] >= -0.5) & (uv[:, 0] < w_img - 0.5) & (uv[:, 1] >= -0.5) & (
-            uv[:, 1] < h - 0.5)
+        inside_img = (
+            (uv[:, 0] >= -0.5)
+            & (uv[:, 0] < w_img - 0.5)
+            & (uv[:, 1] >= -0.5)
+            & (uv[:, 1] < h - 0.5)
+        )
         dist = np.linalg.norm(xyz - o, axis=1)
         zbuf = render.depth[iv, iu]
         # the pixel's ray grazes the rim: it hits this ellipsoid near the rim depth or

@@ -66,10 +66,17 @@ def _ray_grid(camera: Camera, step: int = 1) -> np.ndarray:
     return d  # (h, w, 3) unit world directions
 
 
-def render_parts(camera: Camera, centers: np.ndarray, axes: np.ndarray, radii: np.ndarray,
-                 part: np.ndarray, n_parts: int | None = None,
-                 rays: np.ndarray | None = None, outer_only: bool = False,
-                 buried_by: np.ndarray | None = None) -> PartRender:
+def render_parts(
+    camera: Camera,
+    centers: np.ndarray,
+    axes: np.ndarray,
+    radii: np.ndarray,
+    part: np.ndarray,
+    n_parts: int | None = None,
+    rays: np.ndarray | None = None,
+    outer_only: bool = False,
+    buried_by: np.ndarray | None = None,
+) -> PartRender:
     """Render ellipsoids into ``camera`` with a z-buffer.
 
     Parameters
@@ -125,8 +132,7 @@ def render_parts(camera: Camera, centers: np.ndarray, axes: np.ndarray, radii: n
     corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
     A_all = np.transpose(axes, (0, 2, 1)) / radii[:, :, None]  # world -> unit sphere
     reach = radii.max(axis=1)
-    near = (np.linalg.norm(centers[:, None] - centers[None], axis=2)
-            < reach[:, None] + reach[None])
+    near = np.linalg.norm(centers[:, None] - centers[None], axis=2) < reach[:, None] + reach[None]
     pts = centers[:, None, :] + np.einsum("eij,ekj->eki", axes, corners[None] * radii[:, None, :])
     uv = camera.project(pts.reshape(-1, 3)).reshape(len(centers), 8, 2)
     cam_z = camera.to_camera(pts.reshape(-1, 3))[:, 2].reshape(len(centers), 8)
@@ -141,7 +147,7 @@ def render_parts(camera: Camera, centers: np.ndarray, axes: np.ndarray, radii: n
             v1 = min(int(np.ceil(uv[e, :, 1].max())) + 1, h - 1)
         if u0 > u1 or v0 > v1:
             continue
-        d = d_all[v0:v1 + 1, u0:u1 + 1]  # (bh, bw, 3)
+        d = d_all[v0 : v1 + 1, u0 : u1 + 1]  # (bh, bw, 3)
         # ray o + s d in the ellipsoid's unit-sphere frame: q(s) = A (o - c) + s A d
         A = axes[e].T / radii[e][:, None]  # world -> scaled local
         oc = A @ (origin - centers[e])
@@ -166,14 +172,16 @@ def render_parts(camera: Camera, centers: np.ndarray, axes: np.ndarray, radii: n
             if buried_by is not None:
                 others = others[np.asarray(buried_by, bool)[part[e], part[others]]]
             if len(others):
-                full_area_box = hit & (_outer(origin, d, s_near, others, A_all, centers)
-                                       | _outer(origin, d, s_far, others, A_all, centers))
+                full_area_box = hit & (
+                    _outer(origin, d, s_near, others, A_all, centers)
+                    | _outer(origin, d, s_far, others, A_all, centers)
+                )
         if covered is not None:
-            covered[p, v0:v1 + 1, u0:u1 + 1] |= full_area_box
-        sub_depth = depth[v0:v1 + 1, u0:u1 + 1]
+            covered[p, v0 : v1 + 1, u0 : u1 + 1] |= full_area_box
+        sub_depth = depth[v0 : v1 + 1, u0 : u1 + 1]
         closer = hit & (s < sub_depth)
         sub_depth[closer] = s[closer]
-        part_id[v0:v1 + 1, u0:u1 + 1][closer] = p
+        part_id[v0 : v1 + 1, u0 : u1 + 1][closer] = p
     if covered is not None:
         full_area = covered.reshape(n_parts, -1).sum(axis=1)
     visible_area = np.bincount(part_id[part_id >= 0], minlength=n_parts)[:n_parts]

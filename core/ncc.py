@@ -23,11 +23,11 @@ class NCCStatus(IntEnum):
     """Per-point outcome of :func:`search`."""
 
     OK = 0
-    LOW_SCORE = 1      #: best correlation below ``min_score``
-    AT_BORDER = 2      #: the best offset lies on the border of the search box
-    OUT_OF_IMAGE = 3   #: template or search box leaves its image
-    FLAT = 4           #: template or search window without grey-level variation
-    INVALID = 5        #: NaN input position
+    LOW_SCORE = 1  #: best correlation below ``min_score``
+    AT_BORDER = 2  #: the best offset lies on the border of the search box
+    OUT_OF_IMAGE = 3  #: template or search box leaves its image
+    FLAT = 4  #: template or search window without grey-level variation
+    INVALID = 5  #: NaN input position
 
 
 @dataclass
@@ -60,9 +60,18 @@ def _box_sums(a: np.ndarray, k: int) -> np.ndarray:
     return c[:, k:, k:] - c[:, :-k, k:] - c[:, k:, :-k] + c[:, :-k, :-k]
 
 
-def search(template_images, search_images, uv_template, uv_predicted, *, half: int = 6,
-           radius: int = 6, template_index=None, search_index=None,
-           min_score: float = 0.5) -> NCCResult:
+def search(
+    template_images,
+    search_images,
+    uv_template,
+    uv_predicted,
+    *,
+    half: int = 6,
+    radius: int = 6,
+    template_index=None,
+    search_index=None,
+    min_score: float = 0.5,
+) -> NCCResult:
     """Best normalised cross-correlation in a box around predicted positions.
 
     Parameters
@@ -90,16 +99,14 @@ def search(template_images, search_images, uv_template, uv_predicted, *, half: i
     n = len(uv_t)
     if uv_p.shape != uv_t.shape:
         raise ValueError(f"uv_template {uv_t.shape} and uv_predicted {uv_p.shape} differ")
-    ti = np.zeros(n, np.int64) if template_index is None else np.asarray(template_index,
-                                                                         np.int64)
+    ti = np.zeros(n, np.int64) if template_index is None else np.asarray(template_index, np.int64)
     si = np.zeros(n, np.int64) if search_index is None else np.asarray(search_index, np.int64)
     status = np.zeros(n, np.int8)
     finite = np.all(np.isfinite(uv_t), axis=1) & np.all(np.isfinite(uv_p), axis=1)
     status[~finite] = NCCStatus.INVALID
     ct = np.rint(np.where(finite[:, None], uv_t, 0.0))
     cs = np.rint(np.where(finite[:, None], uv_p, 0.0))
-    ins = (tstack.inside(ct[:, 0], ct[:, 1], half)
-           & sstack.inside(cs[:, 0], cs[:, 1], half + radius))
+    ins = tstack.inside(ct[:, 0], ct[:, 1], half) & sstack.inside(cs[:, 0], cs[:, 1], half + radius)
     status[finite & ~ins] = NCCStatus.OUT_OF_IMAGE
     out_uv = np.full((n, 2), np.nan)
     score = np.full(n, np.nan)
@@ -110,15 +117,17 @@ def search(template_images, search_images, uv_template, uv_predicted, *, half: i
     # Integer positions, inside the images (checked above): plain windows.
     ct_i = ct[use].astype(np.int64)
     cs_i = cs[use].astype(np.int64)
-    T = tstack.windows(ti[use], ct_i[:, 0] - half, ct_i[:, 1] - half,
-                       2 * half + 1).astype(np.float64)
-    S = sstack.windows(si[use], cs_i[:, 0] - half - radius, cs_i[:, 1] - half - radius,
-                       2 * (half + radius) + 1).astype(np.float64)
+    T = tstack.windows(ti[use], ct_i[:, 0] - half, ct_i[:, 1] - half, 2 * half + 1).astype(
+        np.float64
+    )
+    S = sstack.windows(
+        si[use], cs_i[:, 0] - half - radius, cs_i[:, 1] - half - radius, 2 * (half + radius) + 1
+    ).astype(np.float64)
     k = 2 * half + 1
     npx = k * k
     T0 = T - T.mean(axis=(1, 2), keepdims=True)
     tnorm = np.sqrt(np.sum(T0 * T0, axis=(1, 2)))
-    num = fftconvolve(S, T0[:, ::-1, ::-1], mode="valid", axes=(1, 2))   # (n, 2r+1, 2r+1)
+    num = fftconvolve(S, T0[:, ::-1, ::-1], mode="valid", axes=(1, 2))  # (n, 2r+1, 2r+1)
     s1 = _box_sums(S, k)
     s2 = _box_sums(S * S, k)
     var = np.maximum(s2 - s1 * s1 / npx, 0.0)

@@ -81,8 +81,9 @@ def relative_pose(K1, K2, uv1, uv2, length_m, thr_px=2.0):
     p1 = np.concatenate([x1[:, 0], x1[:, 1], x1[:, 0], x1[:, 1]])
     p2 = np.concatenate([x2[:, 0], x2[:, 1], x2[:, 1], x2[:, 0]])
     f = 0.5 * (K1[0, 0] + K2[0, 0])
-    E, mask = cv2.findEssentialMat(p1, p2, np.eye(3), method=cv2.RANSAC, prob=0.9999,
-                                   threshold=thr_px / f, maxIters=5000)
+    E, mask = cv2.findEssentialMat(
+        p1, p2, np.eye(3), method=cv2.RANSAC, prob=0.9999, threshold=thr_px / f, maxIters=5000
+    )
     if E is None or E.shape != (3, 3):
         raise InputError("wand points: no relative orientation found for a camera pair")
     same = _sampson(E, x1[:, 0], x2[:, 0]) + _sampson(E, x1[:, 1], x2[:, 1])
@@ -134,17 +135,22 @@ def relabel(cameras: list[Camera], uv: np.ndarray) -> np.ndarray:
             x2 = _normalise(cameras[j].K, uv[sel, j])
             same = _sampson(E, x1[:, 0], x2[:, 0]) + _sampson(E, x1[:, 1], x2[:, 1])
             cross = _sampson(E, x1[:, 0], x2[:, 1]) + _sampson(E, x1[:, 1], x2[:, 0])
-            differ = combos[:, i] != combos[:, j]                               # (B,)
+            differ = combos[:, i] != combos[:, j]  # (B,)
             cost[sel] += np.where(differ[None, :], cross[:, None], same[:, None])
-    flip = combos[np.argmin(cost, axis=1)].astype(bool)                        # (F, C)
+    flip = combos[np.argmin(cost, axis=1)].astype(bool)  # (F, C)
     ref = np.argmax(both, axis=1)
     flip ^= flip[np.arange(F), ref][:, None]
     return flip & both
 
 
-def initial_orientation(uv: np.ndarray, sizes: list[tuple[int, int]], length_m: float,
-                        names: list[str] | None = None, aspect: float = 1.0,
-                        f_guess: float | None = None) -> InitialOrientation:
+def initial_orientation(
+    uv: np.ndarray,
+    sizes: list[tuple[int, int]],
+    length_m: float,
+    names: list[str] | None = None,
+    aspect: float = 1.0,
+    f_guess: float | None = None,
+) -> InitialOrientation:
     """Orient every camera from wand points, chained from camera 1.
 
     Parameters
@@ -161,8 +167,8 @@ def initial_orientation(uv: np.ndarray, sizes: list[tuple[int, int]], length_m: 
     F, C = uv.shape[:2]
     names = names or [f"cam{i + 1:02d}" for i in range(C)]
     Ks = [guess_K(s, aspect, f_guess) for s in sizes]
-    both = np.all(np.isfinite(uv), axis=(2, 3))                  # (F, C)
-    common = both.T.astype(int) @ both.astype(int)                # (C, C)
+    both = np.all(np.isfinite(uv), axis=(2, 3))  # (F, C)
+    common = both.T.astype(int) @ both.astype(int)  # (C, C)
     placed = {0: (np.eye(3), np.zeros(3))}
     order = []
     swapped = np.zeros((F, C), dtype=bool)
@@ -174,8 +180,10 @@ def initial_orientation(uv: np.ndarray, sizes: list[tuple[int, int]], length_m: 
                     best = (i, j)
         i, j = best
         if common[i, j] < 8:
-            raise InputError(f"wand: camera {names[j]} shares fewer than 8 wand locations "
-                             "with the oriented cameras")
+            raise InputError(
+                f"wand: camera {names[j]} shares fewer than 8 wand locations "
+                "with the oriented cameras"
+            )
         sel = both[:, i] & both[:, j]
         R, t, swap = relative_pose(Ks[i], Ks[j], uv[sel, i], uv[sel, j], length_m)
         rows = np.flatnonzero(sel)[swap]
@@ -204,10 +212,14 @@ def bar_scatter(init: InitialOrientation) -> float:
     return float(np.median(np.abs(d - med)) / med)
 
 
-def search_focal(uv: np.ndarray, sizes: list[tuple[int, int]], length_m: float,
-                 names: list[str] | None = None, aspect: float = 1.0,
-                 factors: tuple[float, ...] = tuple(2.0 ** (k / 3.0) for k in range(-3, 7))
-                 ) -> tuple[float, InitialOrientation]:
+def search_focal(
+    uv: np.ndarray,
+    sizes: list[tuple[int, int]],
+    length_m: float,
+    names: list[str] | None = None,
+    aspect: float = 1.0,
+    factors: tuple[float, ...] = tuple(2.0 ** (k / 3.0) for k in range(-3, 7)),
+) -> tuple[float, InitialOrientation]:
     """Common focal length (px) whose initial orientation makes the bars most equal.
 
     Candidates ``factor · max(width, height · aspect)`` of the first camera; the best
@@ -229,8 +241,8 @@ def search_focal(uv: np.ndarray, sizes: list[tuple[int, int]], length_m: float,
         return base, initial_orientation(uv, sizes, length_m, names, aspect, base)
     i = int(np.argmin(score))
     f = fs[i]
-    if 0 < i < fs.size - 1 and np.all(np.isfinite(score[i - 1:i + 2])):
-        y0, y1, y2 = score[i - 1:i + 2]
+    if 0 < i < fs.size - 1 and np.all(np.isfinite(score[i - 1 : i + 2])):
+        y0, y1, y2 = score[i - 1 : i + 2]
         den = y0 - 2 * y1 + y2
         if den > 0:
             step = np.log(fs[i + 1] / fs[i])

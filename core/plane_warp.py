@@ -24,9 +24,15 @@ import numpy as np
 from .camera import Camera
 
 
-def plane_affine(cam_template: Camera, cam_search: Camera, uv_template: np.ndarray,
-                 xyz: np.ndarray, normal: np.ndarray, step_px: float = 1.0,
-                 min_cos: float = 0.1) -> np.ndarray:
+def plane_affine(
+    cam_template: Camera,
+    cam_search: Camera,
+    uv_template: np.ndarray,
+    xyz: np.ndarray,
+    normal: np.ndarray,
+    step_px: float = 1.0,
+    min_cos: float = 0.1,
+) -> np.ndarray:
     """Affine parts (N, 2, 2) mapping template pixel offsets to search pixel offsets.
 
     Parameters

@@ -52,8 +52,9 @@ def swing(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.where(anti[..., None, None], pp, R)
 
 
-def transfer_rotations(src_rest: np.ndarray, src_pose: np.ndarray, tgt_rest: np.ndarray,
-                       axis: int = 1) -> np.ndarray:
+def transfer_rotations(
+    src_rest: np.ndarray, src_pose: np.ndarray, tgt_rest: np.ndarray, axis: int = 1
+) -> np.ndarray:
     """Target world rotations (F, P, 3, 3) for P paired bones.
 
     Parameters
@@ -74,8 +75,9 @@ def leg_length(heads: dict) -> float:
     out = []
     for s in ("l", "r"):
         try:
-            hip, knee, ankle = (np.asarray(heads[f"{s}_{b}"], float)
-                                for b in ("thigh", "shin", "foot"))
+            hip, knee, ankle = (
+                np.asarray(heads[f"{s}_{b}"], float) for b in ("thigh", "shin", "foot")
+            )
         except KeyError:
             continue
         out.append(np.linalg.norm(knee - hip) + np.linalg.norm(ankle - knee))
@@ -84,14 +86,21 @@ def leg_length(heads: dict) -> float:
     return float(np.mean(out))
 
 
-def scale_root_path(src_xyz: np.ndarray, k: float, src_origin: np.ndarray,
-                    tgt_origin: np.ndarray) -> np.ndarray:
+def scale_root_path(
+    src_xyz: np.ndarray, k: float, src_origin: np.ndarray, tgt_origin: np.ndarray
+) -> np.ndarray:
     """``o_t + k (p_s − o_s)`` for a path (F, 3)."""
     return np.asarray(tgt_origin, float) + k * (np.asarray(src_xyz, float) - src_origin)
 
 
-def pose_matrices(rest: np.ndarray, parent: np.ndarray, rot: dict, root_xyz: dict,
-                  n_frames: int, basis: np.ndarray | None = None) -> np.ndarray:
+def pose_matrices(
+    rest: np.ndarray,
+    parent: np.ndarray,
+    rot: dict,
+    root_xyz: dict,
+    n_frames: int,
+    basis: np.ndarray | None = None,
+) -> np.ndarray:
     """Armature-space pose matrices (F, B, 4, 4) of a target rig.
 
     Parameters

@@ -364,11 +364,21 @@ def load_scene(path: str | Path, check_images: bool = True) -> Scene:
         raise InputError(f"{toml_path}: is missing the key 'size'")
     for cam, s in sizes.items():
         if "size" in meta and tuple(s) != size and not isinstance(sources[cam], Path):
-            raise InputError(f"{root}: images of {cam} are {list(s)} but scene.toml says "
-                             f"{list(size)}")
-    return Scene(root=root, name=str(meta.get("name", root.name)),
-                 fps=float(meta.get("fps", 25.0)), n_frames=n_frames, cameras=cameras,
-                 size=size, field=fld, meta=meta, camera_sizes=sizes, _sources=sources)
+            raise InputError(
+                f"{root}: images of {cam} are {list(s)} but scene.toml says {list(size)}"
+            )
+    return Scene(
+        root=root,
+        name=str(meta.get("name", root.name)),
+        fps=float(meta.get("fps", 25.0)),
+        n_frames=n_frames,
+        cameras=cameras,
+        size=size,
+        field=fld,
+        meta=meta,
+        camera_sizes=sizes,
+        _sources=sources,
+    )
 
 
 def load_wand(path: str | Path) -> Scene:
@@ -382,15 +392,17 @@ def load_wand(path: str | Path) -> Scene:
     root = Path(path)
     if not root.is_dir():
         raise InputError(f"{root}: scene folder not found")
-    if (root / "scene.toml").is_file() and ((root / "images").is_dir()
-                                            or (root / "videos").is_dir()):
+    if (root / "scene.toml").is_file() and (
+        (root / "images").is_dir() or (root / "videos").is_dir()
+    ):
         return load_scene(root, check_images=False)
     wand = root / "wand"
     if not wand.is_dir():
         raise InputError(f"{wand}: the scene has no wand sequence")
     meta = _read_toml(root / "scene.toml") if (root / "scene.toml").is_file() else {}
-    cameras = [str(c) for c in meta.get("cameras", sorted(p.name for p in wand.iterdir()
-                                                          if p.is_dir()))]
+    cameras = [
+        str(c) for c in meta.get("cameras", sorted(p.name for p in wand.iterdir() if p.is_dir()))
+    ]
     if not cameras:
         raise InputError(f"{wand}: holds no camera folders")
     fld = str(meta.get("field", "none"))
@@ -400,6 +412,13 @@ def load_wand(path: str | Path) -> Scene:
     img = cv2.imread(str(files[cameras[0]][0]), cv2.IMREAD_UNCHANGED)
     if img is None:
         raise InputError(f"{files[cameras[0]][0]}: cannot be read as an image")
-    return Scene(root=root, name=str(meta.get("name", root.name)),
-                 fps=float(meta.get("fps", 25.0)), n_frames=0, cameras=cameras,
-                 size=(img.shape[1], img.shape[0]), field=fld, meta=meta)
+    return Scene(
+        root=root,
+        name=str(meta.get("name", root.name)),
+        fps=float(meta.get("fps", 25.0)),
+        n_frames=0,
+        cameras=cameras,
+        size=(img.shape[1], img.shape[0]),
+        field=fld,
+        meta=meta,
+    )

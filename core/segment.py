@@ -22,8 +22,9 @@ from .metaballs import Metaballs, local_coords, world_frames
 from .skeleton import Skeleton, forward
 
 
-def surface_distance(xyz: np.ndarray, Rw: np.ndarray, cw: np.ndarray,
-                     visible: np.ndarray) -> np.ndarray:
+def surface_distance(
+    xyz: np.ndarray, Rw: np.ndarray, cw: np.ndarray, visible: np.ndarray
+) -> np.ndarray:
     """Approximate distance (N, M) of points to each metaball's rendered ellipsoid.
 
     Parameters
@@ -47,9 +48,17 @@ def _local_surface_distance(y: np.ndarray, visible: np.ndarray) -> np.ndarray:
     return norm * (1.0 - 1.0 / np.maximum(r, 1e-12))
 
 
-def segment_points(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, theta: np.ndarray,
-                   root_xyz: np.ndarray, s: np.ndarray, radii: np.ndarray | None = None,
-                   max_dist: float = 0.08, margin: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+def segment_points(
+    xyz: np.ndarray,
+    skel: Skeleton,
+    balls: Metaballs,
+    theta: np.ndarray,
+    root_xyz: np.ndarray,
+    s: np.ndarray,
+    radii: np.ndarray | None = None,
+    max_dist: float = 0.08,
+    margin: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray]:
     """Assign each point to the bone of the nearest metaball surface.
 
     Parameters
@@ -101,8 +110,9 @@ def segment_points(xyz: np.ndarray, skel: Skeleton, balls: Metaballs, theta: np.
     return part, d
 
 
-def carry_labels(part: np.ndarray, ids: np.ndarray | None,
-                 known: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, tuple]:
+def carry_labels(
+    part: np.ndarray, ids: np.ndarray | None, known: tuple[np.ndarray, np.ndarray]
+) -> tuple[np.ndarray, tuple]:
     """Keep a tracked trajectory in the part it was first assigned to.
 
     Parameters

@@ -134,8 +134,9 @@ class ShapeFit:
     silhouette_rms_px: np.ndarray | None = None
 
 
-def nearest_members(xyz: np.ndarray, Rw: np.ndarray, cw: np.ndarray, radii: np.ndarray,
-                    k: int) -> tuple[np.ndarray, np.ndarray]:
+def nearest_members(
+    xyz: np.ndarray, Rw: np.ndarray, cw: np.ndarray, radii: np.ndarray, k: int
+) -> tuple[np.ndarray, np.ndarray]:
     """The ``k`` metaballs of strongest field at each point.
 
     Parameters
@@ -149,13 +150,23 @@ def nearest_members(xyz: np.ndarray, Rw: np.ndarray, cw: np.ndarray, radii: np.n
     y = local_coords(xyz, Rw, cw)
     d = np.sum((y / radii[None]) ** 2, axis=-1)  # (N, M)
     k = min(int(k), len(radii))
-    idx = np.argpartition(d, k - 1, axis=1)[:, :k] if k < len(radii) else \
-        np.broadcast_to(np.arange(len(radii)), d.shape).copy()
+    idx = (
+        np.argpartition(d, k - 1, axis=1)[:, :k]
+        if k < len(radii)
+        else np.broadcast_to(np.arange(len(radii)), d.shape).copy()
+    )
     return idx, np.ones(idx.shape, bool)
 
 
-def seen_by(cameras: list[Camera], xyz: np.ndarray, Rw: np.ndarray, cw: np.ndarray,
-            visible: np.ndarray, bone: np.ndarray, depth_tol: float) -> np.ndarray:
+def seen_by(
+    cameras: list[Camera],
+    xyz: np.ndarray,
+    Rw: np.ndarray,
+    cw: np.ndarray,
+    visible: np.ndarray,
+    bone: np.ndarray,
+    depth_tol: float,
+) -> np.ndarray:
     """How many cameras see each point of the model surface (N,) int.
 
     A point is seen when it projects into the image and lies no farther than
@@ -205,10 +216,19 @@ class ShapeProblem:
     returns the residual vector and its exact Jacobian for those frozen choices.
     """
 
-    def __init__(self, skel: Skeleton, balls: Metaballs, s: np.ndarray, poses: list,
-                 points: list[np.ndarray], sigma: list[np.ndarray],
-                 cameras: list[Camera] | None, cfg: ShapeSettings, seed: int = 0,
-                 silhouettes=None):
+    def __init__(
+        self,
+        skel: Skeleton,
+        balls: Metaballs,
+        s: np.ndarray,
+        poses: list,
+        points: list[np.ndarray],
+        sigma: list[np.ndarray],
+        cameras: list[Camera] | None,
+        cfg: ShapeSettings,
+        seed: int = 0,
+        silhouettes=None,
+    ):
         self.skel, self.balls, self.s, self.cfg = skel, balls, np.asarray(s, float), cfg
         self.cameras = cameras
         self.anc = skel.ancestors()
@@ -219,8 +239,9 @@ class ShapeProblem:
         # parts (B,) bool or None)] per frame)
         self.sil_cameras, self.sil_rays, sil = silhouettes or (None, None, None)
         sil = sil or [(None, None, None, None)] * len(poses)
-        self.frames = [_Frame(p, x, sg, *c)
-                       for p, x, sg, c in zip(poses, points, sigma, sil, strict=True)]
+        self.frames = [
+            _Frame(p, x, sg, *c) for p, x, sg, c in zip(poses, points, sigma, sil, strict=True)
+        ]
         self.sym = mirror_pairs(skel, balls, s) if cfg.sigma_symmetry > 0 else None
         self.chain = chain_pairs(balls, skel) if cfg.sigma_smooth > 0 else None
         self.seed = int(seed)
@@ -230,8 +251,8 @@ class ShapeProblem:
 
     def unpack(self, x: np.ndarray):
         """``(radii (M, 3), centres (M, 3))`` of a packed vector."""
-        radii = x[:3 * self.M].reshape(self.M, 3)
-        centers = x[3 * self.M:].reshape(self.M, 3) if self.n_c else self.centers0
+        radii = x[: 3 * self.M].reshape(self.M, 3)
+        centers = x[3 * self.M :].reshape(self.M, 3) if self.n_c else self.centers0
         return radii, centers
 
     def geometry(self, fr: _Frame, radii, centers):
@@ -259,9 +280,9 @@ class ShapeProblem:
             fr.xs = fr.soff_all = None
             if self.cameras is None:
                 continue
-            xs, ok = sample_surface(self.skel, fr.pose, b, self.s,
-                                    per_ball=cfg.samples_per_ball,
-                                    seed=self.seed + k)  # same directions every round
+            xs, ok = sample_surface(
+                self.skel, fr.pose, b, self.s, per_ball=cfg.samples_per_ball, seed=self.seed + k
+            )  # same directions every round
             if fr.parts is not None:  # no penalty on a part the frame did not measure
                 owner = np.repeat(np.arange(self.M), cfg.samples_per_ball)
                 ok &= np.asarray(fr.parts, bool)[b.bone[owner]]
@@ -301,12 +322,22 @@ class ShapeProblem:
         vis = render_radii(self.skel, fr.pose, b, self.s)
         bv = b.copy()
         bv.visible_scale = vis / b.radii
-        obs = contour_observations(self.skel, fr.theta, fr.root, self.s, bv, self.sil_cameras,
-                                   fr.contours, sigma_px=cfg.sigma_silhouette_px,
-                                   max_dist_px=cfg.max_dist_silhouette_px, select=False,
-                                   rays=self.sil_rays)
-        keep = np.ones(len(obs), bool) if fr.parts is None else \
-            np.asarray(fr.parts, bool)[obs.part]  # parts a measurement placed, only
+        obs = contour_observations(
+            self.skel,
+            fr.theta,
+            fr.root,
+            self.s,
+            bv,
+            self.sil_cameras,
+            fr.contours,
+            sigma_px=cfg.sigma_silhouette_px,
+            max_dist_px=cfg.max_dist_silhouette_px,
+            select=False,
+            rays=self.sil_rays,
+        )
+        keep = (
+            np.ones(len(obs), bool) if fr.parts is None else np.asarray(fr.parts, bool)[obs.part]
+        )  # parts a measurement placed, only
         if not keep.any():
             return
         M = self.M
@@ -327,8 +358,9 @@ class ShapeProblem:
 
     def _rows(self, fr, b, Rw, cw, radii, x, idx, valid, w, off=None):
         att = attractor(x, idx, valid, Rw, cw, radii)
-        jac = attractor_jacobians(self.skel, fr.pose, b, self.s, x, idx, att, radii,
-                                  self.anc, shape=True)
+        jac = attractor_jacobians(
+            self.skel, fr.pose, b, self.s, x, idx, att, radii, self.anc, shape=True
+        )
         e = att.L - LN_T
         scale = w if off is None else w * off[1]
         r = e * scale if off is None else (e * off[1] + off[0]) * w
@@ -349,9 +381,18 @@ class ShapeProblem:
                 res.append(r)
                 jac.append(J)
             if fr.xs is not None:
-                r, J = self._rows(fr, b, Rw, cw, radii, fr.xs, fr.sidx, fr.svalid,
-                                  np.full(len(fr.xs), 1.0 / cfg.sigma_model),
-                                  off=(fr.soff, fr.sinv))
+                r, J = self._rows(
+                    fr,
+                    b,
+                    Rw,
+                    cw,
+                    radii,
+                    fr.xs,
+                    fr.sidx,
+                    fr.svalid,
+                    np.full(len(fr.xs), 1.0 / cfg.sigma_model),
+                    off=(fr.soff, fr.sinv),
+                )
                 res.append(r)
                 jac.append(J)
             if fr.sil is not None:
@@ -370,15 +411,24 @@ class ShapeProblem:
             res.append(r)
             jac.append(J)
         if self.chain is not None and len(self.chain):
-            r, J = smooth_rows(self.chain, M, n_c, 1.0 / cfg.sigma_smooth, radii, centers,
-                                self.radii0, self.centers0)
+            r, J = smooth_rows(
+                self.chain,
+                M,
+                n_c,
+                1.0 / cfg.sigma_smooth,
+                radii,
+                centers,
+                self.radii0,
+                self.centers0,
+            )
             res.append(r)
             jac.append(J)
         return np.concatenate(res), np.concatenate(jac, axis=0)
 
 
-def model_offsets(xs: np.ndarray, outward: np.ndarray, data: np.ndarray, k: int,
-                  cap: float) -> np.ndarray:
+def model_offsets(
+    xs: np.ndarray, outward: np.ndarray, data: np.ndarray, k: int, cap: float
+) -> np.ndarray:
     """Signed offsets (S,) of model surface points from the data along their normals.
 
     Parameters
@@ -399,13 +449,22 @@ def model_offsets(xs: np.ndarray, outward: np.ndarray, data: np.ndarray, k: int,
     return np.clip(off, -cap, cap)
 
 
-def fit_shape(skel: Skeleton, balls: Metaballs, s: np.ndarray, theta: np.ndarray,
-              root_xyz: np.ndarray, points: list[np.ndarray],
-              cameras: list[Camera] | None = None,
-              sigma: list[np.ndarray] | None = None,
-              settings: ShapeSettings | None = None, seed: int = 0,
-              progress=None, contours: list | None = None, rays=None,
-              parts: list | None = None) -> ShapeFit:
+def fit_shape(
+    skel: Skeleton,
+    balls: Metaballs,
+    s: np.ndarray,
+    theta: np.ndarray,
+    root_xyz: np.ndarray,
+    points: list[np.ndarray],
+    cameras: list[Camera] | None = None,
+    sigma: list[np.ndarray] | None = None,
+    settings: ShapeSettings | None = None,
+    seed: int = 0,
+    progress=None,
+    contours: list | None = None,
+    rays=None,
+    parts: list | None = None,
+) -> ShapeFit:
     """Fit the metaball radii (and centres) to surface points of F frames, pose held.
 
     Parameters
@@ -443,17 +502,22 @@ def fit_shape(skel: Skeleton, balls: Metaballs, s: np.ndarray, theta: np.ndarray
     root_xyz = np.asarray(root_xyz, float).reshape(-1, 3)
     nf = len(points)
     if theta.shape != (nf, skel.n_dof) or root_xyz.shape != (nf, 3):
-        raise ValueError(f"{nf} frames of points need theta ({nf}, {skel.n_dof}) and "
-                         f"root_xyz ({nf}, 3), got {theta.shape} and {root_xyz.shape}")
+        raise ValueError(
+            f"{nf} frames of points need theta ({nf}, {skel.n_dof}) and "
+            f"root_xyz ({nf}, 3), got {theta.shape} and {root_xyz.shape}"
+        )
     s = np.asarray(s, float)
-    use_sil = (contours is not None and cameras is not None and cfg.sigma_silhouette_px > 0)
+    use_sil = contours is not None and cameras is not None and cfg.sigma_silhouette_px > 0
     if use_sil and len(contours) != nf:
         raise ValueError(f"{nf} frames of points need {nf} frames of contours, got {len(contours)}")
     keep, poses, xyzs, sigs, sil = np.zeros(nf, bool), [], [], [], []
     for f in range(nf):
         xyz = np.asarray(points[f], float).reshape(-1, 3)
-        sig = np.full(len(xyz), cfg.sigma_point) if sigma is None else \
-            np.broadcast_to(np.asarray(sigma[f], float), (len(xyz),)).copy()
+        sig = (
+            np.full(len(xyz), cfg.sigma_point)
+            if sigma is None
+            else np.broadcast_to(np.asarray(sigma[f], float), (len(xyz),)).copy()
+        )
         good = np.all(np.isfinite(xyz), axis=1) & np.isfinite(sig) & (sig > 0)
         outline = use_sil and contours[f] is not None and any(len(c) for c in contours[f])
         if good.sum() < cfg.min_points:
@@ -464,33 +528,60 @@ def fit_shape(skel: Skeleton, balls: Metaballs, s: np.ndarray, theta: np.ndarray
         poses.append(forward(skel, theta[f][None], root_xyz[f][None], s))
         xyzs.append(xyz[good])
         sigs.append(sig[good])
-        sil.append((theta[f], root_xyz[f], contours[f] if outline else None,
-                    None if parts is None else parts[f]))
+        sil.append(
+            (
+                theta[f],
+                root_xyz[f],
+                contours[f] if outline else None,
+                None if parts is None else parts[f],
+            )
+        )
     nan = np.full(nf, np.nan)
     if not keep.any():
-        return ShapeFit(balls.copy(), nan, nan.copy(), np.zeros(nf, int), np.zeros(nf, int),
-                        keep, False, "no frame has enough points"
-                        + (" or silhouettes" if use_sil else "") + ": the start shape is kept",
-                        nan.copy())
-    use_cams = cameras if (cfg.model_points and cameras is not None
-                           and len(cameras) >= cfg.min_views) else None
-    prob = ShapeProblem(skel, balls, s, poses, xyzs, sigs, use_cams, cfg, seed,
-                        silhouettes=(cameras, rays, sil) if use_sil else None)
+        return ShapeFit(
+            balls.copy(),
+            nan,
+            nan.copy(),
+            np.zeros(nf, int),
+            np.zeros(nf, int),
+            keep,
+            False,
+            "no frame has enough points"
+            + (" or silhouettes" if use_sil else "")
+            + ": the start shape is kept",
+            nan.copy(),
+        )
+    use_cams = (
+        cameras
+        if (cfg.model_points and cameras is not None and len(cameras) >= cfg.min_views)
+        else None
+    )
+    prob = ShapeProblem(
+        skel,
+        balls,
+        s,
+        poses,
+        xyzs,
+        sigs,
+        use_cams,
+        cfg,
+        seed,
+        silhouettes=(cameras, rays, sil) if use_sil else None,
+    )
     x = prob.pack(prob.radii0, prob.centers0)
     lo, hi = np.full(len(x), -np.inf), np.full(len(x), np.inf)
-    lo[:3 * prob.M] = cfg.min_radius
+    lo[: 3 * prob.M] = cfg.min_radius
     if cfg.radius_ratio > 0:
         r0 = prob.radii0.ravel()
-        lo[:3 * prob.M] = np.maximum(cfg.min_radius, r0 / cfg.radius_ratio)
-        hi[:3 * prob.M] = np.maximum(r0 * cfg.radius_ratio, lo[:3 * prob.M])
+        lo[: 3 * prob.M] = np.maximum(cfg.min_radius, r0 / cfg.radius_ratio)
+        hi[: 3 * prob.M] = np.maximum(r0 * cfg.radius_ratio, lo[: 3 * prob.M])
     x = np.clip(x, lo, hi)
     converged, moved, cost, change = False, np.inf, np.inf, np.inf
     for k in range(cfg.rounds):
         if progress is not None:
             progress(k, cfg.rounds)
         prob.freeze(x)
-        sol = _levenberg_marquardt(prob.system, x, lo, cfg.max_nfev, cfg.tol, max_step=0.02,
-                                   hi=hi)
+        sol = _levenberg_marquardt(prob.system, x, lo, cfg.max_nfev, cfg.tol, max_step=0.02, hi=hi)
         moved = float(np.abs(sol.x - x).max(initial=0.0))
 
         change = abs(cost - sol.cost) / max(sol.cost, 1e-300) if np.isfinite(cost) else np.inf
@@ -498,9 +589,14 @@ def fit_shape(skel: Skeleton, balls: Metaballs, s: np.ndarray, theta: np.ndarray
         if moved < cfg.round_tol or change < cfg.cost_tol:
             converged = True
             break
-    msg = "converged" if converged else \
-        (f"not converged in {cfg.rounds} rounds (the last changed the cost by "
-         f"{100 * change:.1f} %, moved an unknown by {1e3 * moved:.1f} mm)")
+    msg = (
+        "converged"
+        if converged
+        else (
+            f"not converged in {cfg.rounds} rounds (the last changed the cost by "
+            f"{100 * change:.1f} %, moved an unknown by {1e3 * moved:.1f} mm)"
+        )
+    )
     radii, centers = prob.unpack(x)
     out = balls.copy().with_parts(np.array(centers, float), np.array(radii, float))
     prob.freeze(x)
@@ -517,7 +613,7 @@ def fit_shape(skel: Skeleton, balls: Metaballs, s: np.ndarray, theta: np.ndarray
         rms[f] = float(np.sqrt(np.mean(dist[inl] ** 2))) if inl.any() else np.nan
         n_pts[f] = len(fr.xyz)
         if fr.soff_all is not None:
-            mrms[f] = float(np.sqrt(np.mean(fr.soff_all ** 2)))
+            mrms[f] = float(np.sqrt(np.mean(fr.soff_all**2)))
             n_mod[f] = len(fr.soff_all)
     if not keep.all():
         msg += f"; {int((~keep).sum())} frame(s) with fewer than {cfg.min_points} points left out"

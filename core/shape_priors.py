@@ -76,8 +76,9 @@ def mirror_pairs(skel: Skeleton, balls: Metaballs, s: np.ndarray) -> Symmetry:
         if name.startswith("l_"):
             other = "r_" + name[2:]
             if other in names:
-                for m, mr in zip(on, np.flatnonzero(balls.bone == names.index(other)),
-                                 strict=False):
+                for m, mr in zip(
+                    on, np.flatnonzero(balls.bone == names.index(other)), strict=False
+                ):
                     pair(m, mr)
             continue
         # a mid-line bone: a metaball off the mid-plane pairs with its mirror image on
@@ -89,8 +90,14 @@ def mirror_pairs(skel: Skeleton, balls: Metaballs, s: np.ndarray) -> Symmetry:
                 centre.append(m)
             elif o[m] @ lateral > 0:
                 pair(m, mr)
-    return Symmetry(np.array(left, int), np.array(right, int),
-                    np.array(amap, int).reshape(-1, 3), np.array(centre, int), A, lateral)
+    return Symmetry(
+        np.array(left, int),
+        np.array(right, int),
+        np.array(amap, int).reshape(-1, 3),
+        np.array(centre, int),
+        A,
+        lateral,
+    )
 
 
 def symmetry_rows(sym: Symmetry, M: int, n_c: int, w: float, radii, centers):
@@ -109,10 +116,10 @@ def symmetry_rows(sym: Symmetry, M: int, n_c: int, w: float, radii, centers):
         r.append(o[sym.centre] @ sym.lateral * w)
         Jc = np.zeros((3 * P + C, 3 * M + n_c))
         for k, (m, mr) in enumerate(zip(sym.left, sym.right, strict=True)):
-            Jc[3 * k:3 * k + 3, 3 * M + 3 * mr:3 * M + 3 * mr + 3] = sym.A[mr] * w
-            Jc[3 * k:3 * k + 3, 3 * M + 3 * m:3 * M + 3 * m + 3] = -(mirror @ sym.A[m]) * w
+            Jc[3 * k : 3 * k + 3, 3 * M + 3 * mr : 3 * M + 3 * mr + 3] = sym.A[mr] * w
+            Jc[3 * k : 3 * k + 3, 3 * M + 3 * m : 3 * M + 3 * m + 3] = -(mirror @ sym.A[m]) * w
         for k, m in enumerate(sym.centre):
-            Jc[3 * P + k, 3 * M + 3 * m:3 * M + 3 * m + 3] = sym.lateral @ sym.A[m] * w
+            Jc[3 * P + k, 3 * M + 3 * m : 3 * M + 3 * m + 3] = sym.lateral @ sym.A[m] * w
         Js.append(Jc)
     return np.concatenate(r), np.concatenate(Js, axis=0)
 
@@ -131,8 +138,7 @@ def chain_pairs(balls: Metaballs, skel: Skeleton | None = None) -> np.ndarray:
     return np.concatenate(pairs, axis=0)
 
 
-def smooth_rows(pairs: np.ndarray, M: int, n_c: int, w: float, radii, centers, radii0,
-                 centers0):
+def smooth_rows(pairs: np.ndarray, M: int, n_c: int, w: float, radii, centers, radii0, centers0):
     """Residuals and Jacobian (rows, 3M + n_c) of the smoothness prior: neighbours
     change alike from the start shape (radii and centre displacements)."""
     P = len(pairs)
@@ -148,6 +154,6 @@ def smooth_rows(pairs: np.ndarray, M: int, n_c: int, w: float, radii, centers, r
         disp = centers - centers0
         r.append((disp[b] - disp[a]).ravel() * w)
         Jc = np.zeros((3 * P, 3 * M + n_c))
-        Jc[:, 3 * M:] = J[:, :3 * M]
+        Jc[:, 3 * M :] = J[:, : 3 * M]
         Js.append(Jc)
     return np.concatenate(r), np.concatenate(Js, axis=0)

@@ -20,9 +20,15 @@ from .model_render import camera_rays, render_parts
 from .skeleton import Skeleton
 
 
-def body_masks(skel: Skeleton, s: np.ndarray, balls: Metaballs, theta: np.ndarray,
-               root_xyz: np.ndarray, camera: Camera,
-               rays: np.ndarray | None = None) -> np.ndarray:
+def body_masks(
+    skel: Skeleton,
+    s: np.ndarray,
+    balls: Metaballs,
+    theta: np.ndarray,
+    root_xyz: np.ndarray,
+    camera: Camera,
+    rays: np.ndarray | None = None,
+) -> np.ndarray:
     """Silhouettes of the body in ``camera`` for F poses.
 
     Parameters
@@ -82,8 +88,9 @@ def mask_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         return np.where(union > 0, inter / np.maximum(union, 1.0), np.nan)
 
 
-def shift_iou(model: np.ndarray, image: np.ndarray, max_shift_px: int = 16
-              ) -> tuple[np.ndarray, np.ndarray]:
+def shift_iou(
+    model: np.ndarray, image: np.ndarray, max_shift_px: int = 16
+) -> tuple[np.ndarray, np.ndarray]:
     """IoU after the one image shift that best aligns all frames' masks.
 
     A constant offset of the held-out camera's calibration (or a systematic click
@@ -115,14 +122,15 @@ def shift_iou(model: np.ndarray, image: np.ndarray, max_shift_px: int = 16
     fa = np.fft.rfft2(a.astype(np.float32), shape)
     fb = np.fft.rfft2(b.astype(np.float32), shape)
     corr = np.fft.irfft2(np.sum(fb * np.conj(fa), axis=0), shape)  # Σ_x a(x) b(x + s)
-    dv = np.r_[0:r + 1, -r:0]
-    du = np.r_[0:r + 1, -r:0]
+    dv = np.r_[0 : r + 1, -r:0]
+    du = np.r_[0 : r + 1, -r:0]
     inter = corr[np.ix_(dv % shape[0], du % shape[1])]
     union = a.sum() + b.sum() - inter
     k = np.unravel_index(np.argmax(inter / np.maximum(union, 1.0)), inter.shape)
     shift = np.array([du[k[1]], dv[k[0]]])
     moved = np.zeros_like(a)
     su, sv = shift
-    moved[:, max(sv, 0):h + min(sv, 0), max(su, 0):w + min(su, 0)] = \
-        a[:, max(-sv, 0):h + min(-sv, 0), max(-su, 0):w + min(-su, 0)]
+    moved[:, max(sv, 0) : h + min(sv, 0), max(su, 0) : w + min(su, 0)] = a[
+        :, max(-sv, 0) : h + min(-sv, 0), max(-su, 0) : w + min(-su, 0)
+    ]
     return shift, mask_iou(moved, b)

@@ -63,8 +63,12 @@ ARM_TWIST_DEG = (-60, -30, 0, 30, 60)
 #: 25° 29.1 mm and walk_skin_line3 59.4 mm (legs lost from frame 37).  The search
 #: takes about twice as long.
 SILHOUETTE_LIMBS = {
-    name: (bones, root_joint, tail_joint,
-           grid + ((name[:2] + "shoulder_z", ARM_TWIST_DEG),) if name.endswith("arm") else grid)
+    name: (
+        bones,
+        root_joint,
+        tail_joint,
+        grid + ((name[:2] + "shoulder_z", ARM_TWIST_DEG),) if name.endswith("arm") else grid,
+    )
     for name, (bones, root_joint, tail_joint, grid) in LIMBS.items()
 }
 
@@ -103,8 +107,9 @@ def mask_grid(mask: np.ndarray, step: int = 2, margin_px: int = 40) -> MaskGrid:
     return MaskGrid(uv.astype(float), mask[uv[:, 1], uv[:, 0]], step)
 
 
-def image_ellipses(camera: Camera, centers: np.ndarray, axes: np.ndarray,
-                   radii: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def image_ellipses(
+    camera: Camera, centers: np.ndarray, axes: np.ndarray, radii: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Image ellipses of ellipsoids: centres (M, 2) px and inverse shapes (M, 2, 2).
 
     A pixel ``u`` is inside ellipse m when ``(u - mu_m)ᵀ S_m (u - mu_m) <= 1``, with
@@ -129,11 +134,14 @@ def image_ellipses(camera: Camera, centers: np.ndarray, axes: np.ndarray,
 
 def _covered(uv: np.ndarray, mu: np.ndarray, inv: np.ndarray) -> np.ndarray:
     """(..., G) bool: grid pixels ``uv`` (G, 2) inside any of the ellipses (..., E)."""
-    du = uv[:, 0] - mu[..., 0, None]                                 # (..., E, G)
+    du = uv[:, 0] - mu[..., 0, None]  # (..., E, G)
     dv = uv[:, 1] - mu[..., 1, None]
-    q = (inv[..., 0, 0, None] * du * du + 2.0 * inv[..., 0, 1, None] * du * dv
-         + inv[..., 1, 1, None] * dv * dv)
-    live = np.any(inv != 0, axis=(-1, -2))[..., None]                # (..., E, 1)
+    q = (
+        inv[..., 0, 0, None] * du * du
+        + 2.0 * inv[..., 0, 1, None] * du * dv
+        + inv[..., 1, 1, None] * dv * dv
+    )
+    live = np.any(inv != 0, axis=(-1, -2))[..., None]  # (..., E, 1)
     return np.any((q <= 1.0) & live, axis=-2)
 
 
@@ -150,30 +158,58 @@ def _body_coverage(skel, balls, theta, root, s, cameras, grids):
     return out
 
 
-def silhouette_disagreement(skel: Skeleton, balls: Metaballs, theta: np.ndarray,
-                            root: np.ndarray, s: np.ndarray, cameras: list[Camera],
-                            grids: list[MaskGrid]) -> float:
+def silhouette_disagreement(
+    skel: Skeleton,
+    balls: Metaballs,
+    theta: np.ndarray,
+    root: np.ndarray,
+    s: np.ndarray,
+    cameras: list[Camera],
+    grids: list[MaskGrid],
+) -> float:
     """Pixels (summed over cameras) where the body's projection and the foreground
     disagree (either covers what the other does not), counted on the grids."""
     cover = _body_coverage(skel, balls, theta, root, s, cameras, grids)
-    return float(sum(np.sum(c != g.fg) * g.step**2
-                     for c, g in zip(cover, grids, strict=True) if c is not None))
+    return float(
+        sum(
+            np.sum(c != g.fg) * g.step**2
+            for c, g in zip(cover, grids, strict=True)
+            if c is not None
+        )
+    )
 
 
-def silhouette_iou(skel: Skeleton, balls: Metaballs, theta: np.ndarray, root: np.ndarray,
-                   s: np.ndarray, cameras: list[Camera], grids: list[MaskGrid]) -> np.ndarray:
+def silhouette_iou(
+    skel: Skeleton,
+    balls: Metaballs,
+    theta: np.ndarray,
+    root: np.ndarray,
+    s: np.ndarray,
+    cameras: list[Camera],
+    grids: list[MaskGrid],
+) -> np.ndarray:
     """Intersection over union (C,) of the body's projection and each camera's foreground
     on its grid (NaN for a camera with an empty grid).  Only the pixels of the grid count:
     the foreground's bounding box plus its margin."""
     cover = _body_coverage(skel, balls, theta, root, s, cameras, grids)
-    return np.array([np.nan if c is None else
-                     float(np.sum(c & g.fg)) / max(float(np.sum(c | g.fg)), 1.0)
-                     for c, g in zip(cover, grids, strict=True)])
+    return np.array(
+        [
+            np.nan if c is None else float(np.sum(c & g.fg)) / max(float(np.sum(c | g.fg)), 1.0)
+            for c, g in zip(cover, grids, strict=True)
+        ]
+    )
 
 
-def recentre_root(skel: Skeleton, balls: Metaballs, theta: np.ndarray, root: np.ndarray,
-                  s: np.ndarray, cameras: list[Camera], grids: list[MaskGrid],
-                  iterations: int = 3) -> np.ndarray:
+def recentre_root(
+    skel: Skeleton,
+    balls: Metaballs,
+    theta: np.ndarray,
+    root: np.ndarray,
+    s: np.ndarray,
+    cameras: list[Camera],
+    grids: list[MaskGrid],
+    iterations: int = 3,
+) -> np.ndarray:
     """The root (3,) moved so that the body's projection is centred on the foreground.
 
     Per camera with a mask the image shift between the foreground's centroid and the
@@ -227,9 +263,13 @@ class SilhouetteSearch:
 
 #: Unit-disc sample pattern (K, 2) for the background a projected ellipse covers: the
 #: centre and two rings of six, at radii splitting the disc into near-equal areas.
-_DISC = np.vstack([np.zeros((1, 2))] + [
-    r * np.stack([np.cos(a), np.sin(a)], axis=1)
-    for r, a in ((0.5, np.arange(6) * np.pi / 3), (0.85, (np.arange(6) + 0.5) * np.pi / 3))])
+_DISC = np.vstack(
+    [np.zeros((1, 2))]
+    + [
+        r * np.stack([np.cos(a), np.sin(a)], axis=1)
+        for r, a in ((0.5, np.arange(6) * np.pi / 3), (0.85, (np.arange(6) + 0.5) * np.pi / 3))
+    ]
+)
 
 
 def _ellipse_background(mask: np.ndarray, mu: np.ndarray, inv: np.ndarray) -> np.ndarray:
@@ -256,8 +296,9 @@ def _ellipse_background(mask: np.ndarray, mu: np.ndarray, inv: np.ndarray) -> np
     return np.where(live, area * (1.0 - fg.mean(axis=-1)), 0.0)
 
 
-def _limb_gain(skel, balls, s, theta, root, limb, cameras, masks, sigma_prior, prior_px,
-               w_background, step):
+def _limb_gain(
+    skel, balls, s, theta, root, limb, cameras, masks, sigma_prior, prior_px, w_background, step
+):
     """Best grid pose of one limb against the masks: ``(gain px, theta)`` or (0, None)."""
     bones, root_joint, tail_joint, grid = limb
     on = np.isin(balls.bone, [skel.bone_index(b) for b in bones])
@@ -277,8 +318,10 @@ def _limb_gain(skel, balls, s, theta, root, limb, cameras, masks, sigma_prior, p
             continue
         r_px = reach * cam.K[0, 0] / z
         h, w = mask.shape
-        gu, gv = np.meshgrid(np.arange(max(b_uv[0] - r_px, 0), min(b_uv[0] + r_px, w - 1), step),
-                             np.arange(max(b_uv[1] - r_px, 0), min(b_uv[1] + r_px, h - 1), step))
+        gu, gv = np.meshgrid(
+            np.arange(max(b_uv[0] - r_px, 0), min(b_uv[0] + r_px, w - 1), step),
+            np.arange(max(b_uv[1] - r_px, 0), min(b_uv[1] + r_px, h - 1), step),
+        )
         uv = np.stack([gu.ravel(), gv.ravel()], axis=1)
         uv = uv[np.sum((uv - b_uv) ** 2, axis=1) <= r_px**2]
         uv = uv[mask[np.rint(uv[:, 1]).astype(int), np.rint(uv[:, 0]).astype(int)]]
@@ -299,28 +342,40 @@ def _limb_gain(skel, balls, s, theta, root, limb, cameras, masks, sigma_prior, p
         H, E = len(th), int(on.sum())
         total = np.zeros(H)
         for cam, mask, uv in views:
-            mu, inv = image_ellipses(cam, cw[:, on].reshape(-1, 3), Rw[:, on].reshape(-1, 3, 3),
-                                     np.tile(r_on, (H, 1)))
+            mu, inv = image_ellipses(
+                cam, cw[:, on].reshape(-1, 3), Rw[:, on].reshape(-1, 3, 3), np.tile(r_on, (H, 1))
+            )
             mu, inv = mu.reshape(H, E, 2), inv.reshape(H, E, 2, 2)
             total += _covered(uv, mu, inv).sum(axis=1) * float(step) ** 2
             total -= w_background * _ellipse_background(mask, mu, inv).sum(axis=1)
         return total
 
     base_score = float(score(theta[None])[0])
-    best, best_cost = grid_search(skel, theta, grid, lambda th: -score(th), -base_score,
-                                  prior_px / sigma_prior**2)
+    best, best_cost = grid_search(
+        skel, theta, grid, lambda th: -score(th), -base_score, prior_px / sigma_prior**2
+    )
     if best is theta:
         return 0.0, None
     return -base_score - best_cost, best
 
 
-def search_limbs_silhouette(skel: Skeleton, balls: Metaballs, s: np.ndarray,
-                            theta0: np.ndarray, root: np.ndarray, cameras: list[Camera],
-                            masks: list, limbs: tuple | None = None,
-                            sigma_prior: float = 0.6, prior_px: float = 20.0,
-                            w_background: float = 1.0, min_gain_px: float = 200.0,
-                            rounds: int = 2, step: int = 2,
-                            allowed=None) -> SilhouetteSearch:
+def search_limbs_silhouette(
+    skel: Skeleton,
+    balls: Metaballs,
+    s: np.ndarray,
+    theta0: np.ndarray,
+    root: np.ndarray,
+    cameras: list[Camera],
+    masks: list,
+    limbs: tuple | None = None,
+    sigma_prior: float = 0.6,
+    prior_px: float = 20.0,
+    w_background: float = 1.0,
+    min_gain_px: float = 200.0,
+    rounds: int = 2,
+    step: int = 2,
+    allowed=None,
+) -> SilhouetteSearch:
     """Place each limb at the grid pose that best explains the foreground near it.
 
     Parameters
@@ -352,8 +407,20 @@ def search_limbs_silhouette(skel: Skeleton, balls: Metaballs, s: np.ndarray,
     for _ in range(rounds * len(names)):
         best_gain, best_theta, best_name = min_gain_px, None, None
         for name in names:
-            gain, th = _limb_gain(skel, balls, s, theta, root, SILHOUETTE_LIMBS[name], cameras,
-                                  masks, sigma_prior, prior_px, w_background, step)
+            gain, th = _limb_gain(
+                skel,
+                balls,
+                s,
+                theta,
+                root,
+                SILHOUETTE_LIMBS[name],
+                cameras,
+                masks,
+                sigma_prior,
+                prior_px,
+                w_background,
+                step,
+            )
             if gain > best_gain and (allowed is None or allowed(theta, th)):
                 best_gain, best_theta, best_name = gain, th, name
         if best_theta is None:

@@ -202,22 +202,34 @@ class Skeleton:
         return {
             "scale_groups": list(self.group_names),
             "dofs": [
-                {"name": n, "parent": int(self.dof_parent[k]),
-                 "d_ini_rot": self.dof_rot[k].round(15).tolist(),
-                 "d_ini_offset": self.dof_offset[k].tolist(),
-                 "scale_group": int(self.dof_group[k]),
-                 "limits": [_inf_none(self.dof_lo[k]), _inf_none(self.dof_hi[k])]}
+                {
+                    "name": n,
+                    "parent": int(self.dof_parent[k]),
+                    "d_ini_rot": self.dof_rot[k].round(15).tolist(),
+                    "d_ini_offset": self.dof_offset[k].tolist(),
+                    "scale_group": int(self.dof_group[k]),
+                    "limits": [_inf_none(self.dof_lo[k]), _inf_none(self.dof_hi[k])],
+                }
                 for k, n in enumerate(self.dof_names)
             ],
             "bones": [
-                {"name": n, "parent": int(self.bone_parent[b]), "dof": int(self.bone_dof[b]),
-                 "post_rot": self.bone_post[b].round(15).tolist(),
-                 "head": self.bone_head[b], "tail": self.bone_tail[b]}
+                {
+                    "name": n,
+                    "parent": int(self.bone_parent[b]),
+                    "dof": int(self.bone_dof[b]),
+                    "post_rot": self.bone_post[b].round(15).tolist(),
+                    "head": self.bone_head[b],
+                    "tail": self.bone_tail[b],
+                }
                 for b, n in enumerate(self.bone_names)
             ],
             "joints": [
-                {"name": n, "bone": int(self.joint_bone[j]),
-                 "offset": self.joint_offset[j].tolist(), "scale_group": int(self.joint_group[j])}
+                {
+                    "name": n,
+                    "bone": int(self.joint_bone[j]),
+                    "offset": self.joint_offset[j].tolist(),
+                    "scale_group": int(self.joint_group[j]),
+                }
                 for j, n in enumerate(self.joint_names)
             ],
         }
@@ -227,16 +239,24 @@ class Skeleton:
         """Inverse of :meth:`to_dict` (raises KeyError/ValueError on malformed input;
         :mod:`core.state` turns those into InputError)."""
         dofs, bones, joints = d["dofs"], d["bones"], d["joints"]
-        lim = np.array([[(-np.inf if v["limits"][0] is None else v["limits"][0]),
-                         (np.inf if v["limits"][1] is None else v["limits"][1])]
-                        for v in dofs], dtype=float).reshape(-1, 2)
+        lim = np.array(
+            [
+                [
+                    (-np.inf if v["limits"][0] is None else v["limits"][0]),
+                    (np.inf if v["limits"][1] is None else v["limits"][1]),
+                ]
+                for v in dofs
+            ],
+            dtype=float,
+        ).reshape(-1, 2)
         return cls(
             dof_names=tuple(str(v["name"]) for v in dofs),
             dof_parent=np.array([int(v["parent"]) for v in dofs], dtype=int),
             dof_rot=np.array([v["d_ini_rot"] for v in dofs], dtype=float).reshape(-1, 3, 3),
             dof_offset=np.array([v["d_ini_offset"] for v in dofs], dtype=float).reshape(-1, 3),
             dof_group=np.array([int(v["scale_group"]) for v in dofs], dtype=int),
-            dof_lo=lim[:, 0], dof_hi=lim[:, 1],
+            dof_lo=lim[:, 0],
+            dof_hi=lim[:, 1],
             group_names=tuple(str(g) for g in d["scale_groups"]),
             bone_names=tuple(str(v["name"]) for v in bones),
             bone_parent=np.array([int(v["parent"]) for v in bones], dtype=int),
@@ -336,12 +356,21 @@ def make_skeleton(rest_offsets: dict | None = None, bones: dict | None = None) -
         b_head.append(head)
         b_tail.append(tail)
     return Skeleton(
-        dof_names=tuple(names), dof_parent=np.array(parent, dtype=int),
-        dof_rot=np.array(rot), dof_offset=np.array(offset), dof_group=np.array(dgroup, dtype=int),
-        dof_lo=np.array(lo), dof_hi=np.array(hi), group_names=tuple(groups),
-        bone_names=bone_names, bone_parent=np.array(b_parent, dtype=int),
-        bone_dof=np.array(b_dof, dtype=int), bone_post=np.array(b_post),
-        bone_head=tuple(b_head), bone_tail=tuple(b_tail), joint_names=tuple(JOINTS),
+        dof_names=tuple(names),
+        dof_parent=np.array(parent, dtype=int),
+        dof_rot=np.array(rot),
+        dof_offset=np.array(offset),
+        dof_group=np.array(dgroup, dtype=int),
+        dof_lo=np.array(lo),
+        dof_hi=np.array(hi),
+        group_names=tuple(groups),
+        bone_names=bone_names,
+        bone_parent=np.array(b_parent, dtype=int),
+        bone_dof=np.array(b_dof, dtype=int),
+        bone_post=np.array(b_post),
+        bone_head=tuple(b_head),
+        bone_tail=tuple(b_tail),
+        joint_names=tuple(JOINTS),
         joint_bone=np.array([joint_info[j][0] for j in JOINTS], dtype=int),
         joint_offset=np.array([joint_info[j][2] for j in JOINTS]),
         joint_group=np.array([joint_info[j][1] for j in JOINTS], dtype=int),
@@ -421,8 +450,9 @@ def bone_frames(skel: Skeleton, pose: Pose) -> tuple[np.ndarray, np.ndarray]:
     return R, pose.p[:, skel.bone_dof]
 
 
-def points_world(skel: Skeleton, pose: Pose, bone: np.ndarray, q0: np.ndarray,
-                 group: np.ndarray, s: np.ndarray) -> np.ndarray:
+def points_world(
+    skel: Skeleton, pose: Pose, bone: np.ndarray, q0: np.ndarray, group: np.ndarray, s: np.ndarray
+) -> np.ndarray:
     """World positions (F, N, 3) of points fixed in bone frames.
 
     Parameters
@@ -443,8 +473,15 @@ def _scaled(q0, group, s):
     return np.asarray(q0, dtype=float) * scale[:, None]
 
 
-def point_jacobians(skel: Skeleton, pose: Pose, bone: np.ndarray, q0: np.ndarray,
-                    group: np.ndarray, s: np.ndarray, anc: np.ndarray | None = None):
+def point_jacobians(
+    skel: Skeleton,
+    pose: Pose,
+    bone: np.ndarray,
+    q0: np.ndarray,
+    group: np.ndarray,
+    s: np.ndarray,
+    anc: np.ndarray | None = None,
+):
     """Analytic Jacobians of bone-fixed points (see :func:`points_world`).
 
     Returns
@@ -492,8 +529,7 @@ def joint_jacobians(skel: Skeleton, theta, root_xyz, s):
     ``J_s (F, J, 3, G)``."""
     theta_, root_, _ = _as_frames(theta, root_xyz)
     pose = forward(skel, theta_, root_, s)
-    return point_jacobians(skel, pose, skel.joint_bone, skel.joint_offset,
-                           skel.joint_group, s)
+    return point_jacobians(skel, pose, skel.joint_bone, skel.joint_offset, skel.joint_group, s)
 
 
 def bone_matrices(skel: Skeleton, theta, root_xyz, s) -> np.ndarray:

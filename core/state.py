@@ -80,10 +80,13 @@ class Quality:
 
     @classmethod
     def empty(cls, n_frames: int, n_dof: int, converged: bool = True) -> Quality:
-        return cls(rmse_m=np.full(n_frames, np.nan),
-                   theta_sigma=np.full((n_frames, n_dof), np.nan),
-                   converged=np.full(n_frames, converged), diverged=np.zeros(n_frames, bool),
-                   cameras=[{} for _ in range(n_frames)])
+        return cls(
+            rmse_m=np.full(n_frames, np.nan),
+            theta_sigma=np.full((n_frames, n_dof), np.nan),
+            converged=np.full(n_frames, converged),
+            diverged=np.zeros(n_frames, bool),
+            cameras=[{} for _ in range(n_frames)],
+        )
 
 
 @dataclass
@@ -146,8 +149,11 @@ def bone_world_matrices(state: FitState) -> tuple[tuple, np.ndarray]:
 # -- writing ----------------------------------------------------------------------------
 def _nan_to_none(a: np.ndarray):
     a = np.asarray(a, dtype=float)
-    return [None if not math.isfinite(v) else float(v) for v in a.ravel()] if a.ndim == 1 \
+    return (
+        [None if not math.isfinite(v) else float(v) for v in a.ravel()]
+        if a.ndim == 1
         else [_nan_to_none(row) for row in a]
+    )
 
 
 def state_to_dict(state: FitState) -> dict:
@@ -161,16 +167,22 @@ def state_to_dict(state: FitState) -> dict:
         "frames": state.n_frames,
         "skeleton": state.skeleton.to_dict(),
         "scales": [float(v) for v in state.s],
-        "metaballs": {"model": state.metaball_model,
-                      "items": state.metaballs.to_dict(state.skeleton)},
-        "motion": {"dof_names": list(state.skeleton.dof_names),
-                   "root_xyz": np.asarray(state.root_xyz, float).tolist(),
-                   "theta": np.asarray(state.theta, float).tolist()},
-        "quality": {"rmse_m": _nan_to_none(q.rmse_m),
-                    "theta_sigma": _nan_to_none(q.theta_sigma),
-                    "converged": [bool(v) for v in q.converged],
-                    "diverged": [bool(v) for v in q.diverged],
-                    "cameras": [dict(c) for c in q.cameras]},
+        "metaballs": {
+            "model": state.metaball_model,
+            "items": state.metaballs.to_dict(state.skeleton),
+        },
+        "motion": {
+            "dof_names": list(state.skeleton.dof_names),
+            "root_xyz": np.asarray(state.root_xyz, float).tolist(),
+            "theta": np.asarray(state.theta, float).tolist(),
+        },
+        "quality": {
+            "rmse_m": _nan_to_none(q.rmse_m),
+            "theta_sigma": _nan_to_none(q.theta_sigma),
+            "converged": [bool(v) for v in q.converged],
+            "diverged": [bool(v) for v in q.diverged],
+            "cameras": [dict(c) for c in q.cameras],
+        },
     }
     if q.unobserved is not None:
         out["quality"]["unobserved"] = np.asarray(q.unobserved, bool).tolist()
@@ -195,12 +207,14 @@ def _array(path, obj, key, shape, allow_none=False):
     if key not in obj:
         raise InputError(f"{path}: is missing the key '{key}'")
     try:
-        a = np.array(obj[key], dtype=float) if not allow_none else np.array(
-            _none_to_nan(obj[key]), dtype=float)
+        a = (
+            np.array(obj[key], dtype=float)
+            if not allow_none
+            else np.array(_none_to_nan(obj[key]), dtype=float)
+        )
     except (TypeError, ValueError) as exc:
         raise InputError(f"{path}: '{key}' is not an array of numbers") from exc
-    if a.ndim != len(shape) or any(s is not None and a.shape[i] != s
-                                   for i, s in enumerate(shape)):
+    if a.ndim != len(shape) or any(s is not None and a.shape[i] != s for i, s in enumerate(shape)):
         want = "x".join("?" if s is None else str(s) for s in shape)
         raise InputError(f"{path}: '{key}' has shape {list(a.shape)}, expected {want}")
     if not allow_none and not np.all(np.isfinite(a)):
@@ -229,14 +243,17 @@ def state_from_dict(data: dict, path: str | Path = "<state>") -> FitState:
         raise InputError(f"{path}: must hold one JSON object")
     fmt = data.get("format")
     if fmt != FORMAT:
-        raise InputError(f"{path}: is not a Somacap fitted state (format is {fmt!r}, "
-                         f"expected {FORMAT!r})")
+        raise InputError(
+            f"{path}: is not a Somacap fitted state (format is {fmt!r}, expected {FORMAT!r})"
+        )
     version = data.get("version")
     if not isinstance(version, int) or isinstance(version, bool) or version < 1:
         raise InputError(f"{path}: has no valid 'version' (a positive integer)")
     if version > VERSION:
-        raise InputError(f"{path}: is version {version}, written by a newer Somacap "
-                         f"(this one reads up to version {VERSION}); please update")
+        raise InputError(
+            f"{path}: is version {version}, written by a newer Somacap "
+            f"(this one reads up to version {VERSION}); please update"
+        )
     for key in ("fps", "frames", "skeleton", "scales", "metaballs", "motion", "quality"):
         if key not in data:
             raise InputError(f"{path}: is missing the key '{key}'")
@@ -269,14 +286,19 @@ def state_from_dict(data: dict, path: str | Path = "<state>") -> FitState:
         balls = Metaballs.from_dict(items, skel)
     except (KeyError, TypeError, ValueError, IndexError) as exc:
         raise InputError(f"{path}: the metaballs are malformed ({exc!r})") from exc
-    if not (np.all(np.isfinite(balls.radii)) and np.all(balls.radii > 0)
-            and np.all(np.isfinite(balls.center0))):
+    if not (
+        np.all(np.isfinite(balls.radii))
+        and np.all(balls.radii > 0)
+        and np.all(np.isfinite(balls.center0))
+    ):
         raise InputError(f"{path}: metaball radii must be positive finite numbers")
     vs = balls.visible_scale
-    if vs is not None and not (vs.shape == balls.radii.shape and np.all(np.isfinite(vs))
-                               and np.all(vs > 0)):
-        raise InputError(f"{path}: metaball visible_scale must be 3 positive finite numbers "
-                         "for every metaball")
+    if vs is not None and not (
+        vs.shape == balls.radii.shape and np.all(np.isfinite(vs)) and np.all(vs > 0)
+    ):
+        raise InputError(
+            f"{path}: metaball visible_scale must be 3 positive finite numbers for every metaball"
+        )
 
     motion = _section(path, data, "motion")
     names = motion.get("dof_names")
@@ -300,22 +322,41 @@ def state_from_dict(data: dict, path: str | Path = "<state>") -> FitState:
     unobs = None
     if "unobserved" in qd:
         v = qd["unobserved"]
-        if (not isinstance(v, list) or len(v) != frames
-                or not all(isinstance(r, list) and len(r) == n
-                           and all(isinstance(x, bool) for x in r) for r in v)):
-            raise InputError(f"{path}: quality.unobserved must be {frames} lists of {n} "
-                             "true/false values")
+        if (
+            not isinstance(v, list)
+            or len(v) != frames
+            or not all(
+                isinstance(r, list) and len(r) == n and all(isinstance(x, bool) for x in r)
+                for r in v
+            )
+        ):
+            raise InputError(
+                f"{path}: quality.unobserved must be {frames} lists of {n} true/false values"
+            )
         unobs = np.array(v, dtype=bool).reshape(frames, n)
 
     override = None
     if "joints_override" in data:
         override = _array(path, data, "joints_override", (frames, len(skel.joint_names), 3))
-    return FitState(skeleton=skel, s=s, metaballs=balls, root_xyz=root, theta=theta,
-                    quality=Quality(rmse_m=rmse, theta_sigma=sig, converged=flags["converged"],
-                                    diverged=flags["diverged"], cameras=cams,
-                                    unobserved=unobs),
-                    fps=fps, source_scene=str(data.get("source_scene", "")),
-                    metaball_model=str(mb.get("model", "")), joints_override=override)
+    return FitState(
+        skeleton=skel,
+        s=s,
+        metaballs=balls,
+        root_xyz=root,
+        theta=theta,
+        quality=Quality(
+            rmse_m=rmse,
+            theta_sigma=sig,
+            converged=flags["converged"],
+            diverged=flags["diverged"],
+            cameras=cams,
+            unobserved=unobs,
+        ),
+        fps=fps,
+        source_scene=str(data.get("source_scene", "")),
+        metaball_model=str(mb.get("model", "")),
+        joints_override=override,
+    )
 
 
 def read_state(path: str | Path) -> FitState:
@@ -324,8 +365,7 @@ def read_state(path: str | Path) -> FitState:
     if not path.is_file():
         raise InputError(f"{path}: fitted-state file not found")
     try:
-        data = json.loads(path.read_text(encoding="utf-8"),
-                          parse_constant=lambda c: float("nan"))
+        data = json.loads(path.read_text(encoding="utf-8"), parse_constant=lambda c: float("nan"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: not valid JSON ({exc})") from exc
     return state_from_dict(data, path)

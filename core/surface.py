@@ -31,8 +31,7 @@ WEIGHT_SIGMA = 4.0
 REFINE_SIGMA = 1.5
 
 #: Default seed joints, in order of preference (on the torso and thighs: large, textured).
-SEED_JOINTS = ("pelvis", "neck", "l_hip", "r_hip", "l_shoulder", "r_shoulder", "l_knee",
-               "r_knee")
+SEED_JOINTS = ("pelvis", "neck", "l_hip", "r_hip", "l_shoulder", "r_shoulder", "l_knee", "r_knee")
 
 
 @dataclass
@@ -69,8 +68,9 @@ class Surface:
         return len(self.xyz)
 
 
-def seeds_from_clicks(clicks: dict, cameras: list[str], max_seeds: int = 5,
-                      path: str | Path = "clicks.json") -> np.ndarray:
+def seeds_from_clicks(
+    clicks: dict, cameras: list[str], max_seeds: int = 5, path: str | Path = "clicks.json"
+) -> np.ndarray:
     """Seed image points ``(S, C, 2)`` from ``Scene.clicks()`` (NaN where not clicked);
     ``path`` names the clicks file in the error."""
     joints = clicks["joints"]
@@ -88,10 +88,21 @@ def seeds_from_clicks(clicks: dict, cameras: list[str], max_seeds: int = 5,
     return np.asarray(out, float)
 
 
-def _match_views(stack: ImageStack, cams: list[Camera], ref: int, uv_ref: np.ndarray,
-                 uv_pred: np.ndarray, aff_pred: np.ndarray, *, half: int, ncc_radius: int,
-                 max_rms_px: float, sigma_px: float, weight_sigma: float | None = None,
-                 max_sigma_px: float = 0.15):
+def _match_views(
+    stack: ImageStack,
+    cams: list[Camera],
+    ref: int,
+    uv_ref: np.ndarray,
+    uv_pred: np.ndarray,
+    aff_pred: np.ndarray,
+    *,
+    half: int,
+    ncc_radius: int,
+    max_rms_px: float,
+    sigma_px: float,
+    weight_sigma: float | None = None,
+    max_sigma_px: float = 0.15,
+):
     """Match reference points into all other cameras; returns uv, affine, sigma, xyz, ok."""
     n, c = uv_pred.shape[:2]
     others = [j for j in range(c) if j != ref]
@@ -105,33 +116,62 @@ def _match_views(stack: ImageStack, cams: list[Camera], ref: int, uv_ref: np.nda
     sidx = np.tile(others, n)
     start = pred
     if ncc_radius > 0:
-        nc = search(stack, stack, tmpl, pred, half=half, radius=ncc_radius,
-                    template_index=np.full(len(tmpl), ref), search_index=sidx, min_score=0.6)
+        nc = search(
+            stack,
+            stack,
+            tmpl,
+            pred,
+            half=half,
+            radius=ncc_radius,
+            template_index=np.full(len(tmpl), ref),
+            search_index=sidx,
+            min_score=0.6,
+        )
         start = np.where(nc.ok[:, None], nc.uv, pred)
-    r = match(stack, stack, tmpl, start, half=half, affine=aff_pred[:, others].reshape(-1, 2, 2),
-              template_index=np.full(len(tmpl), ref), search_index=sidx,
-              max_shift_px=max(3.0, ncc_radius + 1.0), weight_sigma=weight_sigma,
-              max_sigma_px=max_sigma_px)
+    r = match(
+        stack,
+        stack,
+        tmpl,
+        start,
+        half=half,
+        affine=aff_pred[:, others].reshape(-1, 2, 2),
+        template_index=np.full(len(tmpl), ref),
+        search_index=sidx,
+        max_shift_px=max(3.0, ncc_radius + 1.0),
+        weight_sigma=weight_sigma,
+        max_sigma_px=max_sigma_px,
+    )
     ok = r.ok.reshape(n, len(others))
     uv[:, others] = np.where(ok[..., None], r.uv.reshape(n, len(others), 2), np.nan)
     # Failed matches keep the predicted affine part (a diverged one would poison the
     # growth and later re-acquisition in tracking).
-    aff[:, others] = np.where(ok[..., None, None], r.affine.reshape(n, len(others), 2, 2),
-                              aff_pred[:, others])
+    aff[:, others] = np.where(
+        ok[..., None, None], r.affine.reshape(n, len(others), 2, 2), aff_pred[:, others]
+    )
     sig[:, others] = np.where(ok, r.sigma_uv.max(axis=1).reshape(n, len(others)), np.nan)
     inter = triangulate(cams, uv, sigma_px=sigma_px)
     good = inter.ok & (inter.rms < max_rms_px) & (np.sum(ok, axis=1) >= 1)
     return uv, aff, sig, inter, good
 
 
-def measure_surface(images, cameras: list[Camera], seeds_uv: np.ndarray, *, ref: int | None = None,
-                    step: int = 2, half: int = 6, max_rms_px: float = 1.0,
-                    max_jump_m: float = 0.03, max_points: int = 50000, progress=None,
-                    occupied_uv: np.ndarray | None = None,
-                    weight_sigma: float | None = WEIGHT_SIGMA,
-                    refine_sigma: float | None = REFINE_SIGMA,
-                    max_sigma_px: float = 0.15,
-                    max_depth_dev_m: float | None = None) -> Surface:
+def measure_surface(
+    images,
+    cameras: list[Camera],
+    seeds_uv: np.ndarray,
+    *,
+    ref: int | None = None,
+    step: int = 2,
+    half: int = 6,
+    max_rms_px: float = 1.0,
+    max_jump_m: float = 0.03,
+    max_points: int = 50000,
+    progress=None,
+    occupied_uv: np.ndarray | None = None,
+    weight_sigma: float | None = WEIGHT_SIGMA,
+    refine_sigma: float | None = REFINE_SIGMA,
+    max_sigma_px: float = 0.15,
+    max_depth_dev_m: float | None = None,
+) -> Surface:
     """Grow a dense point cloud over the textured surface seen by all cameras.
 
     Parameters
@@ -197,16 +237,33 @@ def measure_surface(images, cameras: list[Camera], seeds_uv: np.ndarray, *, ref:
     pred = seeds_uv + (uv_ref - seeds_uv[:, ref])[:, None]
     pred = np.where(np.isfinite(pred), pred, uv_ref[:, None])
     aff0 = np.tile(np.eye(2), (len(g), c, 1, 1))
-    uv, aff, sig, inter, good = _match_views(stack, cameras, ref, uv_ref, pred, aff0, half=half,
-                                             ncc_radius=12, max_rms_px=max_rms_px,
-                                             sigma_px=0.05, weight_sigma=weight_sigma,
-                                             max_sigma_px=max_sigma_px)
+    uv, aff, sig, inter, good = _match_views(
+        stack,
+        cameras,
+        ref,
+        uv_ref,
+        pred,
+        aff0,
+        half=half,
+        ncc_radius=12,
+        max_rms_px=max_rms_px,
+        sigma_px=0.05,
+        weight_sigma=weight_sigma,
+        max_sigma_px=max_sigma_px,
+    )
     inb = (g[:, 0] >= 0) & (g[:, 0] < gw) & (g[:, 1] >= 0) & (g[:, 1] < gh)
     good &= inb
     visited[g[inb, 1], g[inb, 0]] = True
-    acc = {"g": [g[good]], "uv": [uv[good]], "aff": [aff[good]], "sig": [sig[good]],
-           "xyz": [inter.xyz[good]], "cov": [inter.cov[good]], "rms": [inter.rms[good]],
-           "keep": [keep[g[good, 1], g[good, 0]]]}
+    acc = {
+        "g": [g[good]],
+        "uv": [uv[good]],
+        "aff": [aff[good]],
+        "sig": [sig[good]],
+        "xyz": [inter.xyz[good]],
+        "cov": [inter.cov[good]],
+        "rms": [inter.rms[good]],
+        "keep": [keep[g[good, 1], g[good, 0]]],
+    }
     front = (g[good], uv[good], aff[good], inter.xyz[good])
     total = int(good.sum())
     steps = np.array([[1, 0], [-1, 0], [0, 1], [0, -1]])
@@ -226,61 +283,111 @@ def measure_surface(images, cameras: list[Camera], seeds_uv: np.ndarray, *, ref:
         if len(cand) == 0:
             break
         visited[cand[:, 1], cand[:, 0]] = True
-        d = (cand - fg[parent]) * float(step)                   # grid offset, pixels
+        d = (cand - fg[parent]) * float(step)  # grid offset, pixels
         pu = fuv[parent] + np.einsum("ncij,nj->nci", faff[parent], d)
         uv_ref = cand * float(step)
         pu[:, ref] = uv_ref
         have = np.all(np.isfinite(pu), axis=2)
         pu = np.where(have[..., None], pu, uv_ref[:, None])
-        uv, aff, sig, inter, good = _match_views(stack, cameras, ref, uv_ref, pu, faff[parent],
-                                                 half=half, ncc_radius=0,
-                                                 max_rms_px=max_rms_px, sigma_px=0.05,
-                                                 weight_sigma=weight_sigma,
-                                                 max_sigma_px=max_sigma_px)
+        uv, aff, sig, inter, good = _match_views(
+            stack,
+            cameras,
+            ref,
+            uv_ref,
+            pu,
+            faff[parent],
+            half=half,
+            ncc_radius=0,
+            max_rms_px=max_rms_px,
+            sigma_px=0.05,
+            weight_sigma=weight_sigma,
+            max_sigma_px=max_sigma_px,
+        )
         jump = np.linalg.norm(inter.xyz - fxyz[parent], axis=1)
         good &= jump < max_jump_m
-        for k, v in (("g", cand), ("uv", uv), ("aff", aff), ("sig", sig), ("xyz", inter.xyz),
-                     ("cov", inter.cov), ("rms", inter.rms),
-                     ("keep", keep[cand[:, 1], cand[:, 0]])):
+        for k, v in (
+            ("g", cand),
+            ("uv", uv),
+            ("aff", aff),
+            ("sig", sig),
+            ("xyz", inter.xyz),
+            ("cov", inter.cov),
+            ("rms", inter.rms),
+            ("keep", keep[cand[:, 1], cand[:, 0]]),
+        ):
             acc[k].append(v[good])
         total += int(good.sum())
         front = (cand[good], uv[good], aff[good], inter.xyz[good])
         wave += 1
         if progress is not None:
-            progress.update(min(total, max_points), max_points,
-                            f"surface: wave {wave}, {total} points")
+            progress.update(
+                min(total, max_points), max_points, f"surface: wave {wave}, {total} points"
+            )
     cat = {k: np.concatenate(v) for k, v in acc.items()}
     k = cat["keep"]
-    surf = Surface(xyz=cat["xyz"][k], cov=cat["cov"][k], uv=cat["uv"][k], affine=cat["aff"][k],
-                   sigma_uv=cat["sig"][k], rms=cat["rms"][k], ref=ref)
+    surf = Surface(
+        xyz=cat["xyz"][k],
+        cov=cat["cov"][k],
+        uv=cat["uv"][k],
+        affine=cat["aff"][k],
+        sigma_uv=cat["sig"][k],
+        rms=cat["rms"][k],
+        ref=ref,
+    )
     if refine_sigma is not None and len(surf):
-        surf = refine(stack, cameras, surf, half=half, weight_sigma=refine_sigma,
-                      max_rms_px=max_rms_px, max_sigma_px=max_sigma_px)
+        surf = refine(
+            stack,
+            cameras,
+            surf,
+            half=half,
+            weight_sigma=refine_sigma,
+            max_rms_px=max_rms_px,
+            max_sigma_px=max_sigma_px,
+        )
     if max_depth_dev_m is not None and len(surf):
-        out = depth_outliers(surf.xyz, np.mean([cam.center for cam in cameras], axis=0),
-                             max_depth_dev_m)
+        out = depth_outliers(
+            surf.xyz, np.mean([cam.center for cam in cameras], axis=0), max_depth_dev_m
+        )
         surf = subset(surf, ~out)
     return surf
 
 
 def subset(surf: Surface, keep: np.ndarray) -> Surface:
     """The points ``keep`` (bool (N,) or indices) of a surface."""
-    return Surface(xyz=surf.xyz[keep], cov=surf.cov[keep], uv=surf.uv[keep],
-                   affine=surf.affine[keep], sigma_uv=surf.sigma_uv[keep], rms=surf.rms[keep],
-                   ref=surf.ref)
+    return Surface(
+        xyz=surf.xyz[keep],
+        cov=surf.cov[keep],
+        uv=surf.uv[keep],
+        affine=surf.affine[keep],
+        sigma_uv=surf.sigma_uv[keep],
+        rms=surf.rms[keep],
+        ref=surf.ref,
+    )
 
 
 def concat(a: Surface, b: Surface) -> Surface:
     """The points of two surfaces measured with the same cameras and reference."""
     if a.ref != b.ref:
         raise ValueError(f"reference cameras differ: {a.ref} and {b.ref}")
-    return Surface(*(np.concatenate([getattr(a, k), getattr(b, k)]) for k in
-                     ("xyz", "cov", "uv", "affine", "sigma_uv", "rms")), ref=a.ref)
+    return Surface(
+        *(
+            np.concatenate([getattr(a, k), getattr(b, k)])
+            for k in ("xyz", "cov", "uv", "affine", "sigma_uv", "rms")
+        ),
+        ref=a.ref,
+    )
 
 
-def refine(images, cameras: list[Camera], surf: Surface, *, half: int = 6,
-           weight_sigma: float = REFINE_SIGMA, max_rms_px: float = 1.0,
-           max_sigma_px: float = 0.15) -> Surface:
+def refine(
+    images,
+    cameras: list[Camera],
+    surf: Surface,
+    *,
+    half: int = 6,
+    weight_sigma: float = REFINE_SIGMA,
+    max_rms_px: float = 1.0,
+    max_sigma_px: float = 0.15,
+) -> Surface:
     """Re-match every point of a surface with narrower patch weights, then re-intersect.
 
     Growing needs the robustness of wide patches; the final coordinates are less biased
@@ -293,10 +400,19 @@ def refine(images, cameras: list[Camera], surf: Surface, *, half: int = 6,
     n, c = surf.uv.shape[:2]
     ref = surf.ref
     pi, ci = np.nonzero(np.isfinite(surf.uv[..., 0]) & (np.arange(c) != ref)[None])
-    r = match(stack, stack, surf.uv[pi, ref], surf.uv[pi, ci], half=half,
-              affine=surf.affine[pi, ci], template_index=np.full(len(pi), ref),
-              search_index=ci, max_shift_px=1.0, weight_sigma=weight_sigma,
-              max_sigma_px=max_sigma_px)
+    r = match(
+        stack,
+        stack,
+        surf.uv[pi, ref],
+        surf.uv[pi, ci],
+        half=half,
+        affine=surf.affine[pi, ci],
+        template_index=np.full(len(pi), ref),
+        search_index=ci,
+        max_shift_px=1.0,
+        weight_sigma=weight_sigma,
+        max_sigma_px=max_sigma_px,
+    )
     uv = surf.uv.copy()
     uv[pi[r.ok], ci[r.ok]] = r.uv[r.ok]
     aff = surf.affine.copy()
@@ -306,8 +422,12 @@ def refine(images, cameras: list[Camera], surf: Surface, *, half: int = 6,
     inter = triangulate(cameras, uv, sigma_px=0.05)
     good = inter.ok & (inter.rms < max_rms_px)
     g3 = good[:, None, None]
-    return Surface(xyz=np.where(good[:, None], inter.xyz, surf.xyz),
-                   cov=np.where(g3, inter.cov, surf.cov), uv=np.where(g3, uv, surf.uv),
-                   affine=np.where(good[:, None, None, None], aff, surf.affine),
-                   sigma_uv=np.where(good[:, None], sig, surf.sigma_uv),
-                   rms=np.where(good, inter.rms, surf.rms), ref=ref)
+    return Surface(
+        xyz=np.where(good[:, None], inter.xyz, surf.xyz),
+        cov=np.where(g3, inter.cov, surf.cov),
+        uv=np.where(g3, uv, surf.uv),
+        affine=np.where(good[:, None, None, None], aff, surf.affine),
+        sigma_uv=np.where(good[:, None], sig, surf.sigma_uv),
+        rms=np.where(good, inter.rms, surf.rms),
+        ref=ref,
+    )

@@ -44,10 +44,21 @@ def _patches(img: np.ndarray, uv: np.ndarray, half: int) -> np.ndarray:
     return p / np.maximum(np.linalg.norm(p, axis=-1, keepdims=True), 1e-9)
 
 
-def epipolar_seeds(images, cameras: list[Camera], ref: int, depth_range: tuple[float, float],
-                   occupied_uv: np.ndarray | None = None, *, step: int = 8, half: int = 6,
-                   min_std: float = 4.0, min_ncc: float = 0.7, min_margin: float = 0.1,
-                   max_seeds: int = 300, chunk: int = 64) -> np.ndarray:
+def epipolar_seeds(
+    images,
+    cameras: list[Camera],
+    ref: int,
+    depth_range: tuple[float, float],
+    occupied_uv: np.ndarray | None = None,
+    *,
+    step: int = 8,
+    half: int = 6,
+    min_std: float = 4.0,
+    min_ncc: float = 0.7,
+    min_margin: float = 0.1,
+    max_seeds: int = 300,
+    chunk: int = 64,
+) -> np.ndarray:
     """Correspondences found by a depth search along the reference camera's rays.
 
     Parameters
@@ -96,8 +107,9 @@ def epipolar_seeds(images, cameras: list[Camera], ref: int, depth_range: tuple[f
     m = half + 1
     gu, gv = np.meshgrid(np.arange(m, w - m, step), np.arange(m, h - m, step))
     cand = np.stack([gu.ravel(), gv.ravel()], axis=1).astype(float)
-    cand = cand[_box_std(imgs[ref], half)[cand[:, 1].astype(int), cand[:, 0].astype(int)]
-                >= min_std]
+    cand = cand[
+        _box_std(imgs[ref], half)[cand[:, 1].astype(int), cand[:, 0].astype(int)] >= min_std
+    ]
     if occupied_uv is not None and len(occupied_uv) and len(cand):
         occ = np.asarray(occupied_uv, float).reshape(-1, 2)
         occ = occ[np.all(np.isfinite(occ), axis=1)]
@@ -110,9 +122,17 @@ def epipolar_seeds(images, cameras: list[Camera], ref: int, depth_range: tuple[f
     o, ray = cameras[ref].rays(cand)
     # depth steps of at most about one pixel of image motion in every other camera
     ends = np.stack([o + near * ray, o + far * ray], axis=1)  # (N, 2, 3)
-    span = max(float(np.nanmax(np.linalg.norm(
-        np.diff(cameras[j].project(ends.reshape(-1, 3)).reshape(-1, 2, 2), axis=1), axis=-1)))
-        for j in others)
+    span = max(
+        float(
+            np.nanmax(
+                np.linalg.norm(
+                    np.diff(cameras[j].project(ends.reshape(-1, 3)).reshape(-1, 2, 2), axis=1),
+                    axis=-1,
+                )
+            )
+        )
+        for j in others
+    )
     k = int(np.clip(np.ceil(span), 2, 600)) + 1
     depths = np.linspace(near, far, k)
     tmpl = _patches(imgs[ref], cand, half)  # (N, P)
@@ -125,8 +145,13 @@ def epipolar_seeds(images, cameras: list[Camera], ref: int, depth_range: tuple[f
         score = np.full(X.shape[:2], np.inf)
         for j in others:
             uv = cameras[j].project(X.reshape(-1, 3)).reshape(*X.shape[:2], 2)
-            inside = (np.all(np.isfinite(uv), axis=-1) & (uv[..., 0] >= m) & (uv[..., 0] < w - m)
-                      & (uv[..., 1] >= m) & (uv[..., 1] < h - m))
+            inside = (
+                np.all(np.isfinite(uv), axis=-1)
+                & (uv[..., 0] >= m)
+                & (uv[..., 0] < w - m)
+                & (uv[..., 1] >= m)
+                & (uv[..., 1] < h - m)
+            )
             uv = np.where(inside[..., None], uv, m)
             ncc = np.einsum("nkp,np->nk", _patches(imgs[j], uv, half), tmpl[sl])
             score = np.minimum(score, np.where(inside, ncc, -1.0))
@@ -144,8 +169,9 @@ def epipolar_seeds(images, cameras: list[Camera], ref: int, depth_range: tuple[f
     return seeds
 
 
-def cloud_depth_range(cameras: list[Camera], ref: int, xyz: np.ndarray,
-                      margin_m: float = 0.5) -> tuple[float, float] | None:
+def cloud_depth_range(
+    cameras: list[Camera], ref: int, xyz: np.ndarray, margin_m: float = 0.5
+) -> tuple[float, float] | None:
     """Distances (near, far) from the reference camera's centre spanned by the points
     ``xyz`` (N, 3), widened by ``margin_m`` metres; None without finite points."""
     xyz = np.asarray(xyz, float).reshape(-1, 3)
@@ -156,10 +182,21 @@ def cloud_depth_range(cameras: list[Camera], ref: int, xyz: np.ndarray,
     return max(float(d.min()) - margin_m, 0.05), float(d.max()) + margin_m
 
 
-def grow_from_jumps(images, cameras: list[Camera], ref: int, xyz: np.ndarray,
-                    occupied_uv: np.ndarray, *, step: int = 2, half: int = 6,
-                    max_sigma_px: float = 0.15, max_depth_dev_m: float | None = 0.01,
-                    margin_m: float = 0.5, min_ncc: float = 0.7, min_std: float = 4.0):
+def grow_from_jumps(
+    images,
+    cameras: list[Camera],
+    ref: int,
+    xyz: np.ndarray,
+    occupied_uv: np.ndarray,
+    *,
+    step: int = 2,
+    half: int = 6,
+    max_sigma_px: float = 0.15,
+    max_depth_dev_m: float | None = 0.01,
+    margin_m: float = 0.5,
+    min_ncc: float = 0.7,
+    min_std: float = 4.0,
+):
     """Surface beyond the depth jumps that region growing stops at.
 
     :func:`epipolar_seeds` over the cells that ``occupied_uv`` (M, 2) (reference image)
@@ -173,10 +210,19 @@ def grow_from_jumps(images, cameras: list[Camera], ref: int, xyz: np.ndarray,
     rng = cloud_depth_range(cameras, ref, xyz, margin_m)
     if rng is None:
         return None
-    seeds = epipolar_seeds(images, cameras, ref, rng, occupied_uv, half=half, min_ncc=min_ncc,
-                           min_std=min_std)
+    seeds = epipolar_seeds(
+        images, cameras, ref, rng, occupied_uv, half=half, min_ncc=min_ncc, min_std=min_std
+    )
     if not len(seeds):
         return None
-    return measure_surface(images, cameras, seeds, ref=ref, step=step, half=half,
-                           occupied_uv=occupied_uv, max_sigma_px=max_sigma_px,
-                           max_depth_dev_m=max_depth_dev_m)
+    return measure_surface(
+        images,
+        cameras,
+        seeds,
+        ref=ref,
+        step=step,
+        half=half,
+        occupied_uv=occupied_uv,
+        max_sigma_px=max_sigma_px,
+        max_depth_dev_m=max_depth_dev_m,
+    )

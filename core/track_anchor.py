@@ -76,11 +76,21 @@ def distortion(affine: np.ndarray) -> np.ndarray:
     return np.where(np.all(np.isfinite(affine), axis=(-2, -1)), out, np.inf)
 
 
-def reanchor(keys: KeyTemplates, stacks: dict, search: ImageStack, pi: np.ndarray,
-             ci: np.ndarray, uv_t: np.ndarray, affine_t: np.ndarray, *, half: int = 6,
-             max_px: float = 1.0, max_distortion: float = np.log(1.5),
-             weight_sigma: float | None = 4.0,
-             max_sigma_px: float = 0.2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def reanchor(
+    keys: KeyTemplates,
+    stacks: dict,
+    search: ImageStack,
+    pi: np.ndarray,
+    ci: np.ndarray,
+    uv_t: np.ndarray,
+    affine_t: np.ndarray,
+    *,
+    half: int = 6,
+    max_px: float = 1.0,
+    max_distortion: float = np.log(1.5),
+    weight_sigma: float | None = 4.0,
+    max_sigma_px: float = 0.2,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Match temporal matches again from their key templates.
 
     Parameters
@@ -121,12 +131,25 @@ def reanchor(keys: KeyTemplates, stacks: dict, search: ImageStack, pi: np.ndarra
         return out_uv, out_aff, ok
     fr = np.unique(kf[k])
     c = search.shape[0]
-    tstack = (stacks[int(fr[0])] if len(fr) == 1
-              else ImageStack(np.concatenate([stacks[int(f)].images for f in fr])))
+    tstack = (
+        stacks[int(fr[0])]
+        if len(fr) == 1
+        else ImageStack(np.concatenate([stacks[int(f)].images for f in fr]))
+    )
     tidx = np.searchsorted(fr, kf[k]) * c + ci[k]
-    r = match(tstack, search, keys.uv[pi[k], ci[k]], uv_t[k], half=half, affine=aff[k],
-              template_index=tidx, search_index=ci[k], max_shift_px=max_px,
-              weight_sigma=weight_sigma, max_sigma_px=max_sigma_px)
+    r = match(
+        tstack,
+        search,
+        keys.uv[pi[k], ci[k]],
+        uv_t[k],
+        half=half,
+        affine=aff[k],
+        template_index=tidx,
+        search_index=ci[k],
+        max_shift_px=max_px,
+        weight_sigma=weight_sigma,
+        max_sigma_px=max_sigma_px,
+    )
     good = r.ok & (np.linalg.norm(r.uv - uv_t[k], axis=1) < max_px)
     out_uv[k[good]] = r.uv[good]
     out_aff[k[good]] = r.affine[good]

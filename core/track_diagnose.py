@@ -31,14 +31,28 @@ from __future__ import annotations
 import numpy as np
 
 #: Loss reasons, in the order of their codes (0 .. 7); -1 means "not lost here".
-REASONS = ("depth_dev", "gate", "intersection_rms", "too_few_cameras", "occlusion",
-           "temporal", "confirm_rekey", "spatial")
+REASONS = (
+    "depth_dev",
+    "gate",
+    "intersection_rms",
+    "too_few_cameras",
+    "occlusion",
+    "temporal",
+    "confirm_rekey",
+    "spatial",
+)
 
 
-def loss_reasons(lost: np.ndarray, n_searchable: np.ndarray, n_searched: np.ndarray,
-                 n_temporal: np.ndarray, n_rekey_unconfirmed: np.ndarray,
-                 any_rms_ok: np.ndarray, any_two: np.ndarray,
-                 depth_out: np.ndarray) -> np.ndarray:
+def loss_reasons(
+    lost: np.ndarray,
+    n_searchable: np.ndarray,
+    n_searched: np.ndarray,
+    n_temporal: np.ndarray,
+    n_rekey_unconfirmed: np.ndarray,
+    any_rms_ok: np.ndarray,
+    any_two: np.ndarray,
+    depth_out: np.ndarray,
+) -> np.ndarray:
     """Code (index into :data:`REASONS`) of the step that lost each point.
 
     Parameters
@@ -67,9 +81,18 @@ def loss_reasons(lost: np.ndarray, n_searchable: np.ndarray, n_searched: np.ndar
         -1 where not ``lost``.
     """
     code = np.select(
-        [depth_out, any_rms_ok, any_two, n_searchable < 2, n_searched < 2, n_temporal < 2,
-         n_temporal - n_rekey_unconfirmed < 2],
-        [0, 1, 2, 3, 4, 5, 6], default=7)
+        [
+            depth_out,
+            any_rms_ok,
+            any_two,
+            n_searchable < 2,
+            n_searched < 2,
+            n_temporal < 2,
+            n_temporal - n_rekey_unconfirmed < 2,
+        ],
+        [0, 1, 2, 3, 4, 5, 6],
+        default=7,
+    )
     return np.where(lost, code, -1).astype(np.int8)
 
 

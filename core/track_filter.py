@@ -17,7 +17,7 @@ from .camera import Camera
 
 #: Added to every point covariance in the filters: model error of a surface point
 #: (LSM bias on curved skin, texture slipping), m².
-COV_FLOOR = np.eye(3) * 0.002 ** 2
+COV_FLOOR = np.eye(3) * 0.002**2
 
 
 @dataclass
@@ -46,9 +46,15 @@ class PointFilter:
     damping: float = 1.0
 
     @classmethod
-    def start(cls, xyz: np.ndarray, cov: np.ndarray, rate: np.ndarray | None = None,
-              rate_sigma: np.ndarray | float = 0.03, accel_sigma: float = 0.01,
-              damping: float = 1.0) -> PointFilter:
+    def start(
+        cls,
+        xyz: np.ndarray,
+        cov: np.ndarray,
+        rate: np.ndarray | None = None,
+        rate_sigma: np.ndarray | float = 0.03,
+        accel_sigma: float = 0.01,
+        damping: float = 1.0,
+    ) -> PointFilter:
         """Filters at ``xyz`` (P, 3) with position covariance ``cov`` (P, 3, 3), m², and
         rate ``rate`` (P, 3), m/frame (default 0) of standard deviation ``rate_sigma``."""
         xyz = np.asarray(xyz, float).reshape(-1, 3)
@@ -73,7 +79,7 @@ class PointFilter:
         return F
 
     def _Q(self) -> np.ndarray:
-        a2 = self.accel_sigma ** 2
+        a2 = self.accel_sigma**2
         return np.kron(np.array([[a2 / 4, a2 / 2], [a2 / 2, a2]]), np.eye(3))
 
     def predicted(self) -> tuple[np.ndarray, np.ndarray]:
@@ -109,15 +115,16 @@ class PointFilter:
         H = np.zeros((3, 6))
         H[:, :3] = np.eye(3)
         S = P[:, :3, :3] + R
-        G = np.linalg.solve(S, P[:, :3, :]).transpose(0, 2, 1)           # (K, 6, 3) = P Hᵀ S⁻¹
+        G = np.linalg.solve(S, P[:, :3, :]).transpose(0, 2, 1)  # (K, 6, 3) = P Hᵀ S⁻¹
         x = x + np.einsum("kij,kj->ki", G, z - x[:, :3])
         I_GH = np.eye(6) - G @ H
         P = I_GH @ P @ I_GH.transpose(0, 2, 1) + G @ R @ G.transpose(0, 2, 1)
         self.x[rows], self.P[rows] = x, 0.5 * (P + P.transpose(0, 2, 1))
 
 
-def predict_in_image(cam: Camera, xyz: np.ndarray, cov: np.ndarray,
-                     eps: float = 1e-3) -> tuple[np.ndarray, np.ndarray]:
+def predict_in_image(
+    cam: Camera, xyz: np.ndarray, cov: np.ndarray, eps: float = 1e-3
+) -> tuple[np.ndarray, np.ndarray]:
     """Project points (P, 3) with covariance (P, 3, 3) into a camera.
 
     Returns ``uv`` (P, 2), pixels, and the largest standard deviation of the projected
@@ -131,8 +138,9 @@ def predict_in_image(cam: Camera, xyz: np.ndarray, cov: np.ndarray,
     return uv, np.sqrt(np.maximum(lam, 0.0))
 
 
-def neighbour_rates(xyz: np.ndarray, rate: np.ndarray, new_xyz: np.ndarray,
-                     radius_m: float = 0.05, k: int = 8) -> tuple[np.ndarray, np.ndarray]:
+def neighbour_rates(
+    xyz: np.ndarray, rate: np.ndarray, new_xyz: np.ndarray, radius_m: float = 0.05, k: int = 8
+) -> tuple[np.ndarray, np.ndarray]:
     """Start rates (K, 3) of new points: the median filtered rate of up to ``k`` measured
     points within ``radius_m``; their σ (K,) is 1 cm/frame there, 3 cm/frame elsewhere."""
     out = np.zeros((len(new_xyz), 3))

@@ -67,22 +67,31 @@ def intersect(st: TrackerState, pr: Prediction, m: Matches, s: TrackSettings) ->
     it, is taken.
     """
     n, c = len(st), len(st.cameras)
-    out = Measurement(uv=np.full((n, c, 2), np.nan), xyz=np.full((n, 3), np.nan),
-                      cov=np.full((n, 3, 3), np.nan), chosen=np.zeros(n, bool),
-                      was_coasting=~st.dead & (st.coast > 0), n_gated=0,
-                      any_two=np.zeros(n, bool), any_rms=np.zeros(n, bool),
-                      depth_out=np.zeros(n, bool))
-    uv_tsure = np.where((m.based[:, None] & (~m.rekey | np.all(np.isfinite(m.uv_acc), axis=2)))
-                        [..., None], m.uv_t, np.nan)
+    out = Measurement(
+        uv=np.full((n, c, 2), np.nan),
+        xyz=np.full((n, 3), np.nan),
+        cov=np.full((n, 3, 3), np.nan),
+        chosen=np.zeros(n, bool),
+        was_coasting=~st.dead & (st.coast > 0),
+        n_gated=0,
+        any_two=np.zeros(n, bool),
+        any_rms=np.zeros(n, bool),
+        depth_out=np.zeros(n, bool),
+    )
+    uv_tsure = np.where(
+        (m.based[:, None] & (~m.rekey | np.all(np.isfinite(m.uv_acc), axis=2)))[..., None],
+        m.uv_t,
+        np.nan,
+    )
     for cand in (m.uv_acc, m.uv_tonly) + ((uv_tsure,) if s.fallback else ()):
         inter = triangulate(st.cameras, cand, sigma_px=0.3)
         m2 = st.kf.mahalanobis2(inter.xyz, inter.cov + COV_FLOOR)
         two = np.sum(np.isfinite(cand[..., 0]), 1) >= 2
         out.any_two |= two
         out.any_rms |= two & inter.ok & (inter.rms < s.max_rms_px)
-        ok = (~out.chosen & ~st.dead & inter.ok & (inter.rms < s.max_rms_px) & two)
-        near = m2 < s.gate ** 2
-        if s.coast_m is not None:                    # a coasting point: near its prediction
+        ok = ~out.chosen & ~st.dead & inter.ok & (inter.rms < s.max_rms_px) & two
+        near = m2 < s.gate**2
+        if s.coast_m is not None:  # a coasting point: near its prediction
             dist = np.linalg.norm(inter.xyz - pr.xyz, axis=1)
             near &= ~out.was_coasting | (np.nan_to_num(dist, nan=np.inf) < s.coast_m)
         out.n_gated += int((ok & ~near).sum())
@@ -92,8 +101,9 @@ def intersect(st: TrackerState, pr: Prediction, m: Matches, s: TrackSettings) ->
     return out
 
 
-def depth_test(st: TrackerState, ms: Measurement, s: TrackSettings, stage: dict,
-               diagnose: bool) -> None:
+def depth_test(
+    st: TrackerState, ms: Measurement, s: TrackSettings, stage: dict, diagnose: bool
+) -> None:
     """Unmeasure (in ``ms``) the points whose depth departs from their neighbours'.
 
     A measured point farther than ``depth_dev_m`` in depth from the median of its 8
@@ -104,7 +114,8 @@ def depth_test(st: TrackerState, ms: Measurement, s: TrackSettings, stage: dict,
     if s.depth_dev_m is None:
         return
     out = ms.depth_out = ms.chosen & depth_outliers(
-        np.where(ms.chosen[:, None], ms.xyz, np.nan), st.viewpoint, s.depth_dev_m)
+        np.where(ms.chosen[:, None], ms.xyz, np.nan), st.viewpoint, s.depth_dev_m
+    )
     if diagnose:
         stage["depth_rejected"] = np.where(out[:, None], ms.xyz, np.nan)
     ms.uv[out], ms.xyz[out], ms.cov[out] = np.nan, np.nan, np.nan
@@ -125,8 +136,9 @@ def update_points(st: TrackerState, ms: Measurement, s: TrackSettings) -> None:
     st.gone |= st.dead & (st.coast > s.max_coast + s.max_dormant)
 
 
-def carry_coasting(st: TrackerState, pr: Prediction, ms: Measurement, s: TrackSettings,
-                   stage: dict) -> np.ndarray:
+def carry_coasting(
+    st: TrackerState, pr: Prediction, ms: Measurement, s: TrackSettings, stage: dict
+) -> np.ndarray:
     """Carry the coasting points by their measured neighbours' rigid motion.
 
     With ``coast_neighbours`` (:func:`core.track_reacquire.predict_unmeasured`) the
@@ -146,8 +158,15 @@ def carry_coasting(st: TrackerState, pr: Prediction, ms: Measurement, s: TrackSe
     pred_d[back] = pr.xyz[back]
     coasting = ~st.dead & ~ms.chosen
     if s.coast_neighbours and coasting.any() and ms.chosen.any():
-        pc = predict_unmeasured(coasting, st.xyz_hist, st.pred_hist, st.rate_hist[-1], ms.xyz,
-                                ms.chosen, radius_m=s.neighbour_radius_m)
+        pc = predict_unmeasured(
+            coasting,
+            st.xyz_hist,
+            st.pred_hist,
+            st.rate_hist[-1],
+            ms.xyz,
+            ms.chosen,
+            radius_m=s.neighbour_radius_m,
+        )
         r = np.flatnonzero(np.all(np.isfinite(pc), axis=1))
         last = st.xyz_hist[-1][r]
         before = np.where(np.isfinite(last), last, st.pred_hist[-1][r])
@@ -158,8 +177,15 @@ def carry_coasting(st: TrackerState, pr: Prediction, ms: Measurement, s: TrackSe
     return pred_d
 
 
-def reacquire_dormant(st: TrackerState, nxt: Frame, m: Matches, ms: Measurement,
-                      pred_d: np.ndarray, s: TrackSettings, stage: dict) -> np.ndarray:
+def reacquire_dormant(
+    st: TrackerState,
+    nxt: Frame,
+    m: Matches,
+    ms: Measurement,
+    pred_d: np.ndarray,
+    s: TrackSettings,
+    stage: dict,
+) -> np.ndarray:
     """Predict the dormant points and re-acquire them from their key templates.
 
     With ``max_dormant`` (:func:`core.track_reacquire.dormant_step`).  Re-acquired
@@ -176,13 +202,29 @@ def reacquire_dormant(st: TrackerState, nxt: Frame, m: Matches, ms: Measurement,
     if not (s.max_dormant and ms.chosen.any() and dorm.any()):
         return pred_d
     pred_dm, rd = dormant_step(
-        dorm, st.xyz_hist, st.pred_hist, st.rate_hist[-1], ms.xyz, ms.chosen, st.kf, st.keys,
-        st.key_stacks(), nxt.stack, nxt.valid, st.cameras, half=s.half,
-        weight_sigma=s.temporal_sigma, max_sigma_px=s.max_sigma_px, max_rms_px=s.max_rms_px,
-        max_dist_m=s.reacquire_m, min_views=s.reacquire_views,
+        dorm,
+        st.xyz_hist,
+        st.pred_hist,
+        st.rate_hist[-1],
+        ms.xyz,
+        ms.chosen,
+        st.kf,
+        st.keys,
+        st.key_stacks(),
+        nxt.stack,
+        nxt.valid,
+        st.cameras,
+        half=s.half,
+        weight_sigma=s.temporal_sigma,
+        max_sigma_px=s.max_sigma_px,
+        max_rms_px=s.max_rms_px,
+        max_dist_m=s.reacquire_m,
+        min_views=s.reacquire_views,
         occlusion_m=s.occlusion_m if s.reacquire_checks else None,
         depth_dev_m=s.depth_dev_m if s.reacquire_checks else None,
-        radius_m=s.neighbour_radius_m, stats=rstats)
+        radius_m=s.neighbour_radius_m,
+        stats=rstats,
+    )
     if len(rd.rows):
         r = rd.rows
         ms.uv[r], ms.xyz[r], ms.cov[r] = rd.uv, rd.xyz, rd.cov
@@ -190,14 +232,22 @@ def reacquire_dormant(st: TrackerState, nxt: Frame, m: Matches, ms: Measurement,
         m.key_aff[r] = rd.affine
         ms.chosen[r], st.dead[r], st.coast[r] = True, False, 0
     pred_d = np.where(dorm[:, None], pred_dm, pred_d)
-    st.gone |= st.dead & ~np.all(np.isfinite(pred_d), axis=1)     # no prediction
-    stage.update(dormant=int((st.dead & ~st.gone).sum()) + len(rd.rows),
-                 reacquired_dormant=len(rd.rows))
+    st.gone |= st.dead & ~np.all(np.isfinite(pred_d), axis=1)  # no prediction
+    stage.update(
+        dormant=int((st.dead & ~st.gone).sum()) + len(rd.rows), reacquired_dormant=len(rd.rows)
+    )
     return pred_d
 
 
-def regenerate(st: TrackerState, nxt: Frame, pr: Prediction, ms: Measurement, i: int,
-               s: TrackSettings, stage: dict) -> None:
+def regenerate(
+    st: TrackerState,
+    nxt: Frame,
+    pr: Prediction,
+    ms: Measurement,
+    i: int,
+    s: TrackSettings,
+    stage: dict,
+) -> None:
     """Every ``regen_every`` frames, seed new points where no live point is.
 
     The surface at frame i+1 is grown again (:func:`core.surface.measure_surface`)
@@ -209,22 +259,36 @@ def regenerate(st: TrackerState, nxt: Frame, pr: Prediction, ms: Measurement, i:
     from their measured neighbours.
     """
     chosen, ref = ms.chosen, st.ref
-    if not (s.regen_every and (i + 1) % s.regen_every == 0 and chosen.any()
-            and nxt.valid.all()):
+    if not (s.regen_every and (i + 1) % s.regen_every == 0 and chosen.any() and nxt.valid.all()):
         return
     occ = np.concatenate([ms.uv[chosen, ref], pr.uv[~st.dead & ~chosen, ref]])
     seeds = ms.uv[chosen][:: max(1, int(chosen.sum()) // 20)]
     seeds = seeds[np.all(np.isfinite(seeds[:, ref]), axis=1)]
     if not len(seeds):
         return
-    new = measure_surface(nxt.stack, st.cameras, seeds, ref=ref, step=s.step, half=s.half,
-                          occupied_uv=occ, max_sigma_px=s.spatial_sigma_px,
-                          max_depth_dev_m=s.depth_dev_m)
+    new = measure_surface(
+        nxt.stack,
+        st.cameras,
+        seeds,
+        ref=ref,
+        step=s.step,
+        half=s.half,
+        occupied_uv=occ,
+        max_sigma_px=s.spatial_sigma_px,
+        max_depth_dev_m=s.depth_dev_m,
+    )
     if s.jump_seeds:  # surface beyond the depth jumps the growth stops at (a limb)
-        jump = grow_from_jumps(nxt.stack, st.cameras, ref, ms.xyz[chosen],
-                               np.concatenate([occ, new.uv[:, ref]]), step=s.step,
-                               half=s.half, max_sigma_px=s.spatial_sigma_px,
-                               max_depth_dev_m=s.depth_dev_m)
+        jump = grow_from_jumps(
+            nxt.stack,
+            st.cameras,
+            ref,
+            ms.xyz[chosen],
+            np.concatenate([occ, new.uv[:, ref]]),
+            step=s.step,
+            half=s.half,
+            max_sigma_px=s.spatial_sigma_px,
+            max_depth_dev_m=s.depth_dev_m,
+        )
         if jump is not None and len(jump):
             new = concat(new, jump)
             stage["jump_seeded"] = len(jump)

@@ -18,8 +18,15 @@ import numpy as np
 from .camera import Camera
 
 
-def occluded(cameras: list[Camera], xyz: np.ndarray, *, cell_px: float = 4.0,
-             margin_m: float = 0.03, rank: int = 2, dilate_all: bool = True) -> np.ndarray:
+def occluded(
+    cameras: list[Camera],
+    xyz: np.ndarray,
+    *,
+    cell_px: float = 4.0,
+    margin_m: float = 0.03,
+    rank: int = 2,
+    dilate_all: bool = True,
+) -> np.ndarray:
     """Which points lie behind the cloud's surface in each camera.
 
     Parameters
@@ -76,7 +83,7 @@ def occluded(cameras: list[Camera], xyz: np.ndarray, *, cell_px: float = 4.0,
         zm = own.copy()
         for du in (-1, 0, 1):
             for dv in (-1, 0, 1):
-                zm = np.minimum(zm, zb[1 + dv:gh + 1 + dv, 1 + du:gw + 1 + du])
+                zm = np.minimum(zm, zb[1 + dv : gh + 1 + dv, 1 + du : gw + 1 + du])
         if not dilate_all:
             zm = np.where(np.isfinite(own), own, zm)
         front = zm[gv[k].astype(int), gu[k].astype(int)]

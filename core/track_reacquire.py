@@ -65,12 +65,20 @@ def rigid_fit(src: np.ndarray, dst: np.ndarray, w: np.ndarray) -> tuple[np.ndarr
     return R, cd - np.einsum("qij,qj->qi", R, cs)
 
 
-def neighbour_motion(xyz_then: np.ndarray, xyz_now: np.ndarray, query: np.ndarray, *,
-                     rate_then: np.ndarray | None = None, query_rate: np.ndarray | None = None,
-                     max_rate_dev: float = 0.015, k: int = 10, radius_m: float = 0.06,
-                     min_neighbours: int = 5,
-                     inlier_m: float = 0.003,
-                     min_spread: float = 0.3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def neighbour_motion(
+    xyz_then: np.ndarray,
+    xyz_now: np.ndarray,
+    query: np.ndarray,
+    *,
+    rate_then: np.ndarray | None = None,
+    query_rate: np.ndarray | None = None,
+    max_rate_dev: float = 0.015,
+    k: int = 10,
+    radius_m: float = 0.06,
+    min_neighbours: int = 5,
+    inlier_m: float = 0.003,
+    min_spread: float = 0.3,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Predict points from the rigid motion of their nearest neighbours.
 
     Parameters
@@ -119,14 +127,15 @@ def neighbour_motion(xyz_then: np.ndarray, xyz_now: np.ndarray, query: np.ndarra
     a, b = xyz_then[good], xyz_now[good]
     kk = min(3 * k if use_rate else k, len(a))
     qf = np.all(np.isfinite(query), axis=1)
-    d, idx = cKDTree(a).query(np.where(qf[:, None], query, 1e9), k=kk,
-                              distance_upper_bound=radius_m)
+    d, idx = cKDTree(a).query(
+        np.where(qf[:, None], query, 1e9), k=kk, distance_upper_bound=radius_m
+    )
     d, idx = d.reshape(q, kk), idx.reshape(q, kk)
     w = np.isfinite(d)
     idx = np.minimum(idx, len(a) - 1)
     if use_rate:
         dev = np.linalg.norm(rate_then[good][idx] - query_rate[:, None], axis=2)
-        w &= ~(dev > max_rate_dev)                   # a NaN query rate keeps them all
+        w &= ~(dev > max_rate_dev)  # a NaN query rate keeps them all
         # the k nearest of the neighbours that moved with the query
         order = np.argsort(~w, axis=1, kind="stable")[:, :k]
         idx, w = np.take_along_axis(idx, order, 1), np.take_along_axis(w, order, 1)
@@ -140,8 +149,10 @@ def neighbour_motion(xyz_then: np.ndarray, xyz_now: np.ndarray, query: np.ndarra
     # far off the fit, and fit again.
     disp = np.where(w[..., None] > 0, dst - src, np.nan)
     dev = np.linalg.norm(disp - np.nanmedian(disp, axis=1)[:, None], axis=2)
-    w = w * (np.nan_to_num(dev, nan=np.inf)
-             <= np.maximum(3.0 * np.nanmedian(dev, axis=1), 3 * inlier_m)[:, None])
+    w = w * (
+        np.nan_to_num(dev, nan=np.inf)
+        <= np.maximum(3.0 * np.nanmedian(dev, axis=1), 3 * inlier_m)[:, None]
+    )
     for _ in range(2):
         R, t = rigid_fit(src, dst, w)
         res = np.linalg.norm(np.einsum("qij,qkj->qki", R, src) + t[:, None] - dst, axis=2)
@@ -160,10 +171,9 @@ def neighbour_motion(xyz_then: np.ndarray, xyz_now: np.ndarray, query: np.ndarra
     spread = np.sqrt(np.maximum(np.linalg.eigvalsh(sc)[:, 1], 0.0))
     lever = np.linalg.norm(query[ok] - cs, axis=1)
     rigid = spread >= min_spread * lever
-    moved = np.where(rigid[:, None], np.einsum("qij,qj->qi", R, query[ok]) + t,
-                     query[ok] + cd - cs)
+    moved = np.where(rigid[:, None], np.einsum("qij,qj->qi", R, query[ok]) + t, query[ok] + cd - cs)
     xyz[ok] = np.where(good[:, None], moved, np.nan)
-    rms[ok] = np.sqrt(np.sum(w * np.sum(res ** 2, axis=2), axis=1) / np.maximum(w.sum(axis=1), 1))
+    rms[ok] = np.sqrt(np.sum(w * np.sum(res**2, axis=2), axis=1) / np.maximum(w.sum(axis=1), 1))
     ok[ok] = good
     return xyz, rms, ok
 
@@ -193,13 +203,26 @@ class Reacquired:
     cov: np.ndarray
 
 
-def reacquire(keys: KeyTemplates, stacks: dict, search_stack: ImageStack, valid: np.ndarray,
-              cameras: list[Camera], points: np.ndarray, xyz_pred: np.ndarray, *,
-              half: int = 6, radius: int = 4, min_score: float = 0.7,
-              weight_sigma: float | None = 4.0, max_sigma_px: float = 0.2,
-              max_rms_px: float = 1.0, max_dist_m: float = 0.01,
-              min_views: int = 2, skip: np.ndarray | None = None,
-              stats: dict | None = None) -> Reacquired:
+def reacquire(
+    keys: KeyTemplates,
+    stacks: dict,
+    search_stack: ImageStack,
+    valid: np.ndarray,
+    cameras: list[Camera],
+    points: np.ndarray,
+    xyz_pred: np.ndarray,
+    *,
+    half: int = 6,
+    radius: int = 4,
+    min_score: float = 0.7,
+    weight_sigma: float | None = 4.0,
+    max_sigma_px: float = 0.2,
+    max_rms_px: float = 1.0,
+    max_dist_m: float = 0.01,
+    min_views: int = 2,
+    skip: np.ndarray | None = None,
+    stats: dict | None = None,
+) -> Reacquired:
     """Search dormant points at their predicted positions with their key templates.
 
     Parameters
@@ -231,12 +254,16 @@ def reacquire(keys: KeyTemplates, stacks: dict, search_stack: ImageStack, valid:
     q, c = len(points), len(cameras)
     uv = np.full((q, c, 2), np.nan)
     aff = np.full((q, c, 2, 2), np.nan)
-    proj = np.stack([cam.project(xyz_pred) for cam in cameras], axis=1)        # (Q, C, 2)
+    proj = np.stack([cam.project(xyz_pred) for cam in cameras], axis=1)  # (Q, C, 2)
     kf = keys.f[points]
     w, h = search_stack.shape[2], search_stack.shape[1]
     m = half + radius + 2
-    inside = ((proj[..., 0] >= m) & (proj[..., 0] <= w - 1 - m) & (proj[..., 1] >= m)
-              & (proj[..., 1] <= h - 1 - m))
+    inside = (
+        (proj[..., 0] >= m)
+        & (proj[..., 0] <= w - 1 - m)
+        & (proj[..., 1] >= m)
+        & (proj[..., 1] <= h - 1 - m)
+    )
     search_pc = (kf >= 0) & inside & valid[None] & np.all(np.isfinite(proj), axis=2)
     if skip is not None:
         if stats is not None:
@@ -245,38 +272,78 @@ def reacquire(keys: KeyTemplates, stacks: dict, search_stack: ImageStack, valid:
     qi, ci = np.nonzero(search_pc)
     if len(qi):
         fr = np.unique(kf[qi, ci])
-        tstack = (stacks[int(fr[0])] if len(fr) == 1
-                  else ImageStack(np.concatenate([stacks[int(f)].images for f in fr])))
+        tstack = (
+            stacks[int(fr[0])]
+            if len(fr) == 1
+            else ImageStack(np.concatenate([stacks[int(f)].images for f in fr]))
+        )
         tidx = np.searchsorted(fr, kf[qi, ci]) * c + ci
         kuv = keys.uv[points[qi], ci]
-        nc = search(tstack, search_stack, kuv, proj[qi, ci], half=half, radius=radius,
-                    template_index=tidx, search_index=ci, min_score=min_score)
-        r = match(tstack, search_stack, kuv, nc.uv, half=half,
-                  affine=keys.affine[points[qi], ci], template_index=tidx, search_index=ci,
-                  max_shift_px=2.0, weight_sigma=weight_sigma, max_sigma_px=max_sigma_px)
+        nc = search(
+            tstack,
+            search_stack,
+            kuv,
+            proj[qi, ci],
+            half=half,
+            radius=radius,
+            template_index=tidx,
+            search_index=ci,
+            min_score=min_score,
+        )
+        r = match(
+            tstack,
+            search_stack,
+            kuv,
+            nc.uv,
+            half=half,
+            affine=keys.affine[points[qi], ci],
+            template_index=tidx,
+            search_index=ci,
+            max_shift_px=2.0,
+            weight_sigma=weight_sigma,
+            max_sigma_px=max_sigma_px,
+        )
         good = nc.ok & r.ok
         if stats is not None:
-            for k_, v_ in (("searched", len(qi)), ("ncc_ok", int(nc.ok.sum())),
-                           ("lsm_ok", int(good.sum()))):
+            for k_, v_ in (
+                ("searched", len(qi)),
+                ("ncc_ok", int(nc.ok.sum())),
+                ("lsm_ok", int(good.sum())),
+            ):
                 stats[k_] = stats.get(k_, 0) + v_
         uv[qi[good], ci[good]] = r.uv[good]
         aff[qi[good], ci[good]] = r.affine[good]
     inter = triangulate(cameras, uv, sigma_px=0.3)
     n_views = np.sum(np.isfinite(uv[..., 0]), axis=1)
     dist = np.linalg.norm(inter.xyz - xyz_pred, axis=1)
-    ok = (inter.ok & (n_views >= max(min_views, 2)) & (inter.rms < max_rms_px)
-          & (np.nan_to_num(dist, nan=np.inf) < max_dist_m))
+    ok = (
+        inter.ok
+        & (n_views >= max(min_views, 2))
+        & (inter.rms < max_rms_px)
+        & (np.nan_to_num(dist, nan=np.inf) < max_dist_m)
+    )
     if stats is not None:
         two = inter.ok & (n_views >= max(min_views, 2))
-        for k_, v_ in (("two_views", two), ("rms_ok", two & (inter.rms < max_rms_px)),
-                       ("near", ok)):
+        for k_, v_ in (
+            ("two_views", two),
+            ("rms_ok", two & (inter.rms < max_rms_px)),
+            ("near", ok),
+        ):
             stats[k_] = stats.get(k_, 0) + int(v_.sum())
     return Reacquired(ok=ok, uv=uv, affine=aff, xyz=inter.xyz, cov=inter.cov)
 
 
-def predict_unmeasured(query: np.ndarray, xyz_hist: list, pred_hist: list,
-                       rate_last: np.ndarray, xyz_new: np.ndarray, chosen: np.ndarray, *,
-                       max_rigid_rms: float = 0.005, radius_m: float = 0.06) -> np.ndarray:
+def predict_unmeasured(
+    query: np.ndarray,
+    xyz_hist: list,
+    pred_hist: list,
+    rate_last: np.ndarray,
+    xyz_new: np.ndarray,
+    chosen: np.ndarray,
+    *,
+    max_rigid_rms: float = 0.005,
+    radius_m: float = 0.06,
+) -> np.ndarray:
     """Carry unmeasured points one frame on by the rigid motion of their neighbours.
 
     Each queried point's position in the last frame (measured, else predicted:
@@ -313,12 +380,17 @@ def predict_unmeasured(query: np.ndarray, xyz_hist: list, pred_hist: list,
         return pred
     last = np.where(np.isfinite(xyz_hist[-1]), xyz_hist[-1], pred_hist[-1])
     rate = rate_last.copy()
-    if len(pred_hist) > 1:                       # predicted points: their predicted rate
+    if len(pred_hist) > 1:  # predicted points: their predicted rate
         before = np.where(np.isfinite(xyz_hist[-2]), xyz_hist[-2], pred_hist[-2])
         rate = np.where(np.isfinite(rate), rate, pred_hist[-1] - before)
-    xyz_p, rms, ok = neighbour_motion(last[chosen], xyz_new[chosen], last[d],
-                                      rate_then=rate_last[chosen], query_rate=rate[d],
-                                      radius_m=radius_m)
+    xyz_p, rms, ok = neighbour_motion(
+        last[chosen],
+        xyz_new[chosen],
+        last[d],
+        rate_then=rate_last[chosen],
+        query_rate=rate[d],
+        radius_m=radius_m,
+    )
     ok &= rms < max_rigid_rms
     pred[d[ok]] = xyz_p[ok]
     return pred
@@ -349,15 +421,32 @@ class DormantStep:
     cov: np.ndarray
 
 
-def dormant_step(dormant: np.ndarray, xyz_hist: list, pred_hist: list, rate_last: np.ndarray,
-                 xyz_new: np.ndarray, chosen: np.ndarray, kf: PointFilter, keys: KeyTemplates,
-                 stacks: dict, search_stack: ImageStack, valid: np.ndarray,
-                 cameras: list[Camera], *, half: int = 6, weight_sigma: float | None = 4.0,
-                 max_sigma_px: float = 0.2, max_rms_px: float = 1.0,
-                 max_dist_m: float = 0.01, min_views: int = 2,
-                 max_rigid_rms: float = 0.005, occlusion_m: float | None = None,
-                 depth_dev_m: float | None = None, radius_m: float = 0.06,
-                 stats: dict | None = None) -> tuple[np.ndarray, DormantStep]:
+def dormant_step(
+    dormant: np.ndarray,
+    xyz_hist: list,
+    pred_hist: list,
+    rate_last: np.ndarray,
+    xyz_new: np.ndarray,
+    chosen: np.ndarray,
+    kf: PointFilter,
+    keys: KeyTemplates,
+    stacks: dict,
+    search_stack: ImageStack,
+    valid: np.ndarray,
+    cameras: list[Camera],
+    *,
+    half: int = 6,
+    weight_sigma: float | None = 4.0,
+    max_sigma_px: float = 0.2,
+    max_rms_px: float = 1.0,
+    max_dist_m: float = 0.01,
+    min_views: int = 2,
+    max_rigid_rms: float = 0.005,
+    occlusion_m: float | None = None,
+    depth_dev_m: float | None = None,
+    radius_m: float = 0.06,
+    stats: dict | None = None,
+) -> tuple[np.ndarray, DormantStep]:
     """Predict the dormant points one frame on and try to re-acquire them.
 
     The prediction carries each point's position in the last frame (measured, or
@@ -404,25 +493,52 @@ def dormant_step(dormant: np.ndarray, xyz_hist: list, pred_hist: list, rate_last
         no prediction: such points cannot come back).
     DormantStep
     """
-    pred = predict_unmeasured(dormant, xyz_hist, pred_hist, rate_last, xyz_new, chosen,
-                              max_rigid_rms=max_rigid_rms, radius_m=radius_m)
+    pred = predict_unmeasured(
+        dormant,
+        xyz_hist,
+        pred_hist,
+        rate_last,
+        xyz_new,
+        chosen,
+        max_rigid_rms=max_rigid_rms,
+        radius_m=radius_m,
+    )
     rows = np.flatnonzero(dormant & np.all(np.isfinite(pred), axis=1))
     c = len(cameras)
-    empty = DormantStep(np.zeros(0, int), np.zeros((0, c, 2)), np.zeros((0, c, 2, 2)),
-                        np.zeros((0, 3)), np.zeros((0, 3, 3)))
+    empty = DormantStep(
+        np.zeros(0, int),
+        np.zeros((0, c, 2)),
+        np.zeros((0, c, 2, 2)),
+        np.zeros((0, 3)),
+        np.zeros((0, 3, 3)),
+    )
     if len(rows) == 0:
         return pred, empty
     skip = None
     if occlusion_m is not None:
         cloud = np.concatenate([xyz_new[chosen], pred[rows]])
-        skip = occluded(cameras, cloud, margin_m=occlusion_m)[int(chosen.sum()):]
-    ra = reacquire(keys, stacks, search_stack, valid, cameras, rows, pred[rows], half=half,
-                   weight_sigma=weight_sigma, max_sigma_px=max_sigma_px,
-                   max_rms_px=max_rms_px, max_dist_m=max_dist_m, min_views=min_views,
-                   skip=skip, stats=stats)
+        skip = occluded(cameras, cloud, margin_m=occlusion_m)[int(chosen.sum()) :]
+    ra = reacquire(
+        keys,
+        stacks,
+        search_stack,
+        valid,
+        cameras,
+        rows,
+        pred[rows],
+        half=half,
+        weight_sigma=weight_sigma,
+        max_sigma_px=max_sigma_px,
+        max_rms_px=max_rms_px,
+        max_dist_m=max_dist_m,
+        min_views=min_views,
+        skip=skip,
+        stats=stats,
+    )
     if depth_dev_m is not None and chosen.sum() > 8:
-        dev = depth_deviation(ra.xyz, np.mean([cam.center for cam in cameras], axis=0),
-                              xyz_new[chosen])
+        dev = depth_deviation(
+            ra.xyz, np.mean([cam.center for cam in cameras], axis=0), xyz_new[chosen]
+        )
         deep = ra.ok & ~(np.abs(np.nan_to_num(dev, nan=np.inf)) <= depth_dev_m)
         if stats is not None:
             stats["depth_rejected"] = stats.get("depth_rejected", 0) + int(deep.sum())

@@ -19,8 +19,9 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 
-def depth_deviation(xyz: np.ndarray, viewpoint: np.ndarray, ref: np.ndarray,
-                    k: int = 8, exclude_self: bool = False) -> np.ndarray:
+def depth_deviation(
+    xyz: np.ndarray, viewpoint: np.ndarray, ref: np.ndarray, k: int = 8, exclude_self: bool = False
+) -> np.ndarray:
     """Depth of points against the median depth of their nearest reference points.
 
     Parameters
@@ -50,7 +51,7 @@ def depth_deviation(xyz: np.ndarray, viewpoint: np.ndarray, ref: np.ndarray,
         return out
     x = xyz[fin]
     _, nb = cKDTree(ref).query(x, k=k + int(exclude_self))
-    nb = nb.reshape(len(x), -1)[:, int(exclude_self):]
+    nb = nb.reshape(len(x), -1)[:, int(exclude_self) :]
     ray = x - np.asarray(viewpoint, float)
     ray /= np.linalg.norm(ray, axis=1, keepdims=True)
     depth = np.einsum("pi,pi->p", x, ray)
@@ -59,8 +60,9 @@ def depth_deviation(xyz: np.ndarray, viewpoint: np.ndarray, ref: np.ndarray,
     return out
 
 
-def depth_outliers(xyz: np.ndarray, viewpoint: np.ndarray, tol_m: float, k: int = 8,
-                   min_points: int = 4) -> np.ndarray:
+def depth_outliers(
+    xyz: np.ndarray, viewpoint: np.ndarray, tol_m: float, k: int = 8, min_points: int = 4
+) -> np.ndarray:
     """Points whose depth differs from their neighbours' median by more than ``tol_m``.
 
     Parameters
@@ -88,4 +90,3 @@ def depth_outliers(xyz: np.ndarray, viewpoint: np.ndarray, tol_m: float, k: int 
     dev = depth_deviation(xyz[fin], viewpoint, xyz[fin], k=k, exclude_self=True)
     out[fin] = np.abs(dev) > tol_m
     return out
-

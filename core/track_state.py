@@ -120,22 +120,32 @@ class TrackerState:
     ring: dict
 
     @classmethod
-    def begin(cls, surface: Surface, cameras: list[Camera], frame0: Frame,
-              accel_sigma: float) -> TrackerState:
+    def begin(
+        cls, surface: Surface, cameras: list[Camera], frame0: Frame, accel_sigma: float
+    ) -> TrackerState:
         """The state at frame 0: the surface's points, measured there."""
         p0 = len(surface)
         return cls(
-            cameras=cameras, ref=surface.ref,
+            cameras=cameras,
+            ref=surface.ref,
             viewpoint=np.mean([cam.center for cam in cameras], axis=0),
             kf=PointFilter.start(surface.xyz, surface.cov + COV_FLOOR, accel_sigma=accel_sigma),
             last_f=np.where(np.all(np.isfinite(surface.uv), axis=2), 0, -1),
-            last_uv=surface.uv.copy(), prev_uv=np.full_like(surface.uv, np.nan),
-            coast=np.zeros(p0, int), dead=np.zeros(p0, bool), gone=np.zeros(p0, bool),
-            keys=KeyTemplates.start(surface.uv, 0), aff_sp=surface.affine.copy(),
-            start=np.zeros(p0, int), uv_hist=[surface.uv.copy()],
-            xyz_hist=[surface.xyz.copy()], sig_hist=[_sigma(surface.cov)],
-            rate_hist=[np.zeros((p0, 3))], pred_hist=[np.full((p0, 3), np.nan)],
-            ring={0: frame0})
+            last_uv=surface.uv.copy(),
+            prev_uv=np.full_like(surface.uv, np.nan),
+            coast=np.zeros(p0, int),
+            dead=np.zeros(p0, bool),
+            gone=np.zeros(p0, bool),
+            keys=KeyTemplates.start(surface.uv, 0),
+            aff_sp=surface.affine.copy(),
+            start=np.zeros(p0, int),
+            uv_hist=[surface.uv.copy()],
+            xyz_hist=[surface.xyz.copy()],
+            sig_hist=[_sigma(surface.cov)],
+            rate_hist=[np.zeros((p0, 3))],
+            pred_hist=[np.full((p0, 3), np.nan)],
+            ring={0: frame0},
+        )
 
     def __len__(self) -> int:
         return len(self.kf)
@@ -151,16 +161,24 @@ class TrackerState:
         for f in [f for f in self.ring if f < i - 1 - max_coast]:
             if f not in needed:
                 del self.ring[f]
-            elif f == i - max_coast - 2:                # drop the cached upsampled mosaic
+            elif f == i - max_coast - 2:  # drop the cached upsampled mosaic
                 self.ring[f] = Frame(ImageStack(self.ring[f].stack.images), self.ring[f].valid)
 
     def key_stacks(self) -> dict:
         """Image stacks of the key frames, by frame index."""
         return {f: self.ring[f].stack for f in self.keys.frames()}
 
-    def record(self, i: int, uv: np.ndarray, xyz: np.ndarray, cov: np.ndarray,
-               chosen: np.ndarray, key_ok: np.ndarray, key_aff: np.ndarray,
-               pred: np.ndarray) -> None:
+    def record(
+        self,
+        i: int,
+        uv: np.ndarray,
+        xyz: np.ndarray,
+        cov: np.ndarray,
+        chosen: np.ndarray,
+        key_ok: np.ndarray,
+        key_aff: np.ndarray,
+        pred: np.ndarray,
+    ) -> None:
         """Close the step into frame ``i``: templates, key templates and histories.
 
         Parameters
@@ -177,13 +195,16 @@ class TrackerState:
         pred : ndarray, shape (P, 3)
             Predictions of coasting / dormant points at frame ``i``, metres.
         """
-        self.keys.f[self.gone] = -1                  # their key frames may be released
+        self.keys.f[self.gone] = -1  # their key frames may be released
         got = np.all(np.isfinite(uv), axis=2)
         self.keys.affine[got & key_ok] = key_aff[got & key_ok]
         gp, gc = np.nonzero(got & ~key_ok)
         self.keys.reset(gp, gc, uv[gp, gc], i)
-        self.prev_uv = np.where((got & (self.last_f == i - 1))[..., None], self.last_uv,
-                                np.where(got[..., None], np.nan, self.prev_uv))
+        self.prev_uv = np.where(
+            (got & (self.last_f == i - 1))[..., None],
+            self.last_uv,
+            np.where(got[..., None], np.nan, self.prev_uv),
+        )
         self.last_uv = np.where(got[..., None], uv, self.last_uv)
         self.last_f = np.where(got, i, self.last_f)
         self.uv_hist.append(uv)

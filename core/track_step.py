@@ -107,13 +107,16 @@ def predict(st: TrackerState, nxt: Frame, i: int, s: TrackSettings, stage: dict)
     for j, cam in enumerate(st.cameras):
         proj[:, j], sig_p[:, j] = predict_in_image(cam, xyz_p, cov_p)
     age = i + 1 - st.last_f
-    pairs = (~st.dead[:, None] & (st.last_f >= 0) & (age <= s.max_coast + 1)
-             & nxt.valid[None])
+    pairs = ~st.dead[:, None] & (st.last_f >= 0) & (age <= s.max_coast + 1) & nxt.valid[None]
     pairs_pre = pairs.copy()
     occ = np.zeros((n, c), bool)
     if s.occlusion_m is not None:
-        occ = occluded(st.cameras, np.where(st.dead[:, None], np.nan, xyz_p),
-                       margin_m=s.occlusion_m, dilate_all=s.occlusion_dilate)
+        occ = occluded(
+            st.cameras,
+            np.where(st.dead[:, None], np.nan, xyz_p),
+            margin_m=s.occlusion_m,
+            dilate_all=s.occlusion_dilate,
+        )
         pairs &= ~occ
         stage["occluded"] = int(occ.sum())
     if s.predict == "ekf":
@@ -128,9 +131,18 @@ def predict(st: TrackerState, nxt: Frame, i: int, s: TrackSettings, stage: dict)
         pred = np.where(has_vel[..., None], lin, st.last_uv)
     pairs &= np.all(np.isfinite(pred), axis=2)
     n_searchable = (pairs_pre & np.all(np.isfinite(pred), axis=2)).sum(axis=1)
-    return Prediction(xyz=xyz_p, cov=cov_p, uv=proj, sigma_px=sig_p, search_uv=pred,
-                      has_vel=has_vel, pairs=pairs, n_searchable=n_searchable,
-                      live=~st.dead & (st.coast == 0), occ=occ)
+    return Prediction(
+        xyz=xyz_p,
+        cov=cov_p,
+        uv=proj,
+        sigma_px=sig_p,
+        search_uv=pred,
+        has_vel=has_vel,
+        pairs=pairs,
+        n_searchable=n_searchable,
+        live=~st.dead & (st.coast == 0),
+        occ=occ,
+    )
 
 
 def _templates(st: TrackerState, pi: np.ndarray, ci: np.ndarray, i: int):
@@ -149,8 +161,9 @@ def _templates(st: TrackerState, pi: np.ndarray, ci: np.ndarray, i: int):
     return tstack, np.searchsorted(fr, lf) * c + ci, tvalid
 
 
-def temporal(st: TrackerState, nxt: Frame, pr: Prediction, i: int, s: TrackSettings,
-             stage: dict) -> Matches:
+def temporal(
+    st: TrackerState, nxt: Frame, pr: Prediction, i: int, s: TrackSettings, stage: dict
+) -> Matches:
     """NCC search then temporal LSM from each camera's last measurement into frame i+1.
 
     Every converged match is matched again from its key template (``anchor``,
@@ -159,8 +172,12 @@ def temporal(st: TrackerState, nxt: Frame, pr: Prediction, i: int, s: TrackSetti
     """
     n, c = len(st), len(st.cameras)
     pi, ci = np.nonzero(pr.pairs)
-    m = Matches(uv_t=np.full((n, c, 2), np.nan), key_aff=np.full((n, c, 2, 2), np.nan),
-                key_ok=np.zeros((n, c), bool), rekey=np.zeros((n, c), bool))
+    m = Matches(
+        uv_t=np.full((n, c, 2), np.nan),
+        key_aff=np.full((n, c, 2, 2), np.nan),
+        key_ok=np.zeros((n, c), bool),
+        rekey=np.zeros((n, c), bool),
+    )
     if not len(pi):
         return m
     if s.predict == "ekf" and s.adaptive:
@@ -172,36 +189,67 @@ def temporal(st: TrackerState, nxt: Frame, pr: Prediction, i: int, s: TrackSetti
     ncc_ok = np.zeros(len(pi), bool)
     for r in np.unique(rad):
         k = np.flatnonzero(rad == r)
-        nc = search(tstack, nxt.stack, st.last_uv[pi[k], ci[k]], pr.search_uv[pi[k], ci[k]],
-                    half=s.half, radius=int(r), template_index=tidx[k], search_index=ci[k],
-                    min_score=0.6)
+        nc = search(
+            tstack,
+            nxt.stack,
+            st.last_uv[pi[k], ci[k]],
+            pr.search_uv[pi[k], ci[k]],
+            half=s.half,
+            radius=int(r),
+            template_index=tidx[k],
+            search_index=ci[k],
+            min_score=0.6,
+        )
         uv_start[k[nc.ok]] = nc.uv[nc.ok]
         ncc_ok[k] = nc.ok
-    rt = match(tstack, nxt.stack, st.last_uv[pi, ci], uv_start, half=s.half, template_index=tidx,
-               search_index=ci, max_shift_px=3.0, weight_sigma=s.temporal_sigma,
-               max_sigma_px=s.max_sigma_px)
+    rt = match(
+        tstack,
+        nxt.stack,
+        st.last_uv[pi, ci],
+        uv_start,
+        half=s.half,
+        template_index=tidx,
+        search_index=ci,
+        max_shift_px=3.0,
+        weight_sigma=s.temporal_sigma,
+        max_sigma_px=s.max_sigma_px,
+    )
     ok_t = rt.ok & nxt.valid[ci] & tvalid
     m.uv_t[pi[ok_t], ci[ok_t]] = rt.uv[ok_t]
     if s.anchor and ok_t.any():
         k = np.flatnonzero(ok_t)
         uv_a, aff_a, ok_a = reanchor(
-            st.keys, st.key_stacks(), nxt.stack, pi[k], ci[k], rt.uv[k], rt.affine[k],
-            half=s.half, max_px=s.anchor_px, weight_sigma=s.temporal_sigma,
-            max_sigma_px=s.max_sigma_px)
+            st.keys,
+            st.key_stacks(),
+            nxt.stack,
+            pi[k],
+            ci[k],
+            rt.uv[k],
+            rt.affine[k],
+            half=s.half,
+            max_px=s.anchor_px,
+            weight_sigma=s.temporal_sigma,
+            max_sigma_px=s.max_sigma_px,
+        )
         m.uv_t[pi[k], ci[k]] = uv_a
         m.key_aff[pi[k], ci[k]] = aff_a
         m.key_ok[pi[k], ci[k]] = ok_a
         if s.confirm_rekey:
             m.rekey[pi[k], ci[k]] = ~ok_a
         stage["anchored"] = int(ok_a.sum())
-    stage.update(seen=len(pi), ncc_ok=int(ncc_ok.sum()), temporal_ok=int(ok_t.sum()),
-                 temporal_status=np.bincount(rt.status, minlength=8).tolist(),
-                 radius_mean=float(rad.mean()))
+    stage.update(
+        seen=len(pi),
+        ncc_ok=int(ncc_ok.sum()),
+        temporal_ok=int(ok_t.sum()),
+        temporal_status=np.bincount(rt.status, minlength=8).tolist(),
+        radius_mean=float(rad.mean()),
+    )
     return m
 
 
-def _reacquire_start(nxt: Frame, pr: Prediction, m: Matches, tcam, qi, qc, start_s, from_t,
-                     s: TrackSettings) -> None:
+def _reacquire_start(
+    nxt: Frame, pr: Prediction, m: Matches, tcam, qi, qc, start_s, from_t, s: TrackSettings
+) -> None:
     """Start the re-acquisitions at the predicted point at an NCC peak instead.
 
     Of the K spatial pairs ``(qi, qc)``, those without a temporal match whose start
@@ -216,14 +264,23 @@ def _reacquire_start(nxt: Frame, pr: Prediction, m: Matches, tcam, qi, qc, start
     r_k = np.where(np.isfinite(r_k), r_k, s.reacquire_radius).astype(int)
     for r in np.unique(r_k):
         kk = k[r_k == r]
-        nc = search(nxt.stack, nxt.stack, m.uv_t[qi[kk], tcam[qi[kk]]],
-                    start_s[qi[kk], qc[kk]], half=s.half, radius=int(r),
-                    template_index=tcam[qi[kk]], search_index=qc[kk], min_score=0.7)
+        nc = search(
+            nxt.stack,
+            nxt.stack,
+            m.uv_t[qi[kk], tcam[qi[kk]]],
+            start_s[qi[kk], qc[kk]],
+            half=s.half,
+            radius=int(r),
+            template_index=tcam[qi[kk]],
+            search_index=qc[kk],
+            min_score=0.7,
+        )
         start_s[qi[kk[nc.ok]], qc[kk[nc.ok]]] = nc.uv[nc.ok]
 
 
-def spatial(st: TrackerState, nxt: Frame, pr: Prediction, m: Matches, s: TrackSettings,
-            stage: dict) -> None:
+def spatial(
+    st: TrackerState, nxt: Frame, pr: Prediction, m: Matches, s: TrackSettings, stage: dict
+) -> None:
     """Spatial LSM at frame i+1 from each point's template camera into the others.
 
     The template camera is the reference camera's temporal match, else the first
@@ -235,11 +292,18 @@ def spatial(st: TrackerState, nxt: Frame, pr: Prediction, m: Matches, s: TrackSe
     """
     n, c, ref = len(st), len(st.cameras), st.ref
     has_t = m.has_t = np.all(np.isfinite(m.uv_t), axis=2)
-    if s.coast_confirm:                  # a coasting point: its matches need confirmation
+    if s.coast_confirm:  # a coasting point: its matches need confirmation
         m.rekey |= (~st.dead & (st.coast > 0))[:, None] & has_t
     sure = has_t & ~m.rekey
-    tcam = np.where(sure[:, ref], ref, np.where(sure.any(axis=1), np.argmax(sure, axis=1),
-                    np.where(has_t[:, ref], ref, np.argmax(has_t, axis=1))))
+    tcam = np.where(
+        sure[:, ref],
+        ref,
+        np.where(
+            sure.any(axis=1),
+            np.argmax(sure, axis=1),
+            np.where(has_t[:, ref], ref, np.argmax(has_t, axis=1)),
+        ),
+    )
     based = m.based = has_t[np.arange(n), tcam] & ~st.dead
     it_ = triangulate(st.cameras, m.uv_t, sigma_px=0.3)
     from_t = it_.ok & (it_.rms < s.max_rms_px)
@@ -247,8 +311,13 @@ def spatial(st: TrackerState, nxt: Frame, pr: Prediction, m: Matches, s: TrackSe
     proj_s = np.stack([cam.project(xyz_s) for cam in st.cameras], axis=1)
     start_s = np.where(has_t[..., None], m.uv_t, proj_s)
     # not re-acquired in cameras where the point is occluded (has_t implies ~occ)
-    qi, qc = np.nonzero(based[:, None] & (np.arange(c)[None] != tcam[:, None])
-                        & np.all(np.isfinite(start_s), axis=2) & nxt.valid[None] & ~pr.occ)
+    qi, qc = np.nonzero(
+        based[:, None]
+        & (np.arange(c)[None] != tcam[:, None])
+        & np.all(np.isfinite(start_s), axis=2)
+        & nxt.valid[None]
+        & ~pr.occ
+    )
     m.uv_acc = np.full((n, c, 2), np.nan)
     m.uv_acc[based, tcam[based]] = m.uv_t[based, tcam[based]]
     m.uv_tonly = m.uv_acc.copy()
@@ -258,9 +327,18 @@ def spatial(st: TrackerState, nxt: Frame, pr: Prediction, m: Matches, s: TrackSe
         _reacquire_start(nxt, pr, m, tcam, qi, qc, start_s, from_t, s)
     tc = tcam[qi]
     aff0 = np.where((tc == ref)[:, None, None], st.aff_sp[qi, qc], np.eye(2))
-    rs = match(nxt.stack, nxt.stack, m.uv_t[qi, tc], start_s[qi, qc], half=s.half,
-               affine=aff0, template_index=tc, search_index=qc, max_shift_px=3.0,
-               max_sigma_px=s.spatial_sigma_px)
+    rs = match(
+        nxt.stack,
+        nxt.stack,
+        m.uv_t[qi, tc],
+        start_s[qi, qc],
+        half=s.half,
+        affine=aff0,
+        template_index=tc,
+        search_index=qc,
+        max_shift_px=3.0,
+        max_sigma_px=s.spatial_sigma_px,
+    )
     d = np.linalg.norm(rs.uv - m.uv_t[qi, qc], axis=1)
     # A temporal match is vetoed only by a spatial match that converged elsewhere;
     # a failed spatial match (occlusion edge, weak texture in that view) leaves
@@ -272,8 +350,8 @@ def spatial(st: TrackerState, nxt: Frame, pr: Prediction, m: Matches, s: TrackSe
     m.uv_acc[qi[agree], qc[agree]] = use_uv[agree]
     kt = agree & ht
     m.uv_tonly[qi[kt], qc[kt]] = use_uv[kt]
-    stage.update(spatial_ok=int(rs.ok.sum()), agree=int(agree.sum()),
-                 reacquired=int((agree & ~ht).sum()))
+    stage.update(
+        spatial_ok=int(rs.ok.sum()), agree=int(agree.sum()), reacquired=int((agree & ~ht).sum())
+    )
     upd = agree & (tc == ref) & rs.ok
     st.aff_sp[qi[upd], qc[upd]] = rs.affine[upd]
-

@@ -22,8 +22,9 @@ def derivative(x: np.ndarray, fps: float) -> np.ndarray:
     v = np.full_like(x, np.nan)
     v[1:-1] = (x[2:] - x[:-2]) * (fps / 2.0)
     fwd = (x[1:] - x[:-1]) * fps
-    v[1:-1] = np.where(np.isfinite(v[1:-1]), v[1:-1],
-                       np.where(np.isfinite(fwd[1:]), fwd[1:], fwd[:-1]))
+    v[1:-1] = np.where(
+        np.isfinite(v[1:-1]), v[1:-1], np.where(np.isfinite(fwd[1:]), fwd[1:], fwd[:-1])
+    )
     v[0], v[-1] = fwd[0], fwd[-1]
     return v
 
@@ -50,9 +51,9 @@ def fill_gaps(xyz: np.ndarray, rate: np.ndarray, max_gap: int) -> np.ndarray:
     F, P, _ = xyz.shape
     m = np.all(np.isfinite(xyz), axis=2)
     idx = np.where(m, np.arange(F)[:, None], -1)
-    a = np.maximum.accumulate(idx, axis=0)                            # last measured <= f
+    a = np.maximum.accumulate(idx, axis=0)  # last measured <= f
     b = np.where(m, np.arange(F)[:, None], F)
-    b = np.minimum.accumulate(b[::-1], axis=0)[::-1]                  # next measured >= f
+    b = np.minimum.accumulate(b[::-1], axis=0)[::-1]  # next measured >= f
     gap = ~m & (a >= 0) & (b < F) & (b - a - 1 <= max_gap)
     out = xyz.copy()
     f, p = np.nonzero(gap)
@@ -63,8 +64,8 @@ def fill_gaps(xyz: np.ndarray, rate: np.ndarray, max_gap: int) -> np.ndarray:
     s = ((f - fa) / h)[:, None]
     ra = np.nan_to_num(rate[fa, p]) * h[:, None]
     rb = np.nan_to_num(rate[fb, p]) * h[:, None]
-    h00, h10 = 2 * s ** 3 - 3 * s ** 2 + 1, s ** 3 - 2 * s ** 2 + s
-    h01, h11 = -2 * s ** 3 + 3 * s ** 2, s ** 3 - s ** 2
+    h00, h10 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s
+    h01, h11 = -2 * s**3 + 3 * s**2, s**3 - s**2
     out[f, p] = h00 * xyz[fa, p] + h10 * ra + h01 * xyz[fb, p] + h11 * rb
     return out
 
@@ -94,8 +95,8 @@ def bridge_gaps(xyz: np.ndarray, pred: np.ndarray) -> np.ndarray:
     m = np.all(np.isfinite(xyz), axis=2)
     have = np.all(np.isfinite(pred), axis=2)
     fr = np.arange(F)[:, None]
-    a = np.maximum.accumulate(np.where(m, fr, -1), axis=0)               # last measured <= f
-    b = np.minimum.accumulate(np.where(m, fr, F)[::-1], axis=0)[::-1]    # next measured >= f
+    a = np.maximum.accumulate(np.where(m, fr, -1), axis=0)  # last measured <= f
+    b = np.minimum.accumulate(np.where(m, fr, F)[::-1], axis=0)[::-1]  # next measured >= f
     # predictions missing since the last measurement: count them up to each frame
     miss = np.cumsum(~have & ~m, axis=0)
     miss_a = np.take_along_axis(miss, np.maximum(a, 0), axis=0)
@@ -134,10 +135,17 @@ class FilterResult:
     truncated: np.ndarray
 
 
-def filter_trajectories(xyz: np.ndarray, fps: float, *, max_speed: float = 6.0,
-                        max_accel: float = 150.0, radius_m: float = 0.05,
-                        max_dev: float = 0.3, min_neighbours: int = 3,
-                        min_length: int = 5) -> FilterResult:
+def filter_trajectories(
+    xyz: np.ndarray,
+    fps: float,
+    *,
+    max_speed: float = 6.0,
+    max_accel: float = 150.0,
+    radius_m: float = 0.05,
+    max_dev: float = 0.3,
+    min_neighbours: int = 3,
+    min_length: int = 5,
+) -> FilterResult:
     """Velocity / acceleration thresholds and local uniformity in space and time.
 
     Parameters
@@ -159,11 +167,11 @@ def filter_trajectories(xyz: np.ndarray, fps: float, *, max_speed: float = 6.0,
     F, P, _ = xyz.shape
     v = derivative(xyz, fps)
     a = np.full_like(xyz, np.nan)
-    a[1:-1] = (xyz[2:] - 2 * xyz[1:-1] + xyz[:-2]) * fps ** 2
+    a[1:-1] = (xyz[2:] - 2 * xyz[1:-1] + xyz[:-2]) * fps**2
     speed = np.linalg.norm(v, axis=2)
     acc = np.linalg.norm(a, axis=2)
     bad = (speed > max_speed) | (acc > max_accel)
-    for f in range(F):                      # loop over frames; points are batched
+    for f in range(F):  # loop over frames; points are batched
         ok = np.all(np.isfinite(xyz[f]), axis=1) & np.all(np.isfinite(v[f]), axis=1)
         idx = np.flatnonzero(ok)
         if len(idx) < min_neighbours + 1:
@@ -173,15 +181,15 @@ def filter_trajectories(xyz: np.ndarray, fps: float, *, max_speed: float = 6.0,
         counts = np.array([len(x) for x in nb])
         kmax = int(counts.max())
         table = np.full((len(idx), kmax), -1)
-        for j, x in enumerate(nb):          # ragged neighbour lists -> padded table
-            table[j, :len(x)] = x
+        for j, x in enumerate(nb):  # ragged neighbour lists -> padded table
+            table[j, : len(x)] = x
         # Neighbour velocities over frames f-1, f, f+1, median per component.
         frames = [g for g in (f - 1, f, f + 1) if 0 <= g < F]
         vals = []
         for g in frames:
             vg = v[g, idx]
             nv = np.where((table >= 0)[..., None], vg[np.maximum(table, 0)], np.nan)
-            nv[table == np.arange(len(idx))[:, None]] = np.nan     # exclude the point itself
+            nv[table == np.arange(len(idx))[:, None]] = np.nan  # exclude the point itself
             vals.append(nv)
         vals = np.concatenate(vals, axis=1)
         enough = np.sum(np.isfinite(vals[..., 0]), axis=1) >= min_neighbours * len(frames)

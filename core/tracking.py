@@ -89,8 +89,16 @@ from .track_trajectories import (
     filter_trajectories,
 )
 
-__all__ = ["FilterResult", "PointFilter", "TrackSettings", "Tracks", "fill_gaps",
-           "filter_trajectories", "predict_in_image", "track"]
+__all__ = [
+    "FilterResult",
+    "PointFilter",
+    "TrackSettings",
+    "Tracks",
+    "fill_gaps",
+    "filter_trajectories",
+    "predict_in_image",
+    "track",
+]
 
 
 @dataclass
@@ -134,13 +142,22 @@ class Tracks:
     def acceleration(self) -> np.ndarray:
         """(F, P, 3) m/s² (second differences), NaN where unknown."""
         a = np.full_like(self.xyz, np.nan)
-        a[1:-1] = (self.xyz[2:] - 2 * self.xyz[1:-1] + self.xyz[:-2]) * self.fps ** 2
+        a[1:-1] = (self.xyz[2:] - 2 * self.xyz[1:-1] + self.xyz[:-2]) * self.fps**2
         return a
 
 
-def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: float, *,
-          settings: TrackSettings | None = None, progress=None, log: list | None = None,
-          **options) -> Tracks:
+def track(
+    frames,
+    cameras: list[Camera],
+    surface: Surface,
+    n_frames: int,
+    fps: float,
+    *,
+    settings: TrackSettings | None = None,
+    progress=None,
+    log: list | None = None,
+    **options,
+) -> Tracks:
     """Track the surface points through ``n_frames`` frames.
 
     Parameters
@@ -180,8 +197,10 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
     for i in range(n_frames - 1):
         nxt = load_frame(frames(i + 1), cameras, i + 1)
         st.add_frame(nxt, i + 1, s.max_coast, s.anchor)
-        stage: dict = {"live_before": int((~st.dead & (st.coast == 0)).sum()),
-                       "coasting_before": int((~st.dead & (st.coast > 0)).sum())}
+        stage: dict = {
+            "live_before": int((~st.dead & (st.coast == 0)).sum()),
+            "coasting_before": int((~st.dead & (st.coast > 0)).sum()),
+        }
         pr = predict(st, nxt, i, s, stage)
         m = temporal(st, nxt, pr, i, s, stage)
         spatial(st, nxt, pr, m, s, stage)
@@ -194,22 +213,32 @@ def track(frames, cameras: list[Camera], surface: Surface, n_frames: int, fps: f
         pred_d = reacquire_dormant(st, nxt, m, ms, pred_d, s, stage)
         st.record(i + 1, ms.uv, ms.xyz, ms.cov, ms.chosen, m.key_ok, m.key_aff, pred_d)
         lost_now = ~ms.chosen & (st.coast == 1)
-        stage.update(measured=int(ms.chosen.sum()), gated=ms.n_gated,
-                     coasting=int((~st.dead & ~ms.chosen).sum()),
-                     lost_by_temporal=np.bincount(np.minimum(m.has_t.sum(axis=1)[lost_now], 3),
-                                                  minlength=4).tolist())
+        stage.update(
+            measured=int(ms.chosen.sum()),
+            gated=ms.n_gated,
+            coasting=int((~st.dead & ~ms.chosen).sum()),
+            lost_by_temporal=np.bincount(
+                np.minimum(m.has_t.sum(axis=1)[lost_now], 3), minlength=4
+            ).tolist(),
+        )
         regenerate(st, nxt, pr, ms, i, s, stage)
         if log is not None:
             log.append(stage)
         if progress is not None:
-            progress.update(i + 1, n_frames - 1,
-                            f"tracking: frame {i + 1}, {int(ms.chosen.sum())} points")
+            progress.update(
+                i + 1, n_frames - 1, f"tracking: frame {i + 1}, {int(ms.chosen.sum())} points"
+            )
     xyz = np.stack(st.xyz_hist)
     filled = fill_gaps(xyz, np.stack(st.rate_hist), s.max_coast)
     bridged = bridge_gaps(xyz, np.stack(st.pred_hist))
-    return Tracks(xyz=np.where(np.isfinite(bridged), bridged, filled),
-                  uv=np.stack(st.uv_hist), sigma_xyz=np.stack(st.sig_hist), start=st.start,
-                  fps=float(fps), measured=np.all(np.isfinite(xyz), axis=2))
+    return Tracks(
+        xyz=np.where(np.isfinite(bridged), bridged, filled),
+        uv=np.stack(st.uv_hist),
+        sigma_xyz=np.stack(st.sig_hist),
+        start=st.start,
+        fps=float(fps),
+        measured=np.all(np.isfinite(xyz), axis=2),
+    )
 
 
 def _diagnose(pr: Prediction, m: Matches, ms: Measurement, stage: dict) -> None:
@@ -217,6 +246,13 @@ def _diagnose(pr: Prediction, m: Matches, ms: Measurement, stage: dict) -> None:
     ``stage["occ"]``."""
     unconf = m.rekey & m.has_t & ~np.all(np.isfinite(m.uv_acc), axis=2)
     stage["reason"] = loss_reasons(
-        pr.live & ~ms.chosen, pr.n_searchable, pr.pairs.sum(axis=1), m.has_t.sum(axis=1),
-        unconf.sum(axis=1), ms.any_rms, ms.any_two, ms.depth_out)
+        pr.live & ~ms.chosen,
+        pr.n_searchable,
+        pr.pairs.sum(axis=1),
+        m.has_t.sum(axis=1),
+        unconf.sum(axis=1),
+        ms.any_rms,
+        ms.any_two,
+        ms.depth_out,
+    )
     stage["occ"] = pr.occ.copy()

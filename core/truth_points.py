@@ -34,8 +34,9 @@ def _split(tri: np.ndarray) -> np.ndarray:
     """Midpoint subdivision (T, 3, 3) -> (4T, 3, 3)."""
     a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
     ab, bc, ca = 0.5 * (a + b), 0.5 * (b + c), 0.5 * (c + a)
-    return np.concatenate([np.stack(t, axis=1) for t in
-                           ((a, ab, ca), (ab, b, bc), (ca, bc, c), (ab, bc, ca))])
+    return np.concatenate(
+        [np.stack(t, axis=1) for t in ((a, ab, ca), (ab, b, bc), (ca, bc, c), (ab, bc, ca))]
+    )
 
 
 def depth_map(cam: Camera, tri: np.ndarray, window: int = 4) -> np.ndarray:
@@ -67,8 +68,13 @@ def depth_map(cam: Camera, tri: np.ndarray, window: int = 4) -> np.ndarray:
             uv = cam.project(tri.reshape(-1, 3)).reshape(-1, 3, 2)
         lo = np.ceil(uv.min(axis=1))
         hi = np.floor(uv.max(axis=1))
-        on = np.all(np.isfinite(uv), axis=(1, 2)) & np.all(hi >= 0, axis=1) \
-            & (hi[:, 0] >= 0) & (lo[:, 0] <= w - 1) & (lo[:, 1] <= h - 1)
+        on = (
+            np.all(np.isfinite(uv), axis=(1, 2))
+            & np.all(hi >= 0, axis=1)
+            & (hi[:, 0] >= 0)
+            & (lo[:, 0] <= w - 1)
+            & (lo[:, 1] <= h - 1)
+        )
         big = on & np.any(hi - lo + 1 > window, axis=1)
         fit = on & ~big
         _raster(zbuf, w, h, uv[fit], z[fit], lo[fit], window)
@@ -88,10 +94,14 @@ def _raster(zbuf, w, h, uv, z, lo, k):
     den = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
     ok = np.abs(den) > 1e-12
     den = np.where(ok, den, 1.0)[:, None]
-    l1 = ((px - a[:, None, 0]) * (c[:, None, 1] - a[:, None, 1])
-          - (c[:, None, 0] - a[:, None, 0]) * (py - a[:, None, 1])) / den
-    l2 = ((b[:, None, 0] - a[:, None, 0]) * (py - a[:, None, 1])
-          - (px - a[:, None, 0]) * (b[:, None, 1] - a[:, None, 1])) / den
+    l1 = (
+        (px - a[:, None, 0]) * (c[:, None, 1] - a[:, None, 1])
+        - (c[:, None, 0] - a[:, None, 0]) * (py - a[:, None, 1])
+    ) / den
+    l2 = (
+        (b[:, None, 0] - a[:, None, 0]) * (py - a[:, None, 1])
+        - (px - a[:, None, 0]) * (b[:, None, 1] - a[:, None, 1])
+    ) / den
     l0 = 1.0 - l1 - l2
     eps = -1e-9
     inside = ok[:, None] & (l0 >= eps) & (l1 >= eps) & (l2 >= eps)
@@ -101,8 +111,14 @@ def _raster(zbuf, w, h, uv, z, lo, k):
     np.minimum.at(zbuf, cell, depth[inside])
 
 
-def visible(cam: Camera, pts: np.ndarray, normals: np.ndarray, zmap: np.ndarray,
-            depth_tol: float = 0.005, max_angle_deg: float = 80.0) -> np.ndarray:
+def visible(
+    cam: Camera,
+    pts: np.ndarray,
+    normals: np.ndarray,
+    zmap: np.ndarray,
+    depth_tol: float = 0.005,
+    max_angle_deg: float = 80.0,
+) -> np.ndarray:
     """(N,) bool: surface points ``pts`` (N, 3) with unit face ``normals`` (N, 3), world,
     seen by ``cam`` given its depth map ``zmap`` (:func:`depth_map`)."""
     h, w = zmap.shape
@@ -115,8 +131,15 @@ def visible(cam: Camera, pts: np.ndarray, normals: np.ndarray, zmap: np.ndarray,
     cmin = np.cos(np.radians(max_angle_deg))
     iu = np.rint(uv[:, 0])
     iv = np.rint(uv[:, 1])
-    inside = (np.all(np.isfinite(uv), axis=1) & (z > 0) & (iu >= 0) & (iv >= 0)
-              & (iu <= w - 1) & (iv <= h - 1) & (cos > cmin))
+    inside = (
+        np.all(np.isfinite(uv), axis=1)
+        & (z > 0)
+        & (iu >= 0)
+        & (iv >= 0)
+        & (iu <= w - 1)
+        & (iv <= h - 1)
+        & (cos > cmin)
+    )
     zm = np.full(len(pts), -np.inf)
     zm[inside] = zmap[iv[inside].astype(int), iu[inside].astype(int)]
     px_m = z / cam.K[0, 0]  # metres per pixel at the point's depth
@@ -125,10 +148,18 @@ def visible(cam: Camera, pts: np.ndarray, normals: np.ndarray, zmap: np.ndarray,
     return inside & (z <= zm + tol)
 
 
-def sample_frame(vertices: np.ndarray, faces: np.ndarray, cameras: list[Camera],
-                 n_points: int, rng: np.random.Generator, noise_m: float = 0.0015,
-                 outliers: float = 0.05, min_views: int = 2, depth_tol: float = 0.005,
-                 max_angle_deg: float = 80.0) -> tuple[np.ndarray, np.ndarray]:
+def sample_frame(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    cameras: list[Camera],
+    n_points: int,
+    rng: np.random.Generator,
+    noise_m: float = 0.0015,
+    outliers: float = 0.05,
+    min_views: int = 2,
+    depth_tol: float = 0.005,
+    max_angle_deg: float = 80.0,
+) -> tuple[np.ndarray, np.ndarray]:
     """Noisy visible surface points of one frame.
 
     Parameters
@@ -165,8 +196,14 @@ def sample_frame(vertices: np.ndarray, faces: np.ndarray, cameras: list[Camera],
     return xyz, bad
 
 
-def truth_observations(truth: dict, cameras: list[Camera], n_points: int = 3000,
-                       seed: int = 0, frames: range | None = None, **kwargs) -> list:
+def truth_observations(
+    truth: dict,
+    cameras: list[Camera],
+    n_points: int = 3000,
+    seed: int = 0,
+    frames: range | None = None,
+    **kwargs,
+) -> list:
     """Truth-derived observations of every frame (see the module docstring).
 
     Returns

@@ -72,8 +72,13 @@ def _kabsch(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
 
 
-def solve_ik(skel: Skeleton, target: np.ndarray, s: np.ndarray, iterations: int = 100,
-             theta0: np.ndarray | None = None) -> IKResult:
+def solve_ik(
+    skel: Skeleton,
+    target: np.ndarray,
+    s: np.ndarray,
+    iterations: int = 100,
+    theta0: np.ndarray | None = None,
+) -> IKResult:
     """Joint angles reproducing target joint positions, frame by frame.
 
     Parameters
@@ -95,8 +100,9 @@ def solve_ik(skel: Skeleton, target: np.ndarray, s: np.ndarray, iterations: int 
     for f in range(nf):
         root = target[f, pel] - _root_offset(skel, th, s)
         best = None
-        starts = [th] if f > 0 else [th + np.eye(n)[0] * a for a in (0.0, np.pi / 2,
-                                                                      -np.pi / 2, np.pi)]
+        starts = (
+            [th] if f > 0 else [th + np.eye(n)[0] * a for a in (0.0, np.pi / 2, -np.pi / 2, np.pi)]
+        )
         for start in starts:
             res = _lm(skel, target[f], s, start.copy(), root.copy(), iterations)
             if best is None or res[2] < best[2]:
@@ -151,8 +157,9 @@ def _lm(skel, target, s, theta, root, iterations):
     return theta, root, float(err.max()), float(np.sqrt(np.mean(err**2))), converged
 
 
-def truth_to_state(truth: dict, fps: float = 25.0, source_scene: str = "",
-                   path: str | Path = "truth.npz") -> tuple[FitState, IKResult]:
+def truth_to_state(
+    truth: dict, fps: float = 25.0, source_scene: str = "", path: str | Path = "truth.npz"
+) -> tuple[FitState, IKResult]:
     """Express a truth dict (``joints_xyz``, ``joint_names``) as a fitted state.
 
     Returns the state and the IK report.  The state uses ``joints_override`` only if
@@ -174,9 +181,17 @@ def truth_to_state(truth: dict, fps: float = 25.0, source_scene: str = "",
     q.rmse_m[:] = ik.rmse_m
     q.converged[:] = ik.converged
     override = None if ik.max_err_m.max() <= EXACT_M else xyz
-    state = FitState(skeleton=skel, s=s, metaballs=make_metaballs(skel, "simplified", s),
-                     root_xyz=ik.root_xyz, theta=ik.theta, quality=q, fps=fps,
-                     source_scene=source_scene, joints_override=override)
+    state = FitState(
+        skeleton=skel,
+        s=s,
+        metaballs=make_metaballs(skel, "simplified", s),
+        root_xyz=ik.root_xyz,
+        theta=ik.theta,
+        quality=q,
+        fps=fps,
+        source_scene=source_scene,
+        joints_override=override,
+    )
     return state, ik
 
 
@@ -185,22 +200,26 @@ def main(argv: list[str] | None = None) -> int:
     from .scene import load_scene
     from .state import write_state
 
-    p = argparse.ArgumentParser(prog="python -m core.truth_state", description=__doc__
-                                .splitlines()[0])
+    p = argparse.ArgumentParser(
+        prog="python -m core.truth_state", description=__doc__.splitlines()[0]
+    )
     p.add_argument("scene")
     p.add_argument("-o", "--output", default="truth_fit.json")
     args = p.parse_args(argv)
     try:
         scene = load_scene(args.scene, check_images=False)
-        state, ik = truth_to_state(scene.truth, scene.fps, str(args.scene),
-                                   scene.root / "truth.npz")
+        state, ik = truth_to_state(
+            scene.truth, scene.fps, str(args.scene), scene.root / "truth.npz"
+        )
     except InputError as exc:
         print(f"somacap: error: {exc}", file=sys.stderr)
         return 2
     write_state(args.output, state)
     how = "exact" if state.joints_override is None else "joint positions stored as override"
-    print(f"wrote {args.output}: {state.n_frames} frames, max joint reproduction error "
-          f"{ik.max_err_m.max() * 1000:.2e} mm ({how})")
+    print(
+        f"wrote {args.output}: {state.n_frames} frames, max joint reproduction error "
+        f"{ik.max_err_m.max() * 1000:.2e} mm ({how})"
+    )
     return 0
 
 

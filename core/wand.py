@@ -45,13 +45,16 @@ class WandDetections:
         F, C = self.n_blobs.shape
         miss = int(np.sum(self.n_blobs < 2))
         extra = int(np.sum(self.n_blobs > 2))
-        return (f"{F} frames x {C} cameras: {F * C - miss - extra} images with both "
-                f"targets, {miss} dropped (target missing or merged), {extra} dropped "
-                f"(more than two blobs)")
+        return (
+            f"{F} frames x {C} cameras: {F * C - miss - extra} images with both "
+            f"targets, {miss} dropped (target missing or merged), {extra} dropped "
+            f"(more than two blobs)"
+        )
 
 
-def detect_targets(img: np.ndarray, threshold: float | None = None, min_area: int = 3
-                   ) -> np.ndarray:
+def detect_targets(
+    img: np.ndarray, threshold: float | None = None, min_area: int = 3
+) -> np.ndarray:
     """Bright blobs of one grey image -> intensity-weighted centroids (K, 2), pixels.
 
     Parameters

@@ -158,8 +158,11 @@ def _quat_to_mat(q: np.ndarray) -> np.ndarray:
 
     shape = q.shape[:-1]
     q = q.reshape(-1, 4)
-    return Rotation.from_quat(np.concatenate([q[:, 1:], q[:, :1]], axis=1)).as_matrix().reshape(
-        shape + (3, 3))
+    return (
+        Rotation.from_quat(np.concatenate([q[:, 1:], q[:, :1]], axis=1))
+        .as_matrix()
+        .reshape(shape + (3, 3))
+    )
 
 
 def _slerp(q0: np.ndarray, q1: np.ndarray, a: np.ndarray) -> np.ndarray:
@@ -221,7 +224,7 @@ def _parse(path: Path, tok: list[str]) -> Bvh:
             pending_end = False if not stack or stack[-1] != -2 else pending_end
             i += 1
         elif t == "OFFSET":
-            off = np.array([float(v) for v in tok[i + 1:i + 4]])
+            off = np.array([float(v) for v in tok[i + 1 : i + 4]])
             if stack[-1] == -2:
                 owner = stack[-2]
                 if ends[owner] is None:
@@ -235,7 +238,7 @@ def _parse(path: Path, tok: list[str]) -> Bvh:
             i += 4
         elif t == "CHANNELS":
             n = int(tok[i + 1])
-            chans = tok[i + 2:i + 2 + n]
+            chans = tok[i + 2 : i + 2 + n]
             bad = [c for c in chans if c not in _ROT and c not in _POS]
             if bad:
                 raise ValueError(f"unknown channel {bad[0]}")
@@ -245,18 +248,26 @@ def _parse(path: Path, tok: list[str]) -> Bvh:
             raise ValueError(f"unexpected token '{t}'")
     if not names or any(o is None for o in offsets):
         raise ValueError("the hierarchy has no joints or a joint without OFFSET")
-    if tok[i + 1] != "Frames:" or tok[i + 3:i + 5] != ["Frame", "Time:"]:
+    if tok[i + 1] != "Frames:" or tok[i + 3 : i + 5] != ["Frame", "Time:"]:
         raise ValueError("the MOTION header needs 'Frames:' and 'Frame Time:'")
     n_frames = int(tok[i + 2])
     frame_time = float(tok[i + 5])
     n_chan = sum(len(c) for c in channels)
-    values = np.array([float(v) for v in tok[i + 6:]])
+    values = np.array([float(v) for v in tok[i + 6 :]])
     if n_frames < 1 or values.size != n_frames * n_chan or not frame_time > 0:
-        raise ValueError(f"expected {n_frames} frames of {n_chan} channels, "
-                         f"found {values.size} values")
+        raise ValueError(
+            f"expected {n_frames} frames of {n_chan} channels, found {values.size} values"
+        )
     if not np.all(np.isfinite(values)):
         raise ValueError("the motion holds NaN or inf")
     ends = [np.zeros(3) if e is None else e for e in ends]
-    return Bvh(path=path, names=names, parents=np.array(parents),
-               offsets=np.array(offsets) @ AXES.T, ends=np.array(ends) @ AXES.T, channels=channels,
-               motion=values.reshape(n_frames, n_chan), frame_time=frame_time)
+    return Bvh(
+        path=path,
+        names=names,
+        parents=np.array(parents),
+        offsets=np.array(offsets) @ AXES.T,
+        ends=np.array(ends) @ AXES.T,
+        channels=channels,
+        motion=values.reshape(n_frames, n_chan),
+        frame_time=frame_time,
+    )

@@ -55,38 +55,70 @@ def main() -> int:
     wrote: list[tuple[Path, str]] = []
 
     calib = demo / "calibration.toml"
-    _step("calibrate from the reference bar",
-          ["-m", "core", "calibrate", SCENE, "-o", calib, "--reference",
-           SCENE / "calibration.toml"])
+    _step(
+        "calibrate from the reference bar",
+        ["-m", "core", "calibrate", SCENE, "-o", calib, "--reference", SCENE / "calibration.toml"],
+    )
     wrote.append((calib, "cameras calibrated from the wand images and the bar length"))
 
     fit = demo / "fit.json"
     if importlib.util.find_spec("core.fit_cli") is not None:
         tracks = demo / "tracks.npz"
-        _step(f"measure the surface and track it ({FIT_FRAMES} frames)",
-              ["-m", "core", "track", SCENE, "-o", tracks, "--frames", str(FIT_FRAMES)])
+        _step(
+            f"measure the surface and track it ({FIT_FRAMES} frames)",
+            ["-m", "core", "track", SCENE, "-o", tracks, "--frames", str(FIT_FRAMES)],
+        )
         wrote.append((tracks, "tracked surface points: 3-D trajectories with their precision"))
-        _step(f"fit the body ({FIT_FRAMES} frames) to the tracks and the contours",
-              ["-m", "core", "fit", SCENE, "-o", fit, "--observations", "tracks",
-               "--tracks", tracks, "--cues", "both", "--frames", str(FIT_FRAMES)])
-        wrote.append((fit, "fitted state: skeleton, metaball shape, per-frame joint angles "
-                      f"({FIT_FRAMES} frames, tracked points and contours)"))
+        _step(
+            f"fit the body ({FIT_FRAMES} frames) to the tracks and the contours",
+            [
+                "-m",
+                "core",
+                "fit",
+                SCENE,
+                "-o",
+                fit,
+                "--observations",
+                "tracks",
+                "--tracks",
+                tracks,
+                "--cues",
+                "both",
+                "--frames",
+                str(FIT_FRAMES),
+            ],
+        )
+        wrote.append(
+            (
+                fit,
+                "fitted state: skeleton, metaball shape, per-frame joint angles "
+                f"({FIT_FRAMES} frames, tracked points and contours)",
+            )
+        )
         plot = demo / "errors.png"
-        _step("evaluate against the truth",
-              ["-m", "core", "evaluate", SCENE, fit, "--plot", plot])
+        _step("evaluate against the truth", ["-m", "core", "evaluate", SCENE, fit, "--plot", plot])
         wrote.append((plot, "per-frame joint and segment errors"))
     else:
-        print("\n== fit: the fitting stage is not in this checkout yet; "
-              "the Blender step builds the studio's truth instead", flush=True)
+        print(
+            "\n== fit: the fitting stage is not in this checkout yet; "
+            "the Blender step builds the studio's truth instead",
+            flush=True,
+        )
         _step("truth as a fitted state", ["-m", "core.truth_state", SCENE, "-o", fit])
         wrote.append((fit, "the scene's ground truth written as a fitted state"))
 
     blend = OUT / "demo.blend"
-    _step("build in Blender",
-          ["-m", "addon.launch", "fit", SCENE, "--fit", fit, "--out", blend,
-           "--target", "rigify"])
-    wrote.append((blend, "cameras + footage, armature, metaball body, action, the motion "
-                  "retargeted onto a generated Rigify human (FK controls keyed)"))
+    _step(
+        "build in Blender",
+        ["-m", "addon.launch", "fit", SCENE, "--fit", fit, "--out", blend, "--target", "rigify"],
+    )
+    wrote.append(
+        (
+            blend,
+            "cameras + footage, armature, metaball body, action, the motion "
+            "retargeted onto a generated Rigify human (FK controls keyed)",
+        )
+    )
 
     print("\nThe demo wrote:")
     for path, what in wrote:

@@ -106,8 +106,9 @@ def leg_length(xyz: dict) -> float:
     return float(np.linalg.norm(k - h) + np.linalg.norm(a - k))
 
 
-def retarget(rig: Rig, bvh: Bvh, times: np.ndarray, unit_scale: float,
-             center_on: np.ndarray | None = None) -> Retarget:
+def retarget(
+    rig: Rig, bvh: Bvh, times: np.ndarray, unit_scale: float, center_on: np.ndarray | None = None
+) -> Retarget:
     """Pose ``rig`` like ``bvh`` at ``times`` (seconds from the BVH's first frame).
 
     Parameters
@@ -178,8 +179,9 @@ def retarget(rig: Rig, bvh: Bvh, times: np.ndarray, unit_scale: float,
             Mi = M[:, p] @ L @ Bi
         M[:, i] = Mi
         basis[:, i] = Bi
-    return Retarget(basis=basis, matrices=M, scale=scale, offset=offset, bvh_xyz=bvh_xyz,
-                    mapped=mapped)
+    return Retarget(
+        basis=basis, matrices=M, scale=scale, offset=offset, bvh_xyz=bvh_xyz, mapped=mapped
+    )
 
 
 def _rest_positions(bvh: Bvh, unit_scale: float) -> np.ndarray:

@@ -43,8 +43,9 @@ def motion_frame(root_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return e1, e2
 
 
-def rig_poses(rig: str, center: np.ndarray, e1: np.ndarray, e2: np.ndarray,
-              distance: float) -> list[tuple[str, np.ndarray, np.ndarray]]:
+def rig_poses(
+    rig: str, center: np.ndarray, e1: np.ndarray, e2: np.ndarray, distance: float
+) -> list[tuple[str, np.ndarray, np.ndarray]]:
     """``[(name, R, C)]``: world->camera rotation and camera centre for each camera."""
     z = np.array([0.0, 0.0, 1.0])
     eye = center.copy()
@@ -74,8 +75,14 @@ def rig_poses(rig: str, center: np.ndarray, e1: np.ndarray, e2: np.ndarray,
     return out
 
 
-def frame_cameras(rig: str, xyz: np.ndarray, root_xy: np.ndarray, size: tuple[int, int],
-                  margin: float = 0.04, distance: float | None = None) -> list[Camera]:
+def frame_cameras(
+    rig: str,
+    xyz: np.ndarray,
+    root_xy: np.ndarray,
+    size: tuple[int, int],
+    margin: float = 0.04,
+    distance: float | None = None,
+) -> list[Camera]:
     """Cameras of a rig preset framing the points ``xyz`` (N, 3) of the whole take.
 
     The principal point is the image centre; each camera's focal length (square pixels)
@@ -93,8 +100,10 @@ def frame_cameras(rig: str, xyz: np.ndarray, root_xy: np.ndarray, size: tuple[in
     for name, R, C in rig_poses(rig, center, e1, e2, distance):
         pc = (xyz - C) @ R.T
         x, y = pc[:, 0] / pc[:, 2], pc[:, 1] / pc[:, 2]
-        f = min((w / 2 * (1 - 2 * margin)) / np.abs(x).max(),
-                (h / 2 * (1 - 2 * margin)) / np.abs(y).max())
+        f = min(
+            (w / 2 * (1 - 2 * margin)) / np.abs(x).max(),
+            (h / 2 * (1 - 2 * margin)) / np.abs(y).max(),
+        )
         K = np.array([[f, 0, cx], [0, f, cy], [0, 0, 1.0]])
         cams.append(Camera(name, (w, h), K, np.zeros(5), R, -R @ C))
     return cams

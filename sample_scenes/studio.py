@@ -86,9 +86,11 @@ JOINT_BONES = {
     "r_toe": ("RightToeBase", "head"),
 }
 
-ATTRIBUTION = ("Motion: CMU Graphics Lab Motion Capture Database, mocap.cs.cmu.edu "
-               "(created with funding from NSF EIA-0196217). Character: MakeHuman / MPFB2 "
-               "base mesh, CC0 1.0.")
+ATTRIBUTION = (
+    "Motion: CMU Graphics Lab Motion Capture Database, mocap.cs.cmu.edu "
+    "(created with funding from NSF EIA-0196217). Character: MakeHuman / MPFB2 "
+    "base mesh, CC0 1.0."
+)
 
 
 @dataclass
@@ -138,8 +140,11 @@ def load_character(path: Path):
     if not arms:
         raise InputError(f"{path}: holds no armature to drive")
     arm = arms[0]
-    meshes = [o for o in bpy.context.scene.objects if o.type == "MESH" and any(
-        m.type == "ARMATURE" and m.object == arm for m in o.modifiers)]
+    meshes = [
+        o
+        for o in bpy.context.scene.objects
+        if o.type == "MESH" and any(m.type == "ARMATURE" and m.object == arm for m in o.modifiers)
+    ]
     if not meshes:
         raise InputError(f"{path}: holds no mesh skinned to the armature '{arm.name}'")
     for o in bpy.context.scene.objects:
@@ -152,8 +157,12 @@ def character_rig(arm) -> Rig:
     bones = list(arm.data.bones)
     names = [b.name for b in bones]
     parents = np.array([names.index(b.parent.name) if b.parent else -1 for b in bones])
-    return Rig(names, parents, np.array([np.array(b.matrix_local) for b in bones]),
-               np.array([np.array(b.tail_local) for b in bones]))
+    return Rig(
+        names,
+        parents,
+        np.array([np.array(b.matrix_local) for b in bones]),
+        np.array([np.array(b.tail_local) for b in bones]),
+    )
 
 
 def _set_pose(arm, names, basis: np.ndarray) -> None:
@@ -217,9 +226,11 @@ def render_scene(out_dir: str | Path, progress=None, **options) -> Path:
     times = t_start + np.arange(opt.frames) / opt.fps
     t_last = times[-1] + (0.5 / opt.fps if opt.interlace else 0.0)
     if opt.start < 0 or t_last > (bvh.n_frames - 1) * bvh.frame_time + 1e-9:
-        raise InputError(f"{bvh.path}: holds {bvh.n_frames} frames at "
-                         f"{1 / bvh.frame_time:g} fps, too few for frames {opt.start}.. "
-                         f"+{opt.frames} at {opt.fps:g} fps")
+        raise InputError(
+            f"{bvh.path}: holds {bvh.n_frames} frames at "
+            f"{1 / bvh.frame_time:g} fps, too few for frames {opt.start}.. "
+            f"+{opt.frames} at {opt.fps:g} fps"
+        )
     rng = np.random.default_rng(opt.seed)
     bpy = bpy_module()
     arm, meshes = load_character(char_path)
@@ -237,16 +248,28 @@ def render_scene(out_dir: str | Path, progress=None, **options) -> Path:
         verts.append(_evaluated_vertices(meshes, depsgraph))
         mats.append(Wa @ np.array([np.array(arm.pose.bones[n].matrix) for n in rig.names]))
     verts, mats = np.array(verts), np.array(mats)
-    tails = mats @ np.concatenate([np.zeros((len(rig.names), 1)),
-                                   np.linalg.norm(rig.tails - rig.heads, axis=1)[:, None],
-                                   np.zeros((len(rig.names), 1)), np.ones((len(rig.names), 1))],
-                                  axis=1)[..., None]
+    tails = (
+        mats
+        @ np.concatenate(
+            [
+                np.zeros((len(rig.names), 1)),
+                np.linalg.norm(rig.tails - rig.heads, axis=1)[:, None],
+                np.zeros((len(rig.names), 1)),
+                np.ones((len(rig.names), 1)),
+            ],
+            axis=1,
+        )[..., None]
+    )
     tails = tails[..., :3, 0]
 
     w, h = opt.size
     step = max(1, verts.shape[1] // 3000)
-    cams = frame_cameras(opt.rig, verts[:, ::step].reshape(-1, 3).astype(float),
-                         mats[:len(times), rig.names.index("Hips"), :2, 3], opt.size)
+    cams = frame_cameras(
+        opt.rig,
+        verts[:, ::step].reshape(-1, 3).astype(float),
+        mats[: len(times), rig.names.index("Hips"), :2, 3],
+        opt.size,
+    )
     cam_objs = [blender_camera(c) for c in cams]
     out_cams = [field_camera(c) for c in cams] if opt.interlace else cams
 
@@ -258,18 +281,29 @@ def render_scene(out_dir: str | Path, progress=None, **options) -> Path:
     timing = {}
     with tempfile.TemporaryDirectory() as td:
         tmp = Path(td)
-        renders, secs = render_wand(cams, cam_objs, meshes, opt, lo, hi, out, tmp, rng,
-                                     progress)
+        renders, secs = render_wand(cams, cam_objs, meshes, opt, lo, hi, out, tmp, rng, progress)
         timing["wand_seconds_per_image"] = secs / max(renders, 1)
         if not opt.wand_only:
-            masks, secs, renders = _render_frames(opt, arm, rig, rt, cams, cam_objs, out, tmp,
-                                                  rng, progress)
+            masks, secs, renders = _render_frames(
+                opt, arm, rig, rt, cams, cam_objs, out, tmp, rng, progress
+            )
             timing["seconds_per_image"] = secs / max(renders, 1)
-    write_calibration(out / "calibration.toml", out_cams,
-                      metadata={"source": "somacap studio (true cameras)"})
+    write_calibration(
+        out / "calibration.toml", out_cams, metadata={"source": "somacap studio (true cameras)"}
+    )
     if not opt.wand_only:
-        _write_truth(out, opt, rig, verts[:len(times)], mats[:len(times)], tails[:len(times)],
-                     _faces(meshes), masks, out_cams, times - t_start)
+        _write_truth(
+            out,
+            opt,
+            rig,
+            verts[: len(times)],
+            mats[: len(times)],
+            tails[: len(times)],
+            _faces(meshes),
+            masks,
+            out_cams,
+            times - t_start,
+        )
         _write_clicks(out, opt, rig, mats[0], tails[0], out_cams, rng)
     _write_scene_toml(out, opt, cams, timing, rt)
     return out
@@ -278,8 +312,9 @@ def render_scene(out_dir: str | Path, progress=None, **options) -> Path:
 def _render_frames(opt, arm, rig, rt, cams, cam_objs, out, tmp, rng, progress):
     w, h = opt.size
     n = opt.frames
-    backgrounds = [background_image(opt.background, opt.size, opt.seed + 1 + c)
-                   for c in range(len(cams))]
+    backgrounds = [
+        background_image(opt.background, opt.size, opt.seed + 1 + c) for c in range(len(cams))
+    ]
     fh = (h + 1) // 2 if opt.interlace else h
     masks = np.zeros((len(cams), n, fh, w), bool)
     t0, renders = time.perf_counter(), 0
@@ -344,8 +379,10 @@ def _write_clicks(out, opt, rig, mats0, tails0, cams, rng):
         for cam in cams:
             uv = cam.project(p) + rng.normal(0.0, opt.click_noise, 2) * (opt.click_noise > 0)
             joints[name][cam.name] = [round(float(uv[0]), 3), round(float(uv[1]), 3)]
-    (out / "clicks.json").write_text(json.dumps({"frame": 0, "click_noise_px": opt.click_noise,
-                                                 "joints": joints}, indent=1) + "\n")
+    (out / "clicks.json").write_text(
+        json.dumps({"frame": 0, "click_noise_px": opt.click_noise, "joints": joints}, indent=1)
+        + "\n"
+    )
 
 
 def _write_scene_toml(out, opt, cams, timing, rt):
@@ -378,8 +415,9 @@ def _write_scene_toml(out, opt, cams, timing, rt):
         meta["truth"] = {
             "file": "truth.npz",
             "joints": "bone heads/tails of the posed character, see sample_scenes.studio."
-                      "JOINT_BONES",
-            "vertices": "all frames, float32" if opt.truth_vertices == "all"
+            "JOINT_BONES",
+            "vertices": "all frames, float32"
+            if opt.truth_vertices == "all"
             else "not stored (--truth-vertices none)",
             "masks": "alpha >= 0.5 of the render" + (", odd field" if opt.interlace else ""),
         }

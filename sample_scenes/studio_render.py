@@ -53,8 +53,7 @@ def apply_look(meshes, look: str, seed: int, engine: str) -> None:
         me.loops.foreach_get("vertex_index", lv)
         nrm = np.empty(len(me.polygons) * 3)
         me.polygons.foreach_get("normal", nrm)
-        loop_face = np.repeat(np.arange(len(me.polygons)),
-                              [p.loop_total for p in me.polygons])
+        loop_face = np.repeat(np.arange(len(me.polygons)), [p.loop_total for p in me.polygons])
         uv = box_uvs(co[lv], nrm.reshape(-1, 3) @ M[:3, :3].T, loop_face)
         layer = me.uv_layers.new(name="somacap_box")
         layer.data.foreach_set("uv", uv.ravel())
@@ -130,8 +129,9 @@ def render_rgba(cam_obj, tmp: Path) -> np.ndarray:
     return rgba
 
 
-def compose(rgba: np.ndarray, background: np.ndarray, noise: float,
-             rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+def compose(
+    rgba: np.ndarray, background: np.ndarray, noise: float, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
     """Straight-alpha render (as PNG stores it) over a background + Gaussian noise.
 
     ``noise`` is the standard deviation in grey levels.  Returns the 8-bit RGB image

@@ -14,8 +14,15 @@ from core.errors import InputError
 from .studio_render import bpy_module, compose, render_rgba, write_png
 
 
-def wand_positions(cams: list[Camera], lo: np.ndarray, hi: np.ndarray, n: int, length: float,
-                   radius_px: float, rng: np.random.Generator) -> np.ndarray:
+def wand_positions(
+    cams: list[Camera],
+    lo: np.ndarray,
+    hi: np.ndarray,
+    n: int,
+    length: float,
+    radius_px: float,
+    rng: np.random.Generator,
+) -> np.ndarray:
     """Random bar positions ``(n, 2, 3)`` (target world positions, metres).
 
     Centres uniform in the box ``lo..hi``, directions uniform on the sphere; kept only
@@ -38,15 +45,21 @@ def wand_positions(cams: list[Camera], lo: np.ndarray, hi: np.ndarray, n: int, l
             uv = cam.project(xyz)
             w, h = cam.size
             pad = radius_px + 2
-            ok &= np.all((uv[..., 0] > pad) & (uv[..., 0] < w - 1 - pad)
-                         & (uv[..., 1] > pad) & (uv[..., 1] < h - 1 - pad), axis=1)
+            ok &= np.all(
+                (uv[..., 0] > pad)
+                & (uv[..., 0] < w - 1 - pad)
+                & (uv[..., 1] > pad)
+                & (uv[..., 1] < h - 1 - pad),
+                axis=1,
+            )
             ok &= np.linalg.norm(uv[:, 0] - uv[:, 1], axis=1) > 4 * radius_px + 2
         out.extend(xyz[ok])
     return np.array(out[:n])
 
 
-def render_wand(cams, cam_objs, hide, options, lo, hi, out: Path, tmp: Path,
-                 rng, progress=None) -> tuple[int, float]:
+def render_wand(
+    cams, cam_objs, hide, options, lo, hi, out: Path, tmp: Path, rng, progress=None
+) -> tuple[int, float]:
     """Render the wand at ``options.wand_positions`` random positions inside ``lo..hi``.
 
     Hides ``hide`` (the character) meanwhile; writes ``wand/<camera>/NNNNNN.png``,
@@ -60,8 +73,7 @@ def render_wand(cams, cam_objs, hide, options, lo, hi, out: Path, tmp: Path,
     f = np.mean([c.K[0, 0] for c in cams])
     radius_px = float(np.clip(options.size[1] / 150, 1.5, 3.0))
     radius = radius_px * dist / f
-    xyz = wand_positions(cams, lo, hi, options.wand_positions, options.wand_length, radius_px,
-                         rng)
+    xyz = wand_positions(cams, lo, hi, options.wand_positions, options.wand_length, radius_px, rng)
     mat = bpy.data.materials.new("somacap_wand")
     nt = mat.node_tree
     for n in list(nt.nodes):
@@ -105,10 +117,18 @@ def render_wand(cams, cam_objs, hide, options, lo, hi, out: Path, tmp: Path,
         sc.display.shading.color_type = "TEXTURE"
     for o in hide:
         o.hide_render = False
-    toml_write.dump({"length_m": float(options.wand_length), "positions": int(len(xyz)),
-                     "target_radius_m": float(radius), "truth": "wand_truth.npz"},
-                    out / "wand.toml")
-    np.savez_compressed(out / "wand_truth.npz", xyz=xyz.astype(np.float64),
-                        doc=np.array("xyz (N, 2, 3): world positions of the two targets per "
-                                     "wand position, metres"))
+    toml_write.dump(
+        {
+            "length_m": float(options.wand_length),
+            "positions": int(len(xyz)),
+            "target_radius_m": float(radius),
+            "truth": "wand_truth.npz",
+        },
+        out / "wand.toml",
+    )
+    np.savez_compressed(
+        out / "wand_truth.npz",
+        xyz=xyz.astype(np.float64),
+        doc=np.array("xyz (N, 2, 3): world positions of the two targets per wand position, metres"),
+    )
     return renders, time.perf_counter() - t0

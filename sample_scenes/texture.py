@@ -25,7 +25,7 @@ def _octaves(rng: np.random.Generator, size: int, cells: list[int]) -> np.ndarra
         g = np.pad(g, 2, mode="wrap")
         up = cv2.resize(g, ((c + 4) * size // c,) * 2, interpolation=cv2.INTER_CUBIC)
         o = 2 * size // c
-        out += up[o:o + size, o:o + size] / np.sqrt(len(cells))
+        out += up[o : o + size, o : o + size] / np.sqrt(len(cells))
     return out
 
 
@@ -79,7 +79,10 @@ def box_uvs(corner_xyz: np.ndarray, face_normals: np.ndarray, loop_face: np.ndar
     """
     axis = np.argmax(np.abs(face_normals), axis=1)[loop_face]
     x, y, z = corner_xyz.T
-    uv = np.where((axis == 0)[:, None], np.stack([y, z], 1),
-                  np.where((axis == 1)[:, None], np.stack([x, z], 1), np.stack([x, y], 1)))
+    uv = np.where(
+        (axis == 0)[:, None],
+        np.stack([y, z], 1),
+        np.where((axis == 1)[:, None], np.stack([x, z], 1), np.stack([x, y], 1)),
+    )
     uv = uv / TEXTURE_METRES + np.array([0.0, 0.37, 0.71])[axis][:, None]
     return uv.astype(np.float32)

@@ -13,7 +13,7 @@ def _window(shared_data, name):
     bvh = read_bvh(shared_data / "mocap" / bvh_name)
     end = start + round((FRAMES - 1) / FPS / bvh.frame_time)
     assert end < bvh.n_frames
-    return bvh.root_positions(CMU_SCALE)[start:end + 1]
+    return bvh.root_positions(CMU_SCALE)[start : end + 1]
 
 
 def test_every_window_fits_its_clip(shared_data):
@@ -39,7 +39,6 @@ def test_default_dance_windows_start_upright(shared_data):
         bvh = read_bvh(shared_data / "mocap" / bvh_name)
         _, xyz = bvh.sample(np.array([start * bvh.frame_time]), CMU_SCALE)
         assert xyz[0, bvh.index("Head"), 2] - xyz[0, bvh.index("Hips"), 2] > 0.3
-
 
 
 def _uv_sphere(center, radius, n_lat=48, n_lon=64, crowd=3.0):
@@ -75,11 +74,22 @@ def test_surface_distance_samples_the_mesh_by_area():
     skel = sk.make_skeleton()
     s = np.ones(skel.n_groups)
     r = 0.1
-    balls = mb.Metaballs(np.array([skel.bone_index("pelvis")]), np.zeros((1, 3)),
-                         np.array([-1]), np.eye(3)[None], np.full((1, 3), r / mb.VISIBLE))
+    balls = mb.Metaballs(
+        np.array([skel.bone_index("pelvis")]),
+        np.zeros((1, 3)),
+        np.array([-1]),
+        np.eye(3)[None],
+        np.full((1, 3), r / mb.VISIBLE),
+    )
     theta, root = np.zeros((1, skel.n_dof)), np.array([[0.0, 0.0, 1.0]])
-    state = FitState(skeleton=skel, s=s, metaballs=balls, root_xyz=root, theta=theta,
-                     quality=Quality.empty(1, skel.n_dof))
+    state = FitState(
+        skeleton=skel,
+        s=s,
+        metaballs=balls,
+        root_xyz=root,
+        theta=theta,
+        quality=Quality.empty(1, skel.n_dof),
+    )
     _, cw = mb.world_frames(skel, sk.forward(skel, theta, root, s), balls, s)
     for radius, want in ((r, 0.0), (r + 0.01, 10.0)):
         v, tri = _uv_sphere(cw[0, 0], radius)

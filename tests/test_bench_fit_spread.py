@@ -10,9 +10,13 @@ SCENE = "sample_scenes/walk_line3"
 
 def _clicks(n=200):
     rng = np.random.default_rng(7)
-    return {"frame": 3, "joints": {f"j{k}": {"cam01": rng.uniform(0, 500, 2),
-                                             "cam02": rng.uniform(0, 500, 2)}
-                                   for k in range(n)}}
+    return {
+        "frame": 3,
+        "joints": {
+            f"j{k}": {"cam01": rng.uniform(0, 500, 2), "cam02": rng.uniform(0, 500, 2)}
+            for k in range(n)
+        },
+    }
 
 
 def test_run_zero_and_zero_noise_keep_the_clicks():
@@ -25,17 +29,22 @@ def test_clicks_move_by_the_noise_and_repeat_per_seed():
     c = _clicks()
     before = {j: {k: v.copy() for k, v in p.items()} for j, p in c["joints"].items()}
     a, b, other = (perturbed_clicks(c, 0.5, s) for s in (1, 1, 2))
-    d = np.array([a["joints"][j][k] - c["joints"][j][k]
-                  for j in c["joints"] for k in c["joints"][j]])
+    d = np.array(
+        [a["joints"][j][k] - c["joints"][j][k] for j in c["joints"] for k in c["joints"][j]]
+    )
     assert d.std() == pytest.approx(0.5, rel=0.1)
     assert abs(d.mean()) < 0.05
     assert a["frame"] == 3
-    assert all(np.array_equal(a["joints"][j][k], b["joints"][j][k]) for j in a["joints"]
-               for k in a["joints"][j])
+    assert all(
+        np.array_equal(a["joints"][j][k], b["joints"][j][k])
+        for j in a["joints"]
+        for k in a["joints"][j]
+    )
     assert not np.array_equal(a["joints"]["j0"]["cam01"], other["joints"]["j0"]["cam01"])
     # the input is not touched
-    assert all(np.array_equal(before[j][k], c["joints"][j][k]) for j in c["joints"]
-               for k in c["joints"][j])
+    assert all(
+        np.array_equal(before[j][k], c["joints"][j][k]) for j in c["joints"] for k in c["joints"][j]
+    )
 
 
 def test_the_fit_initialises_from_the_perturbed_clicks(monkeypatch):
@@ -75,9 +84,11 @@ def test_settings_are_sequence_settings_fields_in_json():
     def error(msg):
         raise ValueError(msg)
 
-    assert parse_settings(["shape_scales=true", "sigma_pred=0.2", 'shape="template"'],
-                          error) == {"shape_scales": True, "sigma_pred": 0.2,
-                                     "shape": "template"}
+    assert parse_settings(["shape_scales=true", "sigma_pred=0.2", 'shape="template"'], error) == {
+        "shape_scales": True,
+        "sigma_pred": 0.2,
+        "shape": "template",
+    }
     with pytest.raises(ValueError, match="SequenceSettings field"):
         parse_settings(["no_such_field=1"], error)
     with pytest.raises(ValueError, match="not JSON"):

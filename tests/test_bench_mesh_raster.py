@@ -37,8 +37,8 @@ def test_depth_is_perspective_correct_on_a_tilted_plane():
 
 
 def test_an_occluder_in_front_hides_exactly_its_area():
-    vb, fb = _quad(-0.2, 0.2, -0.1, 0.1, 2.0)           # part 0: 200 px
-    vf, ff = _quad(0.0, 0.1, 0.0, 0.05, 1.0)             # part 1: u 51..60, v 41..45: 50 px
+    vb, fb = _quad(-0.2, 0.2, -0.1, 0.1, 2.0)  # part 0: 200 px
+    vf, ff = _quad(0.0, 0.1, 0.0, 0.05, 1.0)  # part 1: u 51..60, v 41..45: 50 px
     v = np.vstack([vb, vf])
     f = np.vstack([fb, ff + 4])
     pix, depth, tri, _ = rasterize(CAM, v, f)

@@ -22,11 +22,14 @@ def _sphere_mesh(center, radius, n=40):
     idx = np.arange(nr * nc).reshape(nr, nc)
     a, b = idx[:-1], np.roll(idx[:-1], -1, axis=1)
     c, d = idx[1:], np.roll(idx[1:], -1, axis=1)
-    faces = np.concatenate([np.stack([a, c, b], -1).reshape(-1, 3),
-                            np.stack([b, c, d], -1).reshape(-1, 3),
-                            np.stack([np.full(nc, nr * nc), idx[0], np.roll(idx[0], -1)], -1),
-                            np.stack([np.full(nc, nr * nc + 1), np.roll(idx[-1], -1), idx[-1]],
-                                     -1)])
+    faces = np.concatenate(
+        [
+            np.stack([a, c, b], -1).reshape(-1, 3),
+            np.stack([b, c, d], -1).reshape(-1, 3),
+            np.stack([np.full(nc, nr * nc), idx[0], np.roll(idx[0], -1)], -1),
+            np.stack([np.full(nc, nr * nc + 1), np.roll(idx[-1], -1), idx[-1]], -1),
+        ]
+    )
     return np.asarray(center) + radius * v, faces
 
 
@@ -36,8 +39,13 @@ def test_surface_distances_of_a_metaball_and_a_sphere_mesh(grow):
     s = np.ones(skel.n_groups)
     theta, root = np.zeros(skel.n_dof), np.array([0.0, 0.0, 1.0])
     r = 0.1
-    balls = mb.Metaballs(np.array([skel.bone_index("head")]), np.zeros((1, 3)),
-                         np.array([-1]), np.eye(3)[None], np.full((1, 3), r / mb.VISIBLE))
+    balls = mb.Metaballs(
+        np.array([skel.bone_index("head")]),
+        np.zeros((1, 3)),
+        np.array([-1]),
+        np.eye(3)[None],
+        np.full((1, 3), r / mb.VISIBLE),
+    )
     pose = sk.forward(skel, theta[None], root[None], s)
     _, cw = mb.world_frames(skel, pose, balls, s)
     v, f = _sphere_mesh(cw[0, 0], r + grow, n=60)
@@ -53,10 +61,12 @@ def test_model_vertex_parts_follow_the_nearest_rendered_ellipsoid():
     axes = np.stack([np.eye(3), np.eye(3)])
     radii = np.array([[0.1, 0.1, 0.1], [0.2, 0.05, 0.05]])
     bone = np.array([4, 7])
-    x = np.array([[-0.11, 0, 1.0], [0.0, 0.11, 1.0], [0.52, 0.0, 1.0], [0.3, 0.06, 1.0],
-                  [0.12, 0.0, 1.0]])
-    np.testing.assert_array_equal(model_vertex_parts(x, centers, axes, radii, bone),
-                                  [4, 4, 7, 7, 7])
+    x = np.array(
+        [[-0.11, 0, 1.0], [0.0, 0.11, 1.0], [0.52, 0.0, 1.0], [0.3, 0.06, 1.0], [0.12, 0.0, 1.0]]
+    )
+    np.testing.assert_array_equal(
+        model_vertex_parts(x, centers, axes, radii, bone), [4, 4, 7, 7, 7]
+    )
 
 
 def test_compare_rejects_unknown_labels():
@@ -76,14 +86,20 @@ def test_capacity_fit_takes_the_whole_mesh_as_data():
     skel = sk.make_skeleton()
     s = np.ones(skel.n_groups)
     theta, root = np.zeros(skel.n_dof), np.array([0.0, 0.0, 1.0])
-    balls = mb.Metaballs(np.array([skel.bone_index("head")]), np.zeros((1, 3)),
-                         np.array([-1]), np.eye(3)[None], np.full((1, 3), 0.10 / mb.VISIBLE))
+    balls = mb.Metaballs(
+        np.array([skel.bone_index("head")]),
+        np.zeros((1, 3)),
+        np.array([-1]),
+        np.eye(3)[None],
+        np.full((1, 3), 0.10 / mb.VISIBLE),
+    )
     pose = sk.forward(skel, theta[None], root[None], s)
     _, cw = mb.world_frames(skel, pose, balls, s)
     v, f = _sphere_mesh(cw[0, 0], 0.12, n=60)
     pts = sample_mesh_surface(v, f, 3000, np.random.default_rng(0))
     cam = look_at("cam01", (0.0, -3.0, 1.6), tuple(cw[0, 0]), f=700.0)
-    fit = fit_shape(skel, balls, s, theta[None], root[None], [pts], [cam],
-                    settings=_capacity_settings())
+    fit = fit_shape(
+        skel, balls, s, theta[None], root[None], [pts], [cam], settings=_capacity_settings()
+    )
     d = surface_distances(skel, theta, root, s, fit.metaballs, v, f, per_ball=200)
     assert d["mesh_to_ball"].mean() < 1e-3 and d["ball_to_mesh"].mean() < 1e-3

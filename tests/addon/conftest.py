@@ -27,8 +27,10 @@ def makehuman(shared_data, bpy_module):
     """The shared MakeHuman character (.blend saved by Blender 5.0, whose file format
     Blender 4.x cannot read: skipped there)."""
     if bpy_module.app.version < (5, 0, 0):
-        pytest.skip("the shared MakeHuman .blend is in Blender 5.0's file format, "
-                    f"unreadable by Blender {bpy_module.app.version_string}")
+        pytest.skip(
+            "the shared MakeHuman .blend is in Blender 5.0's file format, "
+            f"unreadable by Blender {bpy_module.app.version_string}"
+        )
     return shared_data / "characters" / "makehuman_cmu_mb.blend"
 
 

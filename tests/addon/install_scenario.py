@@ -33,7 +33,8 @@ def snapshot() -> dict:
 def main(zip_path: str) -> None:
     steps = {"before": snapshot()}
     res = bpy.ops.extensions.package_install_files(
-        filepath=zip_path, repo="user_default", enable_on_install=True)
+        filepath=zip_path, repo="user_default", enable_on_install=True
+    )
     steps["install_result"] = sorted(res)
     steps["installed"] = snapshot()
     bpy.ops.preferences.addon_disable(module=MODULE)

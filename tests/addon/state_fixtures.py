@@ -22,6 +22,13 @@ def synthetic_state(n_frames: int = 12, seed: int = 7, amplitude: float = 0.4) -
     theta = np.clip(theta, skel.dof_lo, skel.dof_hi)
     root = np.column_stack([0.1 * np.sin(3 * t[:, 0]), -t[:, 0], 0.95 + 0.02 * t[:, 0]])
     balls = make_metaballs(skel, "simplified", s)
-    return FitState(skeleton=skel, s=s, metaballs=balls, root_xyz=root, theta=theta,
-                    quality=Quality.empty(n_frames, skel.n_dof), fps=25.0,
-                    source_scene="synthetic")
+    return FitState(
+        skeleton=skel,
+        s=s,
+        metaballs=balls,
+        root_xyz=root,
+        theta=theta,
+        quality=Quality.empty(n_frames, skel.n_dof),
+        fps=25.0,
+        source_scene="synthetic",
+    )

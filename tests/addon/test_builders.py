@@ -84,8 +84,9 @@ def _evaluated_vertices(bpy, obj) -> np.ndarray:
 def test_metaballs_one_family_parented_to_bones(built):
     bpy, state, arm, balls, _ = built
     assert len(balls) == len(set(state.metaballs.bone))
-    assert [o.name for o in balls] == ["walk01_body"] + [f"walk01_body.{k:03d}"
-                                                         for k in range(1, len(balls))]
+    assert [o.name for o in balls] == ["walk01_body"] + [
+        f"walk01_body.{k:03d}" for k in range(1, len(balls))
+    ]
     assert [o["somacap_bone"] for o in balls] == [o.parent_bone for o in balls]
     assert sum(len(o.data.elements) for o in balls) == len(state.metaballs.bone)
     for o in balls:
@@ -114,7 +115,7 @@ def test_blender_body_is_the_fitted_metaball_surface(built):
     for f in (0, 7):
         bpy.context.scene.frame_set(f + 1)
         v = _evaluated_vertices(bpy, balls[0])
-        pose = forward(state.skeleton, state.theta[f:f + 1], state.root_xyz[f:f + 1], state.s)
+        pose = forward(state.skeleton, state.theta[f : f + 1], state.root_xyz[f : f + 1], state.s)
         Rw, cw = mb.world_frames(state.skeleton, pose, state.metaballs, state.s)
         xs, ok = mb.project_to_surface(v, Rw[0], cw[0], state.metaballs.radii)
         inside = mb.field(v, Rw[0], cw[0], state.metaballs.radii)[0] > 0.5
@@ -144,8 +145,11 @@ def test_second_take_never_overwrites_the_first(built):
     from addon import builders
 
     bpy, state, arm, _, action = built
-    keys_before = [tuple(k.co) for k in action.fcurves[0].keyframe_points] if hasattr(
-        action, "fcurves") else None
+    keys_before = (
+        [tuple(k.co) for k in action.fcurves[0].keyframe_points]
+        if hasattr(action, "fcurves")
+        else None
+    )
     action2 = builders.keyframe_state(arm, synthetic_state(5, seed=3), "walk01")
     assert action2.name != "walk01" and action2.name.startswith("walk01")
     assert bpy.data.actions["walk01"] == action

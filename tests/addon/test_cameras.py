@@ -15,8 +15,11 @@ def _random_cameras(rng, n=3):
         W, H = [(512, 384), (640, 240), (320, 480)][i % 3]
         aspect = [1.0, 2.0, 0.8][i % 3]  # fx / fy: square, one interlaced field, tall
         fx = rng.uniform(400, 900)
-        K = [[fx, 0, W / 2 + rng.uniform(-20, 20)], [0, fx / aspect, H / 2 + rng.uniform(-15, 15)],
-             [0, 0, 1]]
+        K = [
+            [fx, 0, W / 2 + rng.uniform(-20, 20)],
+            [0, fx / aspect, H / 2 + rng.uniform(-15, 15)],
+            [0, 0, 1],
+        ]
         R = rodrigues_to_matrix(rng.normal(size=3))
         t = rng.uniform(-1, 1, 3) + [0, 0, 5]
         cams.append(Camera(f"cam{i:02d}", (W, H), K, rng.normal(0, 0.01, 5), R, t))
@@ -27,9 +30,17 @@ def test_intrinsics_round_trip_pure(rng):
     for cam in _random_cameras(rng, 6):
         p = bc.blender_intrinsics(cam.K, cam.size)
         H_mm = p["sensor_width"] * cam.size[1] / cam.size[0]
-        K = bc.intrinsics_from_blender(p["lens"], p["sensor_width"], H_mm, p["sensor_fit"],
-                                       p["shift_x"], p["shift_y"], cam.size,
-                                       p["pixel_aspect_x"], p["pixel_aspect_y"])
+        K = bc.intrinsics_from_blender(
+            p["lens"],
+            p["sensor_width"],
+            H_mm,
+            p["sensor_fit"],
+            p["shift_x"],
+            p["shift_y"],
+            cam.size,
+            p["pixel_aspect_x"],
+            p["pixel_aspect_y"],
+        )
         np.testing.assert_allclose(K, cam.K, rtol=1e-12, atol=1e-9)
         assert min(p["pixel_aspect_x"], p["pixel_aspect_y"]) == 1.0
         assert p["pixel_aspect_y"] / p["pixel_aspect_x"] == pytest.approx(cam.aspect)

@@ -20,16 +20,24 @@ REPO = __import__("pathlib").Path(__file__).resolve().parents[2]
 
 
 def launch(*args, timeout=300):
-    return subprocess.run([sys.executable, "-m", "addon.launch", *map(str, args)], cwd=REPO,
-                          capture_output=True, text=True, timeout=timeout)
+    return subprocess.run(
+        [sys.executable, "-m", "addon.launch", *map(str, args)],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
 
 
 def blend_contents(path):
     import bpy
 
     with bpy.data.libraries.load(str(path)) as (src, _):
-        return {"objects": list(src.objects), "actions": list(src.actions),
-                "cameras": list(src.cameras)}
+        return {
+            "objects": list(src.objects),
+            "actions": list(src.actions),
+            "cameras": list(src.cameras),
+        }
 
 
 def test_batch_continues_past_a_corrupt_take(tmp_path, bpy_module):
@@ -53,8 +61,17 @@ def test_batch_continues_past_a_corrupt_take(tmp_path, bpy_module):
 def test_fit_with_state_and_cameras(tmp_path, bpy_module):
     scene = tmp_path / "scene01"
     scene.mkdir()
-    cams = [Camera(f"cam{i}", (64, 48), [[80, 0, 32], [0, 80, 24], [0, 0, 1]], np.zeros(5),
-                   rodrigues_to_matrix([1.6, 0, 0.3 * i]), [0, -1, 5]) for i in range(3)]
+    cams = [
+        Camera(
+            f"cam{i}",
+            (64, 48),
+            [[80, 0, 32], [0, 80, 24], [0, 0, 1]],
+            np.zeros(5),
+            rodrigues_to_matrix([1.6, 0, 0.3 * i]),
+            [0, -1, 5],
+        )
+        for i in range(3)
+    ]
     write_calibration(scene / "calibration.toml", cams)
     write_state(scene / "fit.json", synthetic_state(5))
     proc = launch("fit", scene, "--out", tmp_path / "take.blend")
@@ -67,8 +84,16 @@ def test_fit_with_state_and_cameras(tmp_path, bpy_module):
 def test_retarget_onto_character(tmp_path, makehuman):
     write_state(tmp_path / "fit.json", synthetic_state(5))
     char = makehuman
-    proc = launch("retarget", tmp_path / "fit.json", "--target", char, "--out",
-                  tmp_path / "take.blend", "--export", "fbx")
+    proc = launch(
+        "retarget",
+        tmp_path / "fit.json",
+        "--target",
+        char,
+        "--out",
+        tmp_path / "take.blend",
+        "--export",
+        "fbx",
+    )
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "retargeted" in proc.stdout and "MakeHuman_cmu_mb" in proc.stdout
     c = blend_contents(tmp_path / "take.blend")
@@ -77,9 +102,16 @@ def test_retarget_onto_character(tmp_path, makehuman):
 
 
 def test_bad_input_is_one_clear_line(tmp_path, bpy_module):
-    proc = launch("retarget", tmp_path / "missing.json", "--target", tmp_path / "c.blend",
-                  "--out", tmp_path / "o.blend")
+    proc = launch(
+        "retarget",
+        tmp_path / "missing.json",
+        "--target",
+        tmp_path / "c.blend",
+        "--out",
+        tmp_path / "o.blend",
+    )
     assert proc.returncode == 2
     assert proc.stderr.strip().splitlines()[-1] == (
-        f"somacap: error: {tmp_path / 'missing.json'}: fitted-state file not found")
+        f"somacap: error: {tmp_path / 'missing.json'}: fitted-state file not found"
+    )
     assert not (tmp_path / "o.blend").exists()

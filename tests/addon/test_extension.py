@@ -34,10 +34,12 @@ def test_manifest_passes_blenders_validator(tmp_path):
     from _bpy_internal.extensions import tags as blender_tags
 
     tags = tmp_path / "tags.json"
-    tags.write_text(json.dumps({"add-on": sorted(blender_tags.addons - {"All"}),
-                                "theme": sorted(blender_tags.themes)}))
-    proc = packaging.run_blender_ext("validate", "--valid-tags", str(tags),
-                                     str(packaging.REPO))
+    tags.write_text(
+        json.dumps(
+            {"add-on": sorted(blender_tags.addons - {"All"}), "theme": sorted(blender_tags.themes)}
+        )
+    )
+    proc = packaging.run_blender_ext("validate", "--valid-tags", str(tags), str(packaging.REPO))
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "Success" in proc.stdout
 
@@ -47,7 +49,8 @@ def test_validator_rejects_a_bad_manifest(tmp_path):
     pytest.importorskip("bpy")
     text = (packaging.REPO / "blender_manifest.toml").read_text()
     (tmp_path / "blender_manifest.toml").write_text(
-        text.replace('tagline = "', 'tagline = "' + "x" * 80, 1))
+        text.replace('tagline = "', 'tagline = "' + "x" * 80, 1)
+    )
     proc = packaging.run_blender_ext("validate", str(tmp_path))
     assert proc.returncode != 0
     assert "tagline" in proc.stdout + proc.stderr
@@ -57,8 +60,7 @@ def test_split_platform_build_bundles_the_right_wheels(tmp_path):
     """Each platform zip gets its own wheels (both Pythons) and a validating manifest."""
     pytest.importorskip("bpy")
     fake = []
-    for tag in ("manylinux_2_17_x86_64", "win_amd64", "macosx_12_0_arm64",
-                "macosx_10_13_x86_64"):
+    for tag in ("manylinux_2_17_x86_64", "win_amd64", "macosx_12_0_arm64", "macosx_10_13_x86_64"):
         for py in ("cp311", "cp313"):
             fake.append(tmp_path / "w" / f"scipy-1.0-{py}-{py}-{tag}.whl")
         fake.append(tmp_path / "w" / f"opencv_python_headless-4.10.0.84-cp37-abi3-{tag}.whl")
@@ -69,12 +71,22 @@ def test_split_platform_build_bundles_the_right_wheels(tmp_path):
     src = packaging.stage(tmp_path / "stage", fake)
     (tmp_path / "out").mkdir()
     assert packaging.validate(src).returncode == 0
-    proc = packaging.run_blender_ext("build", "--split-platforms", "--source-dir", str(src),
-                                     "--output-dir", str(tmp_path / "out"))
+    proc = packaging.run_blender_ext(
+        "build",
+        "--split-platforms",
+        "--source-dir",
+        str(src),
+        "--output-dir",
+        str(tmp_path / "out"),
+    )
     assert proc.returncode == 0, proc.stdout + proc.stderr
     zips = sorted((tmp_path / "out").glob("*.zip"))
     assert [z.name.split("-")[-1] for z in zips] == [
-        "linux_x64.zip", "macos_arm64.zip", "macos_x64.zip", "windows_x64.zip"]
+        "linux_x64.zip",
+        "macos_arm64.zip",
+        "macos_x64.zip",
+        "windows_x64.zip",
+    ]
     for z in zips:
         names = zipfile.ZipFile(z).namelist()
         wheels = [n for n in names if n.endswith(".whl")]
@@ -87,8 +99,13 @@ def test_split_platform_build_bundles_the_right_wheels(tmp_path):
 
 def test_install_enable_disable_reenable(built_zip, tmp_path):
     env = {**os.environ, "BLENDER_USER_RESOURCES": str(tmp_path / "user")}
-    proc = subprocess.run([sys.executable, str(HERE / "install_scenario.py"), str(built_zip)],
-                          env=env, capture_output=True, text=True, timeout=300)
+    proc = subprocess.run(
+        [sys.executable, str(HERE / "install_scenario.py"), str(built_zip)],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "Traceback" not in proc.stderr, proc.stderr[-3000:]
     s = json.loads(proc.stdout.strip().splitlines()[-1])
@@ -120,14 +137,27 @@ def test_new_user_runs_the_panel_operators(built_zip, tmp_path):
 
     scene = tmp_path / "scene"
     scene.mkdir()
-    cams = [Camera(f"cam{i}", (64, 48), [[80, 0, 32], [0, 80, 24], [0, 0, 1]], np.zeros(5),
-                   rodrigues_to_matrix([1.6, 0, 0.5 * i]), [0, -1, 5]) for i in range(2)]
+    cams = [
+        Camera(
+            f"cam{i}",
+            (64, 48),
+            [[80, 0, 32], [0, 80, 24], [0, 0, 1]],
+            np.zeros(5),
+            rodrigues_to_matrix([1.6, 0, 0.5 * i]),
+            [0, -1, 5],
+        )
+        for i in range(2)
+    ]
     write_calibration(scene / "calibration.toml", cams)
     write_state(scene / "fit.json", synthetic_state(5))
     env = {**os.environ, "BLENDER_USER_RESOURCES": str(tmp_path / "user")}
-    proc = subprocess.run([sys.executable, str(HERE / "user_scenario.py"), str(built_zip),
-                           str(scene), str(tmp_path)], env=env, capture_output=True, text=True,
-                          timeout=300)
+    proc = subprocess.run(
+        [sys.executable, str(HERE / "user_scenario.py"), str(built_zip), str(scene), str(tmp_path)],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     r = json.loads(proc.stdout.strip().splitlines()[-1])
     for step in ("install", "cameras", "fit", "map", "retarget", "export", "build_again"):

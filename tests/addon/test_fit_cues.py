@@ -23,8 +23,17 @@ CUES = ("texture", "contours", "both")
 def make_scene(root, with_fit=False):
     """A scene folder with a 2-camera calibration (and a fit.json of 3 frames)."""
     root.mkdir(parents=True)
-    cams = [Camera(f"cam{i}", (64, 48), [[80, 0, 32], [0, 80, 24], [0, 0, 1]], np.zeros(5),
-                   rodrigues_to_matrix([1.6, 0, 0.5 * i]), [0, -1, 5]) for i in range(2)]
+    cams = [
+        Camera(
+            f"cam{i}",
+            (64, 48),
+            [[80, 0, 32], [0, 80, 24], [0, 0, 1]],
+            np.zeros(5),
+            rodrigues_to_matrix([1.6, 0, 0.5 * i]),
+            [0, -1, 5],
+        )
+        for i in range(2)
+    ]
     write_calibration(root / "calibration.toml", cams)
     (root / "scene.toml").write_text("# stand-in: core's fit is replaced in these tests\n")
     if with_fit:
@@ -80,8 +89,9 @@ def test_run_fit_rejects_unknown_cues_before_fitting(bpy_module, tmp_path, monke
     from core import fit_scene
 
     monkeypatch.setattr(fit_scene, "fit_scene", lambda *a, **k: pytest.fail("fit ran"))
-    with pytest.raises(InputError, match="unknown fit cues 'skin': choose one of texture, "
-                                         "contours, both"):
+    with pytest.raises(
+        InputError, match="unknown fit cues 'skin': choose one of texture, contours, both"
+    ):
         pipeline.run_fit(tmp_path, tmp_path / "fit.json", cues="skin")
     assert not (tmp_path / "fit.json").exists()
 
@@ -113,11 +123,26 @@ def test_cli_fit_cues(tmp_path, fake_run_fit, empty_blend, capsys):
     assert (tmp_path / "b.blend").stat().st_size > 1000
     assert "walk: 4 frames" in capsys.readouterr().out  # the new fit was built
 
-    assert cli(["fit", scene, "--out", tmp_path / "c.blend", "--cues", "both",
-                "--fit", scene / "fit.json"]) == 2
+    assert (
+        cli(
+            [
+                "fit",
+                scene,
+                "--out",
+                tmp_path / "c.blend",
+                "--cues",
+                "both",
+                "--fit",
+                scene / "fit.json",
+            ]
+        )
+        == 2
+    )
     err = capsys.readouterr().err.strip().splitlines()[-1]
-    assert err == (f"somacap: error: {scene / 'fit.json'}: --fit uses a fitted state and "
-                   "--cues asks for a new fit: give one of them")
+    assert err == (
+        f"somacap: error: {scene / 'fit.json'}: --fit uses a fitted state and "
+        "--cues asks for a new fit: give one of them"
+    )
     assert cli(["fit", scene, "--out", tmp_path / "d.blend", "--cues", "skin"]) == 2
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert "argument --cues: invalid choice: 'skin'" in err
@@ -168,7 +193,10 @@ def test_panel_property_and_operator(registered, tmp_path, fake_run_fit):
     prop = s.bl_rna.properties["fit_cues"]
     assert prop.default == "texture"
     assert [(i.identifier, i.name) for i in prop.enum_items] == [
-        ("texture", "Texture"), ("contours", "Contours"), ("both", "Both")]
+        ("texture", "Texture"),
+        ("contours", "Contours"),
+        ("both", "Both"),
+    ]
     assert all(i.description for i in prop.enum_items)
     assert prop.enum_items["both"].description.count("2.7x") == 1
 

@@ -64,9 +64,13 @@ def test_foot_lock_removes_skate_and_leaves_the_rest(walk):
         np.testing.assert_allclose([before, after], res.foot_skate_mm[s], atol=0.5)
         assert after < 0.2 * before and after < 5.0, (s, before, after)
     # the upper body is untouched; legs only move during contact
-    upper = {k: v for k, v in res.pairs.items()
-             if not any(p in k.lower() for p in ("leg", "foot", "toe", "thigh", "shin", "knee",
-                                                  "ankle", "hip"))}
+    upper = {
+        k: v
+        for k, v in res.pairs.items()
+        if not any(
+            p in k.lower() for p in ("leg", "foot", "toe", "thigh", "shin", "knee", "ankle", "hip")
+        )
+    }
     assert len(upper) >= 10
     assert direction_errors_deg(arm, rigs[True][0], frames, upper).max() < 1.0
 

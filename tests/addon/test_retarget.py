@@ -64,8 +64,10 @@ def test_onto_rigify_metarig_with_other_rolls_and_mixamo_names(body):
 
     # A second rig: Rigify names turned into Mixamo ones, rolls changed by up to 90°.
     mix = copy_rig(rigify, "mixamo_target")
-    to_mixamo = {SCHEMES["rigify_metarig"][c]: "mixamorig3:" + SCHEMES["mixamo"][c]
-                 for c in SCHEMES["mixamo"]}
+    to_mixamo = {
+        SCHEMES["rigify_metarig"][c]: "mixamorig3:" + SCHEMES["mixamo"][c]
+        for c in SCHEMES["mixamo"]
+    }
     rename_and_reroll(mix, to_mixamo, roll_deg=90.0)
     res2 = rt.retarget(arm, mix, take="walk")
     assert rt.rig_mapping(mix).scheme == "mixamo"
@@ -93,8 +95,9 @@ def test_onto_makehuman_keeps_its_actions(body, makehuman):
     res = rt.retarget(arm, char, take="walk_mh")
     assert res.action.name == "walk_mh" and char.animation_data.action == res.action
     assert own.name == "users_idle" and own.use_fake_user  # survives saving
-    np.testing.assert_allclose([tuple(k.co) for k in fc.keyframe_points], [(1, 0), (5, 0.1)],
-                               atol=1e-6)
+    np.testing.assert_allclose(
+        [tuple(k.co) for k in fc.keyframe_points], [(1, 0), (5, 0.1)], atol=1e-6
+    )
     frames = np.arange(1, state.n_frames + 1)
     assert direction_errors_deg(arm, char, frames, res.pairs).max() < 1.0
     assert root_path_error(arm, char, frames, res.scale).max() < 0.01 * rig_height(char)
@@ -102,9 +105,18 @@ def test_onto_makehuman_keeps_its_actions(body, makehuman):
 
 
 def _scene_fingerprint(bpy):
-    return (sorted(o.name for o in bpy.data.objects), sorted(a.name for a in bpy.data.actions),
-            {o.name: (o.animation_data.action.name if o.animation_data and
-                      o.animation_data.action else None) for o in bpy.data.objects})
+    return (
+        sorted(o.name for o in bpy.data.objects),
+        sorted(a.name for a in bpy.data.actions),
+        {
+            o.name: (
+                o.animation_data.action.name
+                if o.animation_data and o.animation_data.action
+                else None
+            )
+            for o in bpy.data.objects
+        },
+    )
 
 
 def test_bad_targets_change_nothing(body, tmp_path):

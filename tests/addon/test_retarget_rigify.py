@@ -66,8 +66,11 @@ def test_def_bones_follow_the_source_on_every_frame(generated):
     assert root_path_error(arm, rig, frames, res.scale).max() < 0.01 * rig_height(rig)
     # The FK switch matters: with the arms back in IK the DEF arm no longer follows.
     rig.pose.bones["upper_arm_parent.L"]["IK_FK"] = 0.0
-    fc = next(f for f in action_api.fcurves(rig, res.action)
-              if f.data_path == 'pose.bones["upper_arm_parent.L"]["IK_FK"]')
+    fc = next(
+        f
+        for f in action_api.fcurves(rig, res.action)
+        if f.data_path == 'pose.bones["upper_arm_parent.L"]["IK_FK"]'
+    )
     fc.mute = True
     rig.update_tag()  # an ID property set from Python does not tag the depsgraph
     arm_pairs = {k: v for k, v in res.pairs.items() if v == "DEF-forearm.L"}

@@ -30,6 +30,7 @@ class Recorder:
             elif name == "label":
                 self.log.append(f"label {kw.get('text', '')}")
             return Recorder(self.log)
+
         return call
 
 
@@ -37,8 +38,9 @@ def panel_dump(context) -> list[str]:
     log = []
     for name in ("SOMACAP_PT_main", "SOMACAP_PT_quality", "SOMACAP_PT_retarget"):
         cls = getattr(bpy.types, name)
-        log.append(f"panel {cls.bl_label} ({cls.bl_space_type}/{cls.bl_region_type}/"
-                   f"{cls.bl_category})")
+        log.append(
+            f"panel {cls.bl_label} ({cls.bl_space_type}/{cls.bl_region_type}/{cls.bl_category})"
+        )
         fake = type("P", (), {"layout": Recorder(log)})()
         cls.draw(fake, context)
     return log
@@ -47,8 +49,11 @@ def panel_dump(context) -> list[str]:
 def main(zip_path, scene_dir, out_dir):
     res = {}
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    res["install"] = sorted(bpy.ops.extensions.package_install_files(
-        filepath=zip_path, repo="user_default", enable_on_install=True))
+    res["install"] = sorted(
+        bpy.ops.extensions.package_install_files(
+            filepath=zip_path, repo="user_default", enable_on_install=True
+        )
+    )
     import addon_utils
 
     addon_utils.enable("rigify", default_set=True)

@@ -59,8 +59,9 @@ def textured_render(skel, balls, theta, root, s, cam, rays, seed=0):
     (wavelengths 4–7 cm), on a flat grey background."""
     pose = sk.forward(skel, theta[None], root[None], s)
     Rw, cw = mb.world_frames(skel, pose, balls, s)
-    ren = render_parts(cam, cw[0], Rw[0], balls.visible, balls.bone, len(skel.bone_names),
-                       rays=rays)
+    ren = render_parts(
+        cam, cw[0], Rw[0], balls.visible, balls.bone, len(skel.bone_names), rays=rays
+    )
     img = np.full(ren.part_id.shape, 90.0)
     v, u = np.nonzero(ren.part_id >= 0)
     b = ren.part_id[v, u]

@@ -24,8 +24,10 @@ def texture(s, t, seed=0):
     f = rng.uniform(15, 60, 30)
     ang = rng.uniform(0, np.pi, 30)
     ph = rng.uniform(0, 2 * np.pi, 30)
-    val = sum(np.cos(2 * np.pi * fk * (np.cos(a) * s + np.sin(a) * t) + p)
-              for fk, a, p in zip(f, ang, ph, strict=True))
+    val = sum(
+        np.cos(2 * np.pi * fk * (np.cos(a) * s + np.sin(a) * t) + p)
+        for fk, a, p in zip(f, ang, ph, strict=True)
+    )
     return 120 + 12 * val
 
 

@@ -72,8 +72,9 @@ def test_known_person_pixels_free_a_long_standing_background(rng):
     masks[:18] = masks[0]
     plain = fit_background(frames)
     assert _iou(plain.foreground(frames[0]), masks[0]) < 0.5
-    dilated = np.array([cv2.dilate(m.astype(np.uint8), np.ones((9, 9), np.uint8)) > 0
-                        for m in masks])
+    dilated = np.array(
+        [cv2.dilate(m.astype(np.uint8), np.ones((9, 9), np.uint8)) > 0 for m in masks]
+    )
     guided = fit_background(frames, exclude=dilated)
     ious = [_iou(guided.foreground(f), m) for f, m in zip(frames, masks, strict=True)]
     assert min(ious) > 0.85, np.round(ious, 3)
@@ -85,18 +86,19 @@ def _approaching(rng, n=40, h=96, w=128):
     clothing's pattern (reds and browns) moving over them (grey backdrop, noise σ 2)."""
     bg = np.full((h, w, 3), 115.0, np.float32)
     cloth = rng.uniform([0, 0, 0], [255, 90, 90], (3 * h, 3 * w, 3)).astype(np.float32)
-    cloth = cv2.resize(cv2.resize(cloth, (w // 2, h // 2)), (3 * w, 3 * h),
-                       interpolation=cv2.INTER_NEAREST)
+    cloth = cv2.resize(
+        cv2.resize(cloth, (w // 2, h // 2)), (3 * w, 3 * h), interpolation=cv2.INTER_NEAREST
+    )
     frames, masks = [], []
     for i in range(n):
         img = bg.copy()
         mask = np.zeros((h, w), np.uint8)
-        if i >= 0.1 * n:                     # enters after the first few frames
+        if i >= 0.1 * n:  # enters after the first few frames
             ax = (12 + (10 * i) // n, 26 + (14 * i) // n)
             cv2.ellipse(mask, (64 + (i % 5) - 2, 50), ax, 0, 0, 360, 1, -1)
         m = mask.astype(bool)
-        dy, dx = (7 * i) % (2 * h), (11 * i) % (2 * w)     # the pattern moves
-        img[m] = cloth[dy:dy + h, dx:dx + w][m]
+        dy, dx = (7 * i) % (2 * h), (11 * i) % (2 * w)  # the pattern moves
+        img[m] = cloth[dy : dy + h, dx : dx + w][m]
         img += rng.normal(0, 2.0, img.shape)
         frames.append(np.clip(img, 0, 255).astype(np.uint8))
         masks.append(m)
@@ -106,7 +108,7 @@ def _approaching(rng, n=40, h=96, w=128):
 def test_a_person_covering_pixels_most_of_the_take_does_not_burn_in(rng):
     frames, masks = _approaching(rng)
     covered = masks.mean(axis=0)
-    assert (covered[masks[-1]] > 0.8).mean() > 0.3          # the case this is about
+    assert (covered[masks[-1]] > 0.8).mean() > 0.3  # the case this is about
     model = fit_background(frames)
     late = range(len(frames) // 2, len(frames))
     ious = [_iou(model.foreground(frames[i]), masks[i]) for i in late]
@@ -123,6 +125,7 @@ def test_nanmedian0_equals_numpy_bit_for_bit():
     import warnings
 
     from core.background import _nanmedian0
+
     rng = np.random.default_rng(4)
     for n in (1, 2, 7, 30):
         a = rng.uniform(0, 255, (n, 500, 3)).astype(np.float32)

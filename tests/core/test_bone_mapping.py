@@ -19,24 +19,58 @@ from core.errors import InputError
 
 # Hand-written rigs as their tools name them (extra bones included), canonical -> name.
 RIGS = {
-    "rigify_def": ({"pelvis": "DEF-spine", "head": "DEF-spine.006",
-                    "l_upper_arm": "DEF-upper_arm.L", "r_shin": "DEF-shin.R",
-                    "l_clavicle": "DEF-shoulder.L"},
-                   ["DEF-upper_arm.L.001", "ORG-spine", "MCH-spine", "root", "DEF-breast.L"]),
-    "mixamo": ({"pelvis": "mixamorig12:Hips", "upper_chest": "mixamorig12:Spine2",
-                "l_forearm": "mixamorig12:LeftForeArm", "r_thigh": "mixamorig12:RightUpLeg",
-                "l_toe": "mixamorig12:LeftToeBase"},
-               ["mixamorig12:HeadTop_End", "mixamorig12:LeftHandIndex1"]),
-    "unreal": ({"pelvis": "pelvis", "l_shin": "calf_l", "r_upper_arm": "upperarm_r",
-                "chest": "spine_02", "l_toe": "ball_l"},
-               ["root", "ik_foot_root", "upperarm_twist_01_l", "spine_04", "spine_05"]),
-    "vrm": ({"pelvis": "hips", "l_thigh": "leftUpperLeg", "r_forearm": "rightLowerArm",
-             "upper_chest": "upperChest"}, ["leftEye", "jaw"]),
-    "vroid": ({"pelvis": "J_Bip_C_Hips", "l_thigh": "J_Bip_L_UpperLeg",
-               "r_hand": "J_Bip_R_Hand"}, ["J_Sec_Hair1_01", "J_Adj_L_FaceEye"]),
-    "mpfb": ({"pelvis": "spine05", "l_thigh": "upperleg01.L", "r_shin": "lowerleg01.R",
-              "l_forearm": "lowerarm01.L"},
-             ["root", "upperleg02.L", "lowerarm02.L", "pelvis.L", "breast.L"]),
+    "rigify_def": (
+        {
+            "pelvis": "DEF-spine",
+            "head": "DEF-spine.006",
+            "l_upper_arm": "DEF-upper_arm.L",
+            "r_shin": "DEF-shin.R",
+            "l_clavicle": "DEF-shoulder.L",
+        },
+        ["DEF-upper_arm.L.001", "ORG-spine", "MCH-spine", "root", "DEF-breast.L"],
+    ),
+    "mixamo": (
+        {
+            "pelvis": "mixamorig12:Hips",
+            "upper_chest": "mixamorig12:Spine2",
+            "l_forearm": "mixamorig12:LeftForeArm",
+            "r_thigh": "mixamorig12:RightUpLeg",
+            "l_toe": "mixamorig12:LeftToeBase",
+        },
+        ["mixamorig12:HeadTop_End", "mixamorig12:LeftHandIndex1"],
+    ),
+    "unreal": (
+        {
+            "pelvis": "pelvis",
+            "l_shin": "calf_l",
+            "r_upper_arm": "upperarm_r",
+            "chest": "spine_02",
+            "l_toe": "ball_l",
+        },
+        ["root", "ik_foot_root", "upperarm_twist_01_l", "spine_04", "spine_05"],
+    ),
+    "vrm": (
+        {
+            "pelvis": "hips",
+            "l_thigh": "leftUpperLeg",
+            "r_forearm": "rightLowerArm",
+            "upper_chest": "upperChest",
+        },
+        ["leftEye", "jaw"],
+    ),
+    "vroid": (
+        {"pelvis": "J_Bip_C_Hips", "l_thigh": "J_Bip_L_UpperLeg", "r_hand": "J_Bip_R_Hand"},
+        ["J_Sec_Hair1_01", "J_Adj_L_FaceEye"],
+    ),
+    "mpfb": (
+        {
+            "pelvis": "spine05",
+            "l_thigh": "upperleg01.L",
+            "r_shin": "lowerleg01.R",
+            "l_forearm": "lowerarm01.L",
+        },
+        ["root", "upperleg02.L", "lowerarm02.L", "pelvis.L", "breast.L"],
+    ),
 }
 
 
@@ -71,15 +105,27 @@ def _bvh_names(path):
     return re.findall(r"^\s*(?:ROOT|JOINT)\s+(\S+)", path.read_text(), flags=re.M)
 
 
-@pytest.mark.parametrize("clip, scheme, check", [
-    ("02_01", "cmu_mb", {"l_clavicle": "LeftShoulder", "l_upper_arm": "LeftArm",
-                         "spine": "LowerBack"}),
-    ("131_01", "cmu_max", {"l_clavicle": "LeftCollar", "l_upper_arm": "LeftShoulder",
-                           "r_shin": "RightKnee"}),
-    ("pirouette", "cmu_daz", {"l_upper_arm": "lShldr", "r_thigh": "rThigh", "pelvis": "hip"}),
-    ("mixamo_named_test", "mixamo", {"upper_chest": "mixamorig:Spine2",
-                                      "r_foot": "mixamorig:RightFoot"}),
-])
+@pytest.mark.parametrize(
+    "clip, scheme, check",
+    [
+        (
+            "02_01",
+            "cmu_mb",
+            {"l_clavicle": "LeftShoulder", "l_upper_arm": "LeftArm", "spine": "LowerBack"},
+        ),
+        (
+            "131_01",
+            "cmu_max",
+            {"l_clavicle": "LeftCollar", "l_upper_arm": "LeftShoulder", "r_shin": "RightKnee"},
+        ),
+        ("pirouette", "cmu_daz", {"l_upper_arm": "lShldr", "r_thigh": "rThigh", "pelvis": "hip"}),
+        (
+            "mixamo_named_test",
+            "mixamo",
+            {"upper_chest": "mixamorig:Spine2", "r_foot": "mixamorig:RightFoot"},
+        ),
+    ],
+)
 def test_real_bvh_skeletons(shared_data, clip, scheme, check):
     names = _bvh_names(shared_data / "mocap" / f"{clip}.bvh")
     m = map_bones(names)
@@ -98,8 +144,7 @@ def test_cmu_vs_mixamo_disambiguated_by_spine():
 
 
 def test_non_humanoid_reports_missing_and_unmapped():
-    names = ["root", "body", "tail.001", "tail.002", "leg_front.L", "leg_front.R", "head",
-             "ear.L"]
+    names = ["root", "body", "tail.001", "tail.002", "leg_front.L", "leg_front.R", "head", "ear.L"]
     m = map_bones(names)
     assert not m.is_humanoid
     assert "l_thigh" in m.missing_required

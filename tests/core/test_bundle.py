@@ -30,8 +30,9 @@ def test_jacobian_matches_finite_differences(rng):
     init, x0 = _perturbed_start(cams, xyz, rng)
     seen = np.all(np.isfinite(uv), -1)
     params = np.stack([pack_camera(c) for c in init])
-    prob = _Problem(params, x0, uv, np.argwhere(seen), 0.5, ("f", "aspect", "cx", "k1", "p2"),
-                    1000.0)
+    prob = _Problem(
+        params, x0, uv, np.argwhere(seen), 0.5, ("f", "aspect", "cx", "k1", "p2"), 1000.0
+    )
     x = prob.pack(params, x0)
     r, J = prob.residuals(x, jacobian=True)
     J = J.toarray()
@@ -58,7 +59,7 @@ def test_recovers_truth_and_flags_bad_blobs(rng):
     centers = np.array([c.center for c in res.cameras])
     truth = np.array([c.center for c in cams])
     s, R, t = similarity(centers, truth)
-    assert abs(s - 1) < 2e-3                       # scale from L alone
+    assert abs(s - 1) < 2e-3  # scale from L alone
     assert np.max(np.linalg.norm(s * centers @ R.T + t - truth, axis=1)) < 5e-3
     f = np.array([c.K[0, 0] for c in res.cameras])
     np.testing.assert_allclose(f, [c.K[0, 0] for c in cams], rtol=3e-3)
@@ -73,7 +74,7 @@ def test_recovers_pixel_aspect_of_one_field(rng):
     xyz, uv, _ = wand_capture(cams, n=60, noise_px=0.05, seed=11)
     init, x0 = _perturbed_start(cams, xyz, rng, df=1.0)
     for c in init:
-        c.K[1, 1] = c.K[0, 0] / 1.9                # start 5 % off
+        c.K[1, 1] = c.K[0, 0] / 1.9  # start 5 % off
     res = adjust_wand(init, uv, x0, 0.5, free=("f", "aspect", "cx", "cy", "k1"))
     aspects = np.array([c.aspect for c in res.cameras])
     np.testing.assert_allclose(aspects, 2.0, rtol=2e-3)
@@ -87,8 +88,9 @@ def test_scipy_jac_sparsity_path_agrees_with_lm(rng):
     init, x0 = _perturbed_start(cams, xyz, rng, df=1.005)
     a = adjust_wand(init, uv, x0, 0.5, free=("f",), robust=False)
     b = adjust_wand(init, uv, x0, 0.5, free=("f",), robust=False, solver="scipy:2-point")
-    np.testing.assert_allclose([c.K[0, 0] for c in b.cameras], [c.K[0, 0] for c in a.cameras],
-                               rtol=3e-4)
+    np.testing.assert_allclose(
+        [c.K[0, 0] for c in b.cameras], [c.K[0, 0] for c in a.cameras], rtol=3e-4
+    )
 
 
 def test_rejects_unknown_parameter(rng):
@@ -106,10 +108,11 @@ def test_bad_blobs_in_two_view_targets_do_not_cascade(rng):
     wand was thrown away and the calibration was off by centimetres.
     """
     cams = rig("line3")
-    xyz, uv, bad = wand_capture(cams, n=120, noise_px=0.05, outlier_frac=0.05, seed=21,
-                                hidden_frac=0.5)
+    xyz, uv, bad = wand_capture(
+        cams, n=120, noise_px=0.05, outlier_frac=0.05, seed=21, hidden_frac=0.5
+    )
     seen = np.all(np.isfinite(uv), -1)
-    two = seen.sum(axis=1) == 2                                   # (n, 2) two-view targets
+    two = seen.sum(axis=1) == 2  # (n, 2) two-view targets
     assert two.any(axis=1).mean() > 0.4 and bad[two[:, None, :] & seen].sum() >= 3
     init, x0 = _perturbed_start(cams, xyz, rng)
     res = adjust_wand(init, uv, x0, 0.5)
@@ -117,7 +120,7 @@ def test_bad_blobs_in_two_view_targets_do_not_cascade(rng):
     # every wrong blob flagged; the labels were not exchanged (truth labels hold)
     assert not res.swapped.any() and np.all(res.outliers[bad])
     # extra flags only where a wrong blob leaves a target without redundancy
-    bad_target = np.any(bad, axis=1)                               # (n, 2)
+    bad_target = np.any(bad, axis=1)  # (n, 2)
     unresolvable = bad_target & (seen.sum(axis=1) - bad.sum(axis=1) < 3)
     extra = res.outliers & ~bad
     assert np.all(np.any(extra, axis=1) <= unresolvable)
@@ -127,23 +130,24 @@ def test_bad_blobs_in_two_view_targets_do_not_cascade(rng):
     truth = np.array([c.center for c in cams])
     s, R, t = similarity(centers, truth)
     assert np.max(np.linalg.norm(s * centers @ R.T + t - truth, axis=1)) < 5e-3
-    np.testing.assert_allclose([c.K[0, 0] for c in res.cameras], [c.K[0, 0] for c in cams],
-                               rtol=3e-3)
+    np.testing.assert_allclose(
+        [c.K[0, 0] for c in res.cameras], [c.K[0, 0] for c in cams], rtol=3e-3
+    )
 
 
 def test_flags_are_decided_afresh_each_round():
     """Observations flagged before come back once their residual is small (hysteresis)."""
     rn = np.array([[[0.1, 5.0], [0.19, 0.3]], [[0.1, 0.1], [0.1, 0.1]]])[:, :, :, None]
-    rn = np.repeat(rn, 1, axis=3)[..., 0]                          # (F=2, C=2, 2)
-    rn = np.concatenate([rn, np.full((2, 1, 2), 0.1)], axis=1)     # three cameras
+    rn = np.repeat(rn, 1, axis=3)[..., 0]  # (F=2, C=2, 2)
+    rn = np.concatenate([rn, np.full((2, 1, 2), 0.1)], axis=1)  # three cameras
     seen = np.ones_like(rn, dtype=bool)
     prev = np.zeros_like(seen)
-    prev[0, 1] = True                                              # flagged last round
+    prev[0, 1] = True  # flagged last round
     prev[1, 0, 0] = True
     new = flag_observations(rn, seen, 0.25, prev)
-    assert new[0, 0, 1] and not new[0, 1, 0]                       # 0.19 < 0.8 · 0.25
-    assert new[0, 1, 1]                                            # 0.3 stays flagged
-    assert not new[1].any()                                        # re-admitted
+    assert new[0, 0, 1] and not new[0, 1, 0]  # 0.19 < 0.8 · 0.25
+    assert new[0, 1, 1]  # 0.3 stays flagged
+    assert not new[1].any()  # re-admitted
     # a two-view target: one flagged view flags both
     seen2 = seen.copy()
     seen2[0, 2, 1] = False

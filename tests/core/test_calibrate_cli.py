@@ -42,10 +42,14 @@ def test_existing_calibration_is_not_overwritten(tmp_path, capsys):
 def test_reference_with_missing_key(tmp_path, capsys):
     scene = _wand_scene(tmp_path / "s")
     ref = tmp_path / "ref.toml"
-    ref.write_text('[cam_00]\nname = "cam01"\nsize = [64.0, 48.0]\n'
-                   'matrix = [[1, 0, 0], [0, 1, 0], [0, 0, 1]]\nrotation = [0, 0, 0]\n')
-    assert main(["calibrate", str(scene), "-o", str(tmp_path / "o.toml"),
-                 "--reference", str(ref)]) == 2
+    ref.write_text(
+        '[cam_00]\nname = "cam01"\nsize = [64.0, 48.0]\n'
+        "matrix = [[1, 0, 0], [0, 1, 0], [0, 0, 1]]\nrotation = [0, 0, 0]\n"
+    )
+    assert (
+        main(["calibrate", str(scene), "-o", str(tmp_path / "o.toml"), "--reference", str(ref)])
+        == 2
+    )
     assert "missing the key 'translation'" in capsys.readouterr().err
 
 
@@ -53,15 +57,16 @@ def test_unequal_camera_counts(tmp_path, capsys):
     scene = _wand_scene(tmp_path / "s", n_cams=3)
     ref = tmp_path / "ref.toml"
     write_calibration(ref, rig("ring4"))
-    assert main(["calibrate", str(scene), "-o", str(tmp_path / "o.toml"),
-                 "--reference", str(ref)]) == 2
+    assert (
+        main(["calibrate", str(scene), "-o", str(tmp_path / "o.toml"), "--reference", str(ref)])
+        == 2
+    )
     assert "camera counts must match" in capsys.readouterr().err
 
 
 def test_unknown_free_parameter(tmp_path, capsys):
     scene = _wand_scene(tmp_path / "s")
-    assert main(["calibrate", str(scene), "-o", str(tmp_path / "o.toml"), "--free",
-                 "f,zoom"]) == 2
+    assert main(["calibrate", str(scene), "-o", str(tmp_path / "o.toml"), "--free", "f,zoom"]) == 2
     assert "unknown interior parameter 'zoom'" in capsys.readouterr().err
 
 
@@ -84,8 +89,9 @@ def test_calibrates_rendered_blobs_end_to_end(tmp_path, capsys):
             img = np.zeros((384, 512))
             for u, v in uv[f]:
                 img += 240 * np.exp(-((uu - u) ** 2 + (vv - v) ** 2) / (2 * 1.3**2))
-            cv2.imwrite(str(root / "wand" / c.name / f"{f:06d}.png"), np.clip(img, 0, 255)
-                        .astype(np.uint8))
+            cv2.imwrite(
+                str(root / "wand" / c.name / f"{f:06d}.png"), np.clip(img, 0, 255).astype(np.uint8)
+            )
     ref = tmp_path / "truth.toml"
     write_calibration(ref, cams)
     out = tmp_path / "cal.toml"
@@ -103,8 +109,7 @@ def test_z_up_world_from_camera_up_vectors_and_wand_volume():
     xyz, _, _ = wand_capture(cams, n=40, seed=2)
     # the adjustment's world: camera 1's frame, i.e. an arbitrary rigid motion of truth
     R0, t0 = cams[0].R, cams[0].t
-    datum = [Camera(c.name, c.size, c.K, c.dist, c.R @ R0.T, c.t - c.R @ R0.T @ t0)
-             for c in cams]
+    datum = [Camera(c.name, c.size, c.K, c.dist, c.R @ R0.T, c.t - c.R @ R0.T @ t0) for c in cams]
     xyz_d = xyz @ R0.T + t0
     out, T = z_up_world(datum, xyz_d)
     up_truth = np.mean([-c.R[1] for c in cams], axis=0)
@@ -114,10 +119,9 @@ def test_z_up_world_from_camera_up_vectors_and_wand_volume():
     rel_truth = xyz.reshape(-1, 3) - xyz.reshape(-1, 3)[0]
     rel_new = xyz_new - xyz_new[0]
     np.testing.assert_allclose(rel_new @ [0, 0, 1], rel_truth @ up_truth, atol=1e-9)
-    assert abs(xyz_new[:, 2].min()) < 1e-9                        # lowest target at Z = 0
+    assert abs(xyz_new[:, 2].min()) < 1e-9  # lowest target at Z = 0
     np.testing.assert_allclose(xyz_new[:, :2].mean(axis=0), 0.0, atol=1e-9)
     np.testing.assert_allclose(np.linalg.det(T[:3, :3]), 1.0)
     # images unchanged: the same points project to the same pixels
     for a, b in zip(datum, out, strict=True):
-        np.testing.assert_allclose(b.project(xyz_new), a.project(xyz_d.reshape(-1, 3)),
-                                   atol=1e-7)
+        np.testing.assert_allclose(b.project(xyz_new), a.project(xyz_d.reshape(-1, 3)), atol=1e-7)

@@ -8,9 +8,14 @@ from core.errors import InputError
 
 def test_round_trip(tmp_path, rng):
     cams = [
-        Camera(f"cam0{i}", (512, 384), [[700 + i, 0, 256], [0, 700 + i, 192], [0, 0, 1]],
-               rng.normal(size=5) * 0.01, rodrigues_to_matrix(rng.normal(size=3)),
-               rng.normal(size=3))
+        Camera(
+            f"cam0{i}",
+            (512, 384),
+            [[700 + i, 0, 256], [0, 700 + i, 192], [0, 0, 1]],
+            rng.normal(size=5) * 0.01,
+            rodrigues_to_matrix(rng.normal(size=3)),
+            rng.normal(size=3),
+        )
         for i in range(1, 4)
     ]
     path = write_calibration(tmp_path / "calibration.toml", cams)
@@ -25,8 +30,10 @@ def test_round_trip(tmp_path, rng):
 
 def test_missing_key_names_file_and_key(tmp_path):
     p = tmp_path / "calibration.toml"
-    p.write_text('[cam_00]\nname = "cam01"\nsize = [10.0, 10.0]\n'
-                 "matrix = [[1,0,0],[0,1,0],[0,0,1]]\nrotation = [0.0, 0.0, 0.0]\n")
+    p.write_text(
+        '[cam_00]\nname = "cam01"\nsize = [10.0, 10.0]\n'
+        "matrix = [[1,0,0],[0,1,0],[0,0,1]]\nrotation = [0.0, 0.0, 0.0]\n"
+    )
     with pytest.raises(InputError, match=r"calibration.toml.*missing the key 'translation'"):
         read_calibration(p)
 
@@ -40,8 +47,10 @@ def test_garbled_file(tmp_path):
 
 def test_wrong_shape(tmp_path):
     p = tmp_path / "calibration.toml"
-    p.write_text('[cam_00]\nname = "cam01"\nsize = [10.0, 10.0]\nmatrix = [[1,0,0],[0,1,0]]\n'
-                 "rotation = [0.0, 0.0, 0.0]\ntranslation = [0.0, 0.0, 0.0]\n")
+    p.write_text(
+        '[cam_00]\nname = "cam01"\nsize = [10.0, 10.0]\nmatrix = [[1,0,0],[0,1,0]]\n'
+        "rotation = [0.0, 0.0, 0.0]\ntranslation = [0.0, 0.0, 0.0]\n"
+    )
     with pytest.raises(InputError, match=r"matrix has shape \(2, 3\)"):
         read_calibration(p)
 

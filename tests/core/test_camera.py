@@ -69,8 +69,7 @@ def test_pack_round_trip(rng):
     back = unpack_camera(p, cam.name, cam.size)
     xyz = rng.normal(size=(50, 3)) * 0.5
     np.testing.assert_allclose(back.project(xyz), cam.project(xyz), atol=1e-9)
-    np.testing.assert_allclose(project_params(p, xyz, jacobian=False), cam.project(xyz),
-                               atol=1e-9)
+    np.testing.assert_allclose(project_params(p, xyz, jacobian=False), cam.project(xyz), atol=1e-9)
 
 
 @pytest.mark.parametrize("scale", [0.0, 1e-12, 0.3, 2.5])
@@ -97,9 +96,11 @@ def test_projection_jacobians_match_finite_differences(rng):
         dp = np.zeros_like(p)
         dp[k] = steps[k]
         num = (project_params(p + dp, xyz, False) - project_params(p - dp, xyz, False)) / (
-            2 * steps[k])
-        np.testing.assert_allclose(J_cam[:, :, k], num, rtol=1e-5, atol=1e-4,
-                                   err_msg=f"parameter {k}")
+            2 * steps[k]
+        )
+        np.testing.assert_allclose(
+            J_cam[:, :, k], num, rtol=1e-5, atol=1e-4, err_msg=f"parameter {k}"
+        )
     for k in range(3):
         d = np.zeros(3)
         d[k] = 1e-6
@@ -111,6 +112,7 @@ def test_one_camera_for_all_points_equals_per_point_parameters(rng):
     """A single parameter vector takes the one-rotation path; per-point copies the
     batched one: both give the same projection and Jacobians."""
     from core.camera import camera_project_jacobians
+
     cam = _aspect_camera(rng)
     p = pack_camera(cam)
     xyz = rng.normal(size=(40, 3)) * 0.5

@@ -23,9 +23,14 @@ def rig():
     balls = make_metaballs(skel)
     s = np.ones(skel.n_groups)
     target = np.array([0.0, 0.0, 1.0])
-    cams = [_look_at(target + d, target) for d in (np.array([0.0, -4.0, 0.0]),
-                                                    np.array([4.0, 0.0, 0.0]),
-                                                    np.array([-2.8, -2.8, 0.0]))]
+    cams = [
+        _look_at(target + d, target)
+        for d in (
+            np.array([0.0, -4.0, 0.0]),
+            np.array([4.0, 0.0, 0.0]),
+            np.array([-2.8, -2.8, 0.0]),
+        )
+    ]
     theta = np.zeros(skel.n_dof)
     theta[skel.dof_index("l_shoulder_y")] = -0.6
     theta[skel.dof_index("r_shoulder_y")] = 0.6
@@ -72,9 +77,10 @@ def test_containment_jacobian_matches_finite_differences(rig):
         ok = np.abs(co.J_theta[moved, j] - fd[moved]) <= 3.0 + 0.2 * np.abs(fd[moved])
         assert ok.mean() > 0.9
     d = np.array([0.003, 0.0, 0.0])
-    fd = (containment_observations(skel, th, rt + d, s, balls, cams, fields, tol_px=0.0).residual
-          - containment_observations(skel, th, rt - d, s, balls, cams, fields,
-                                     tol_px=0.0).residual) / (2 * d[0])
+    fd = (
+        containment_observations(skel, th, rt + d, s, balls, cams, fields, tol_px=0.0).residual
+        - containment_observations(skel, th, rt - d, s, balls, cams, fields, tol_px=0.0).residual
+    ) / (2 * d[0])
     ok = np.abs(co.J_root[k, 0] - fd[k]) <= 30.0 + 0.2 * np.abs(fd[k])
     assert ok.mean() > 0.9
 
@@ -99,8 +105,13 @@ def test_divergence_flag_fires_on_a_lost_pose(rig):
     skel, balls, s, cams, theta, root, contours = rig
     lost = theta.copy()
     # both arms swung up and forward, a leg out to the side: far from the silhouettes
-    for name, v in (("l_shoulder_x", -1.4), ("r_shoulder_x", -1.4), ("r_hip_y", 0.9),
-                    ("l_shoulder_y", 0.0), ("r_shoulder_y", 0.0)):
+    for name, v in (
+        ("l_shoulder_x", -1.4),
+        ("r_shoulder_x", -1.4),
+        ("r_hip_y", 0.9),
+        ("l_shoulder_y", 0.0),
+        ("r_shoulder_y", 0.0),
+    ):
         lost[skel.dof_index(name)] = v
     out = _update(rig, lost, root + np.array([0.25, 0.0, 0.0]), recover=False)
     assert out.diverged
@@ -108,8 +119,9 @@ def test_divergence_flag_fires_on_a_lost_pose(rig):
     # the limb search and the re-solve bring it back
     back = _update(rig, lost, root + np.array([0.25, 0.0, 0.0]), recover=True, search=True)
     assert back.searched
-    assert back.outside_frac + back.unexplained_frac < 0.5 * (out.outside_frac
-                                                              + out.unexplained_frac)
+    assert back.outside_frac + back.unexplained_frac < 0.5 * (
+        out.outside_frac + out.unexplained_frac
+    )
 
 
 def test_selection_uses_only_cameras_that_see_the_part(rig):

@@ -32,14 +32,25 @@ def body():
     rng = np.random.default_rng(7)
     theta = np.zeros(skel.n_dof)
     # arms abducted (left: negative y, right: positive), an elbow bent, legs apart
-    for name, val in (("l_shoulder_y", -0.8), ("r_shoulder_y", 0.9), ("l_elbow_x", -0.6),
-                      ("r_knee_x", 0.5), ("r_hip_x", -0.4), ("l_hip_y", -0.25)):
+    for name, val in (
+        ("l_shoulder_y", -0.8),
+        ("r_shoulder_y", 0.9),
+        ("l_elbow_x", -0.6),
+        ("r_knee_x", 0.5),
+        ("r_hip_x", -0.4),
+        ("l_hip_y", -0.25),
+    ):
         theta[skel.dof_index(name)] = val
     root = np.array([0.0, 0.0, 1.0])
     target = np.array([0.0, 0.0, 1.0])
-    cams = [_look_at(target + d, target) for d in (np.array([0.0, -4.0, 0.0]),
-                                                    np.array([4.0, 0.0, 0.0]),
-                                                    np.array([-2.8, -2.8, 0.0]))]
+    cams = [
+        _look_at(target + d, target)
+        for d in (
+            np.array([0.0, -4.0, 0.0]),
+            np.array([4.0, 0.0, 0.0]),
+            np.array([-2.8, -2.8, 0.0]),
+        )
+    ]
     observed = []
     for cam in cams:
         c, a, r, p = body_ellipsoids(skel, theta, root, s, balls)
@@ -80,8 +91,9 @@ def test_gauss_newton_on_contours_recovers_the_pose(body):
 
 def test_all_cameras_fused_without_selection(body):
     skel, balls, s, theta, root, cams, observed, _ = body
-    sel = contour_observations(skel, theta, root, s, balls, cams, observed,
-                               theta_rate=np.full(skel.n_dof, 0.01))
+    sel = contour_observations(
+        skel, theta, root, s, balls, cams, observed, theta_rate=np.full(skel.n_dof, 0.01)
+    )
     fused = contour_observations(skel, theta, root, s, balls, cams, observed, select=False)
     assert fused.selection.use.sum() >= sel.selection.use.sum()
     # a part hidden behind the torso in one view is not used there when selecting

@@ -14,14 +14,16 @@ def test_search_brings_a_lost_forearm_back(rig):  # noqa: F811
     start = theta.copy()
     start[skel.dof_index("l_shoulder_x")] += 0.8  # the arm swung far from its silhouette
     start[skel.dof_index("l_elbow_x")] -= 0.6
-    res = search_limbs(skel, start, root, s, balls, cams, contours, fields,
-                       cfg=SearchSettings(samples=48, seed=1))
+    res = search_limbs(
+        skel, start, root, s, balls, cams, contours, fields, cfg=SearchSettings(samples=48, seed=1)
+    )
     assert "l_arm" in res.moved
     wrist = skel.joint_names.index("l_wrist")
 
     def err(th):
-        return np.linalg.norm(joint_positions(skel, th, root, s)[wrist]
-                              - joint_positions(skel, theta, root, s)[wrist])
+        return np.linalg.norm(
+            joint_positions(skel, th, root, s)[wrist] - joint_positions(skel, theta, root, s)[wrist]
+        )
 
     assert err(res.theta) < 0.5 * err(start)
     # only the searched DOFs of moved limbs change

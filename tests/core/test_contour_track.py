@@ -19,9 +19,14 @@ def rig():
     balls = make_metaballs(skel)
     s = np.ones(skel.n_groups)
     target = np.array([0.0, 0.0, 1.0])
-    cams = [_look_at(target + d, target) for d in (np.array([0.0, -4.0, 0.0]),
-                                                    np.array([4.0, 0.0, 0.0]),
-                                                    np.array([-2.8, -2.8, 0.0]))]
+    cams = [
+        _look_at(target + d, target)
+        for d in (
+            np.array([0.0, -4.0, 0.0]),
+            np.array([4.0, 0.0, 0.0]),
+            np.array([-2.8, -2.8, 0.0]),
+        )
+    ]
     return skel, balls, s, cams
 
 
@@ -37,10 +42,16 @@ def _swing(skel, F=8):
     """Arms and legs swinging, the body walking forward (smooth, ~3 cm/frame)."""
     theta = np.zeros((F, skel.n_dof))
     t = np.arange(F)
-    for name, amp, base in (("l_shoulder_x", 0.35, 0.0), ("r_shoulder_x", -0.35, 0.0),
-                            ("l_shoulder_y", 0.0, -0.5), ("r_shoulder_y", 0.0, 0.5),
-                            ("l_hip_x", -0.3, 0.0), ("r_hip_x", 0.3, 0.0),
-                            ("l_elbow_x", 0.2, -0.5), ("r_knee_x", 0.2, 0.3)):
+    for name, amp, base in (
+        ("l_shoulder_x", 0.35, 0.0),
+        ("r_shoulder_x", -0.35, 0.0),
+        ("l_shoulder_y", 0.0, -0.5),
+        ("r_shoulder_y", 0.0, 0.5),
+        ("l_hip_x", -0.3, 0.0),
+        ("r_hip_x", 0.3, 0.0),
+        ("l_elbow_x", 0.2, -0.5),
+        ("r_knee_x", 0.2, 0.3),
+    ):
         theta[:, skel.dof_index(name)] = base + amp * np.sin(t / 4.0)
     root = np.stack([np.zeros(F), -0.03 * t, np.full(F, 1.0)], axis=1)
     return theta, root
@@ -52,8 +63,9 @@ def test_shape_from_silhouettes_recovers_radii(rig):
     truth = balls.copy(radii=balls.radii * np.where(np.arange(len(balls)) % 2, 1.12, 0.9)[:, None])
     observed = _contours(skel, theta[0], root[0], s, truth, cams)
     start_err = np.abs(balls.radii - truth.radii).mean()
-    fitted, th, rt, rms = fit_shape_to_contours(skel, s, balls, theta[0], root[0], cams, observed,
-                                                ContourTrackSettings(q_sigma_theta=0.01))
+    fitted, th, rt, rms = fit_shape_to_contours(
+        skel, s, balls, theta[0], root[0], cams, observed, ContourTrackSettings(q_sigma_theta=0.01)
+    )
     assert rms < 1.0
     # radii along bones and hidden ones are weakly observed: the error falls, not to zero
     assert np.abs(fitted.radii - truth.radii).mean() < 0.75 * start_err
@@ -85,19 +97,22 @@ def test_shape_from_silhouettes_moves_centres_off_the_bone_axis(rig):
     held, *_ = fit_shape_to_contours(skel, s, balls, theta[0], root[0], cams, observed, tight)
     cfg = ContourSettings()
     sigma = np.where(np.isin(names, cfg.shape_center_parts), cfg.shape_center_sigma_m, np.nan)
-    free, th, rt, rms = fit_shape_to_contours(skel, s, balls, theta[0], root[0], cams,
-                                              observed, tight, center_prior_m=sigma)
+    free, th, rt, rms = fit_shape_to_contours(
+        skel, s, balls, theta[0], root[0], cams, observed, tight, center_prior_m=sigma
+    )
     assert np.array_equal(held.center0, balls.center0)
     err = np.linalg.norm(free.center0[moved] - centres[moved], axis=1)
-    assert err.mean() < 0.5 * 0.03, err                          # 3 cm off before
+    assert err.mean() < 0.5 * 0.03, err  # 3 cm off before
     arms = ~np.isin(names, cfg.shape_center_parts)
     assert arms.sum() > 10 and np.array_equal(free.center0[arms], balls.center0[arms])
     assert np.linalg.norm(rt - root[0]) < 0.005 and rms < 1.0
 
     def iou(body, th_, rt_):
         a = [render_parts(cam, *body_ellipsoids(skel, th_, rt_, s, body)).mask for cam in cams]
-        b = [render_parts(cam, *body_ellipsoids(skel, theta[0], root[0], s, truth)).mask
-             for cam in cams]
+        b = [
+            render_parts(cam, *body_ellipsoids(skel, theta[0], root[0], s, truth)).mask
+            for cam in cams
+        ]
         return np.mean([(x & y).sum() / (x | y).sum() for x, y in zip(a, b, strict=True)])
 
     assert iou(free, th, rt) > iou(held, theta[0], root[0]) + 0.005
@@ -110,8 +125,9 @@ def test_tracking_follows_the_motion_with_and_without_selection(rig):
     truth = joint_positions(skel, theta, root, s)
     errs = {}
     for select in (True, False):
-        out = track_contours(skel, s, balls, theta[0], root[0], cams, contours,
-                             ContourTrackSettings(select=select))
+        out = track_contours(
+            skel, s, balls, theta[0], root[0], cams, contours, ContourTrackSettings(select=select)
+        )
         assert all(t.updated for t in out)
         th = np.array([t.theta for t in out])
         rt = np.array([t.root for t in out])
@@ -133,8 +149,11 @@ def test_a_frame_without_contours_coasts_on_the_prediction(rig):
     out = track_contours(skel, s, balls, theta[0], root[0], cams, contours)
     assert [t.updated for t in out] == [True, True, True, False, True, True]
     assert np.all(np.isfinite(out[3].theta))
-    err = np.linalg.norm(joint_positions(skel, out[5].theta, out[5].root, s)
-                         - joint_positions(skel, theta[5], root[5], s), axis=1)
+    err = np.linalg.norm(
+        joint_positions(skel, out[5].theta, out[5].root, s)
+        - joint_positions(skel, theta[5], root[5], s),
+        axis=1,
+    )
     assert np.median(err) < 0.015  # recovered after the gap
 
 
@@ -151,13 +170,15 @@ def test_contours_restore_a_part_the_points_did_not_see(rig):
     arm = [skel.dof_index(n) for n in ("l_shoulder_x", "l_shoulder_y")]
     wrong[:, arm] += 0.15
     q = Quality.empty(3, skel.n_dof)
-    q.theta_sigma[:] = 0.002            # the points pinned every DOF ...
-    q.theta_sigma[:, arm] = np.nan      # ... except the unseen arm's
+    q.theta_sigma[:] = 0.002  # the points pinned every DOF ...
+    q.theta_sigma[:, arm] = np.nan  # ... except the unseen arm's
     state = FitState(skel, s, balls, root.copy(), wrong, q)
     out = refine_state_with_contours(state, cams, contours)
     err = lambda th: np.linalg.norm(  # noqa: E731
         joint_positions(skel, th, root, s)[:, skel.joint_index("l_wrist")]
-        - joint_positions(skel, theta, root, s)[:, skel.joint_index("l_wrist")], axis=1)
+        - joint_positions(skel, theta, root, s)[:, skel.joint_index("l_wrist")],
+        axis=1,
+    )
     assert err(wrong).min() > 0.05
     assert err(out.theta).max() < 0.015
     # the pinned DOFs move at most about two σ floors (0.02 rad: point-fit σ are optimistic)

@@ -16,8 +16,10 @@ def test_visibility_only_selection_uses_every_visible_camera(monkeypatch):
     balls = make_metaballs(skel)
     s = np.ones(skel.n_groups)
     target = np.array([0.0, 0.0, 1.0])
-    cams = [_look_at(target + d, target) for d in (np.array([0.0, -4.0, 0.0]),
-                                                    np.array([4.0, 0.0, 0.0]))]
+    cams = [
+        _look_at(target + d, target)
+        for d in (np.array([0.0, -4.0, 0.0]), np.array([4.0, 0.0, 0.0]))
+    ]
     theta = np.zeros(skel.n_dof)
     theta[skel.dof_index("l_shoulder_x")] = 0.4
     root = np.array([0.0, 0.0, 1.0])

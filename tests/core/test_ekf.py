@@ -16,12 +16,14 @@ def _arm(q):
 
 def _arm_jac(q):
     a, b = q
-    return np.array([
-        [-0.3 * np.sin(a), 0.0],
-        [0.3 * np.cos(a), 0.0],
-        [-0.3 * np.sin(a) - 0.25 * np.sin(a + b), -0.25 * np.sin(a + b)],
-        [0.3 * np.cos(a) + 0.25 * np.cos(a + b), 0.25 * np.cos(a + b)],
-    ])
+    return np.array(
+        [
+            [-0.3 * np.sin(a), 0.0],
+            [0.3 * np.cos(a), 0.0],
+            [-0.3 * np.sin(a) - 0.25 * np.sin(a + b), -0.25 * np.sin(a + b)],
+            [0.3 * np.cos(a) + 0.25 * np.cos(a + b), 0.25 * np.cos(a + b)],
+        ]
+    )
 
 
 def _truth(n=80):

@@ -19,18 +19,26 @@ from tests.conftest import DEFAULT_SCENE
 def _synthetic_truth(rng, nf=8):
     """Joints of a randomly proportioned subject in smooth random motion."""
     tmpl = sk.make_skeleton()
-    offs = {j: tmpl.joint_offset[i] * (1 + 0.1 * rng.normal()) + rng.normal(0, 0.01, 3)
-            for i, j in enumerate(JOINTS) if j != "pelvis"}
+    offs = {
+        j: tmpl.joint_offset[i] * (1 + 0.1 * rng.normal()) + rng.normal(0, 0.01, 3)
+        for i, j in enumerate(JOINTS)
+        if j != "pelvis"
+    }
     skel = sk.make_skeleton(offs)
     t = np.linspace(0, 1, nf)[:, None]
-    theta = 0.4 * np.sin(2 * np.pi * t * rng.uniform(0.5, 1.5, skel.n_dof)
-                         + rng.uniform(0, 6, skel.n_dof))
+    theta = 0.4 * np.sin(
+        2 * np.pi * t * rng.uniform(0.5, 1.5, skel.n_dof) + rng.uniform(0, 6, skel.n_dof)
+    )
     theta[:, 0] += 2.5
     theta[:, skel.dof_index("l_knee_x")] = 0.6  # a clearly bent knee
     root = np.c_[1.2 * t[:, 0], 0.1 * t[:, 0], 0.95 + 0.02 * np.sin(6 * t[:, 0])]
     xyz = sk.joint_positions(skel, theta, root, np.ones(skel.n_groups))
-    return {"joints_xyz": xyz, "joint_names": np.array(JOINTS), "height_m": np.array(1.7),
-            "frame_times": np.arange(nf) / 25.0}
+    return {
+        "joints_xyz": xyz,
+        "joint_names": np.array(JOINTS),
+        "height_m": np.array(1.7),
+        "frame_times": np.arange(nf) / 25.0,
+    }
 
 
 @pytest.fixture
@@ -93,7 +101,8 @@ def test_knee_angle_gives_that_shin_rotation(truth, truth_state):
     assert ev.per_segment_max_deg["r_shin"] < 1e-6
     shin = np.linalg.norm(skel.joint_offset[skel.joint_index("l_ankle")])
     assert ev.per_joint_mm["l_ankle"] == pytest.approx(
-        2000 * shin * np.sin(np.deg2rad(1.0)), rel=1e-6)
+        2000 * shin * np.sin(np.deg2rad(1.0)), rel=1e-6
+    )
 
 
 def test_diverged_frames_are_counted_and_left_out(truth):
@@ -114,7 +123,8 @@ def _scene(tmp_path, truth):
     for i in range(nf):
         cv2.imwrite(str(root / "images" / "cam1" / f"{i:06d}.png"), np.zeros((4, 4), np.uint8))
     (root / "scene.toml").write_text(
-        f'name = "synthetic"\nfps = 25.0\nframes = {nf}\ncameras = ["cam1"]\nsize = [4, 4]\n')
+        f'name = "synthetic"\nfps = 25.0\nframes = {nf}\ncameras = ["cam1"]\nsize = [4, 4]\n'
+    )
     np.savez(root / "truth.npz", **truth)
     return root
 
@@ -181,8 +191,17 @@ def test_mesh_samples_lie_on_the_triangles_spread_by_area():
     samples lie inside them, about a quarter on the first."""
     from core.evaluate import sample_mesh_surface
 
-    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0],  # area 0.5
-                  [2, 0, 0], [5, 0, 0], [2, 1, 0]], float)  # area 1.5
+    v = np.array(
+        [
+            [0, 0, 0],
+            [1, 0, 0],
+            [0, 1, 0],  # area 0.5
+            [2, 0, 0],
+            [5, 0, 0],
+            [2, 1, 0],
+        ],
+        float,
+    )  # area 1.5
     faces = np.array([[0, 1, 2], [3, 4, 5]])
     p = sample_mesh_surface(v, faces, 20000, np.random.default_rng(0))
     assert p.shape == (20000, 3) and np.all(p[:, 2] == 0)

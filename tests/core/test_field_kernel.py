@@ -62,6 +62,7 @@ def test_numpy_path_when_switched_off(monkeypatch):
 
 def test_inside_any_compiled_and_numpy_agree(monkeypatch):
     from core.model_contours import inside_any
+
     rng = np.random.default_rng(11)
     E, N = 12, 400
     axes, _ = np.linalg.qr(rng.normal(size=(E, 3, 3)))

@@ -35,10 +35,10 @@ def test_sequence_follows_the_motion_and_marks_a_frame_without_points(rng):
         frames.append(FramePoints(xyz=xyz, sigma=0.001))
     frames[2] = FramePoints(xyz=frames[2].xyz[:5], sigma=0.001)  # almost nothing seen
     cams = cameras()
-    init = initialise(clicks_of(skel, theta[0], root[0], s, cams, CLICK_JOINTS), cams,
-                      model="simplified")
-    cfg = SequenceSettings(max_nfev=15, max_nfev_shape=15,
-                           fit=FitSettings(members="part"))
+    init = initialise(
+        clicks_of(skel, theta[0], root[0], s, cams, CLICK_JOINTS), cams, model="simplified"
+    )
+    cfg = SequenceSettings(max_nfev=15, max_nfev_shape=15, fit=FitSettings(members="part"))
     res = fit_sequence(frames, init, cfg)
     st = res.state
     q = st.quality
@@ -80,8 +80,9 @@ def _shape_sequence(rng, nf=3):
         x = x[ok] + rng.normal(0.0, 0.001, (int(ok.sum()), 3))
         frames.append(FramePoints(xyz=x, sigma=0.001))
     cams = cameras()
-    init = initialise(clicks_of(skel, theta[0], root[0], s, cams, CLICK_JOINTS), cams,
-                      model="simplified")
+    init = initialise(
+        clicks_of(skel, theta[0], root[0], s, cams, CLICK_JOINTS), cams, model="simplified"
+    )
     return skel, s, template, truth, theta, root, frames, cams, init
 
 
@@ -95,11 +96,16 @@ def test_shape_fit_option_moves_the_surface_to_the_truth(rng):
     skel, s, template, truth, theta, root, frames, cams, init = _shape_sequence(rng)
     # the per-part shape solve held near the template (its radii blend into a surface
     # that bulges where metaballs overlap, far from these whole-body surface points)
-    base = SequenceSettings(max_nfev=10, max_nfev_shape=10, search=False,
-                            shape_sigma_radius=0.005, shape="template")
+    base = SequenceSettings(
+        max_nfev=10, max_nfev_shape=10, search=False, shape_sigma_radius=0.005, shape="template"
+    )
     shape_cfg = ShapeSettings(rounds=3, max_nfev=10, samples_per_ball=10, free_centers=False)
-    res = fit_sequence(frames, init, replace(base, shape="fit", shape_fit_track=True,
-                                             shape_fit=shape_cfg), cameras=cams)
+    res = fit_sequence(
+        frames,
+        init,
+        replace(base, shape="fit", shape_fit_track=True, shape_fit=shape_cfg),
+        cameras=cams,
+    )
     rec = res.shape
     assert rec is not None and rec.frames.tolist() == [0, 1, 2] and rec.frame_ok.all()
     assert isinstance(rec.converged, bool) and rec.message
@@ -121,15 +127,20 @@ def test_shape_fit_option_moves_the_surface_to_the_truth(rng):
     assert default.shape is None
     # the blended surface, not each metaball's radii, is what points determine (the
     # overlapping metaballs trade their widths); it moves to the truth
-    assert dist(st) < 0.5 * dist(default.state) and dist(st) < 0.005, \
-        (dist(st), dist(default.state))
-    written = fit_sequence(frames, init, replace(base, shape="fit", shape_fit=shape_cfg),
-                           cameras=cams)
+    assert dist(st) < 0.5 * dist(default.state) and dist(st) < 0.005, (
+        dist(st),
+        dist(default.state),
+    )
+    written = fit_sequence(
+        frames, init, replace(base, shape="fit", shape_fit=shape_cfg), cameras=cams
+    )
     assert SequenceSettings().shape == "fit" and not SequenceSettings().shape_fit_track
     assert written.shape is not None and written.shape.frames.tolist() == [0, 1, 2]
     np.testing.assert_array_equal(written.state.theta, default.state.theta)
-    assert dist(written.state) < 0.5 * dist(default.state), \
-        (dist(written.state), dist(default.state))
+    assert dist(written.state) < 0.5 * dist(default.state), (
+        dist(written.state),
+        dist(default.state),
+    )
     with pytest.raises(ValueError, match="unknown shape option"):
         fit_sequence(frames, init, replace(base, shape="bogus"))
 
@@ -159,26 +170,47 @@ def test_an_arm_hidden_for_two_frames_is_marked_and_bridged(rng):
             y = np.einsum("mij,nmi->nmj", Rw[0, on], xyz[:, None] - cw[0, on][None])
             d = np.sqrt(np.sum((y / balls.radii[on]) ** 2, axis=2)).min(axis=1)
             seen = d > 1.0 + 0.05 / balls.radii[on].min()
-        frames.append(FramePoints(xyz=xyz[seen] + rng.normal(0, 0.001, (seen.sum(), 3)),
-                                  sigma=0.001))
+        frames.append(
+            FramePoints(xyz=xyz[seen] + rng.normal(0, 0.001, (seen.sum(), 3)), sigma=0.001)
+        )
     cams = cameras()
-    init = initialise(clicks_of(skel, theta[0], root[0], s, cams, CLICK_JOINTS), cams,
-                      model="simplified")
+    init = initialise(
+        clicks_of(skel, theta[0], root[0], s, cams, CLICK_JOINTS), cams, model="simplified"
+    )
     cfg = SequenceSettings(max_nfev=15, max_nfev_shape=15, search=False)
     res = fit_sequence(frames, init, cfg)
     un = res.state.quality.unobserved
-    arm_dofs = [k for k, d in enumerate(skel.dof_names)
-                if d.rsplit("_", 1)[0] in ("r_shoulder", "r_elbow", "r_wrist")]
+    arm_dofs = [
+        k
+        for k, d in enumerate(skel.dof_names)
+        if d.rsplit("_", 1)[0] in ("r_shoulder", "r_elbow", "r_wrist")
+    ]
     upper = arm_dofs[:-2]  # the shoulder's and the elbow's (the small hand may lack points)
     assert un[2:4][:, arm_dofs].all() and not un[[0, 1, 4, 5]][:, upper].any()
-    legs_trunk = [k for k, d in enumerate(skel.dof_names)
-                  if d.startswith(("pelvis", "lowerback", "spine", "chest", "l_hip", "l_knee",
-                                   "l_ankle", "r_hip", "r_knee", "r_ankle"))]
+    legs_trunk = [
+        k
+        for k, d in enumerate(skel.dof_names)
+        if d.startswith(
+            (
+                "pelvis",
+                "lowerback",
+                "spine",
+                "chest",
+                "l_hip",
+                "l_knee",
+                "l_ankle",
+                "r_hip",
+                "r_knee",
+                "r_ankle",
+            )
+        )
+    ]
     assert not un[:, legs_trunk].any()
     res_held = fit_sequence(frames, init, replace(cfg, bridge_hidden=False))
     wrist = skel.joint_index("r_wrist")
     true_w = sk.joint_positions(skel, theta, root, s)[2:4, wrist]
-    err, err_held = (np.linalg.norm(r.state.joints_xyz()[2:4, wrist] - true_w, axis=1)
-                     for r in (res, res_held))
+    err, err_held = (
+        np.linalg.norm(r.state.joints_xyz()[2:4, wrist] - true_w, axis=1) for r in (res, res_held)
+    )
     # bridged 2.3 / 4.2 cm, held 7.2 / 12.1 cm off
     assert err.max() < 0.05 and err.max() < 0.5 * err_held.max(), (err, err_held)

@@ -13,8 +13,9 @@ def _record(monkeypatch):
     calls = _Calls()
     calls.shapes = []
 
-    def fake_run_one(scene, frames, observations, model, cues="texture", tracks=None,
-                     shape="written"):
+    def fake_run_one(
+        scene, frames, observations, model, cues="texture", tracks=None, shape="written"
+    ):
         calls.append((Path(scene).name, observations, cues, tracks))
         calls.shapes.append(shape)
         return {"scene": Path(scene).name, "error": ["not run in this test"]}
@@ -28,8 +29,10 @@ def test_real_row_follows_the_truth_derived_row_of_the_default_scene(monkeypatch
     calls = _record(monkeypatch)
     bf.main([str(bf.DEFAULT), "--real", "both"])
     tracks = bf.ROOT / "out" / "t.tracks.npz"
-    assert calls == [("walk_line3", "truth", "texture", None),
-                     ("walk_line3", "tracks", "both", tracks)]
+    assert calls == [
+        ("walk_line3", "truth", "texture", None),
+        ("walk_line3", "tracks", "both", tracks),
+    ]
     assert "REAL pipeline" in capsys.readouterr().out
 
 

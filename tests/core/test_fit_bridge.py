@@ -23,13 +23,15 @@ def test_runs():
 def test_an_angle_is_observed_through_any_part_it_moves():
     # DOFs: 0 trunk, 1 shoulder (child of 0), 2 elbow (child of 1), 3 other arm (of 0)
     parent = np.array([-1, 0, 1, 0])
-    hidden = np.array([[0, 1, 0, 0],   # upper arm hidden, forearm seen: shoulder observed
-                       [0, 1, 1, 0],   # the whole arm hidden
-                       [1, 1, 1, 1]],  # everything hidden
-                      bool)
-    want = np.array([[0, 0, 0, 0],
-                     [0, 1, 1, 0],
-                     [1, 1, 1, 1]], bool)
+    hidden = np.array(
+        [
+            [0, 1, 0, 0],  # upper arm hidden, forearm seen: shoulder observed
+            [0, 1, 1, 0],  # the whole arm hidden
+            [1, 1, 1, 1],
+        ],  # everything hidden
+        bool,
+    )
+    want = np.array([[0, 0, 0, 0], [0, 1, 1, 0], [1, 1, 1, 1]], bool)
     assert np.array_equal(unobserved(hidden, parent), want)
 
 

@@ -26,8 +26,10 @@ from tests.core._bodyscene import clicks_of, look_at
 def _cams():
     """Three cameras around the subject (front, side, diagonal), 512x384."""
     t = (0.0, 0.0, 1.0)
-    return [look_at(f"cam0{i + 1}", c, t, f=700.0)
-            for i, c in enumerate(((0.0, -4.0, 1.1), (4.0, 0.0, 1.1), (-2.8, -2.8, 1.1)))]
+    return [
+        look_at(f"cam0{i + 1}", c, t, f=700.0)
+        for i, c in enumerate(((0.0, -4.0, 1.1), (4.0, 0.0, 1.1), (-2.8, -2.8, 1.1)))
+    ]
 
 
 def _silhouettes(skel, balls, theta, root, s, cams):
@@ -38,8 +40,14 @@ def _silhouettes(skel, balls, theta, root, s, cams):
 
 def _pose(skel):
     theta = np.zeros(skel.n_dof)
-    for name, val in (("l_shoulder_y", -0.8), ("r_shoulder_y", 0.9), ("l_elbow_x", -0.6),
-                      ("r_knee_x", 0.5), ("r_hip_x", -0.4), ("l_hip_y", -0.25)):
+    for name, val in (
+        ("l_shoulder_y", -0.8),
+        ("r_shoulder_y", 0.9),
+        ("l_elbow_x", -0.6),
+        ("r_knee_x", 0.5),
+        ("r_hip_x", -0.4),
+        ("l_hip_y", -0.25),
+    ):
         theta[skel.dof_index(name)] = val
     return theta, np.array([0.0, 0.0, 1.0])
 
@@ -80,19 +88,26 @@ def test_contour_jacobians_match_finite_differences(body, deflated):
         for k in cols_k:
             d = np.zeros(x.size)
             d[k] = eps
-            cols.append((res(**make((x.ravel() + d).reshape(x.shape)))
-                         - res(**make((x.ravel() - d).reshape(x.shape)))) / (2 * eps))
+            cols.append(
+                (
+                    res(**make((x.ravel() + d).reshape(x.shape)))
+                    - res(**make((x.ravel() - d).reshape(x.shape)))
+                )
+                / (2 * eps)
+            )
         return np.stack(cols, axis=1)
 
-    for J, x, make in ((Jt, th, lambda v: {"th": v}), (Jr, rt, lambda v: {"rt": v}),
-                       (Js, s1, lambda v: {"s": v}),
-                       (Jrad, b1.radii, lambda v: {"radii": v}),
-                       (Jc, b1.center0, lambda v: {"centers": v})):
+    for J, x, make in (
+        (Jt, th, lambda v: {"th": v}),
+        (Jr, rt, lambda v: {"rt": v}),
+        (Js, s1, lambda v: {"s": v}),
+        (Jrad, b1.radii, lambda v: {"radii": v}),
+        (Jc, b1.center0, lambda v: {"centers": v}),
+    ):
         # the columns that any pair depends on, and a few that none does (zero)
         live = np.flatnonzero(np.abs(J).max(axis=0) > 0)
         dead = np.flatnonzero(np.abs(J).max(axis=0) == 0)
-        cols_k = np.concatenate([rng.choice(live, min(12, len(live)), replace=False),
-                                 dead[:2]])
+        cols_k = np.concatenate([rng.choice(live, min(12, len(live)), replace=False), dead[:2]])
         num = fd(x, make, cols_k)
         scale = np.abs(num).max()
         assert scale > 0
@@ -116,8 +131,16 @@ def test_pose_from_contours_alone_recovers_a_perturbed_pose(body):
     sig = np.full(skel.n_dof, 0.03)
     sig[[skel.dof_index(n) for n in names]] = 0.5
     obs = Observations(theta_pred=th0, sigma_pred=sig, contours=cf)
-    r = fit(skel, balls, obs, th0, rt0, s, solve="pose",
-            settings=FitSettings(irls_rounds=6, max_nfev=30))
+    r = fit(
+        skel,
+        balls,
+        obs,
+        th0,
+        rt0,
+        s,
+        solve="pose",
+        settings=FitSettings(irls_rounds=6, max_nfev=30),
+    )
     err = np.linalg.norm(sk.joint_positions(skel, r.theta, r.root_xyz, s) - truth, axis=1)
     assert err0 > 0.05
     assert np.median(err) < 0.005 and err.max() < 0.02, (err0, np.median(err), err.max())
@@ -147,20 +170,21 @@ def test_sequence_from_contours_alone_and_a_frame_without_contours():
     cams = _cams()
     cons = [_silhouettes(skel, balls, theta[f], root[f], s, cams) for f in range(nf)]
     cons[2] = [[] for _ in cams]  # nothing segmented in frame 2
-    init = initialise(clicks_of(skel, theta[0], root[0], s, cams, CLICK_JOINTS), cams,
-                      model="simplified")
+    init = initialise(
+        clicks_of(skel, theta[0], root[0], s, cams, CLICK_JOINTS), cams, model="simplified"
+    )
     init.metaballs = balls.copy()  # the silhouettes' own shape
     frames = [FramePoints(np.zeros((0, 3)), np.zeros(0)) for _ in range(nf)]
     cfr = contour_frames(cams, cons, ContourSettings(sigma_px=1.0, huber_px=2.0))
-    res = fit_sequence(frames, init, SequenceSettings(max_nfev=15, shape_frames=1),
-                       contours=cfr)
+    res = fit_sequence(frames, init, SequenceSettings(max_nfev=15, shape_frames=1), contours=cfr)
     st, q = res.state, res.state.quality
     assert q.diverged.tolist() == [False, False, True, False]
     for arr in (st.theta, st.root_xyz):
         assert np.all(np.isfinite(arr))
     idx = [skel.joint_index(j) for j in METRIC_JOINTS]
-    err = np.linalg.norm(st.joints_xyz()[:, idx] - sk.joint_positions(skel, theta, root, s)[:, idx],
-                         axis=-1)
+    err = np.linalg.norm(
+        st.joints_xyz()[:, idx] - sk.joint_positions(skel, theta, root, s)[:, idx], axis=-1
+    )
     assert err[[0, 1, 3]].mean() < 0.015, err.mean(axis=1)
     assert res.contour_matches[3] > 200 and res.contour_rms_px[3] < 2.0
     names = {c.name for c in cams}
@@ -181,7 +205,7 @@ def test_unusable_background_gives_no_contours_and_a_flag():
     # a static grey scene with a moving bright square: plausible masks and contours
     frames = np.full((8, 48, 96, 3), 60, np.uint8)
     for i in range(8):
-        frames[i, 10:30, 2 + 11 * i:18 + 11 * i] = 220
+        frames[i, 10:30, 2 + 11 * i : 18 + 11 * i] = 220
     cons, ok = contours_from_frames(frames)
     assert ok.all() and all(len(c) == 1 for c in cons)
 
@@ -206,7 +230,8 @@ def _silhouette_scene(root, noise_cams=()):
     rng = np.random.default_rng(5)
     (root / "scene.toml").write_text(
         f'name = "silhouettes"\nfps = 25.0\nframes = {nf}\n'
-        f'cameras = {json.dumps([c.name for c in cams])}\nsize = [512, 384]\nfield = "none"\n')
+        f'cameras = {json.dumps([c.name for c in cams])}\nsize = [512, 384]\nfield = "none"\n'
+    )
     for c, cam in enumerate(cams):
         (root / "images" / cam.name).mkdir(parents=True)
         for f in range(nf):
@@ -219,8 +244,9 @@ def _silhouette_scene(root, noise_cams=()):
             cv2.imwrite(str(root / "images" / cam.name / f"{f:06d}.png"), img)
     write_calibration(root / "calibration.toml", cams)
     clicks = clicks_of(skel, theta, np.array([-0.6, 0.0, 1.0]), s, cams, CLICK_JOINTS)
-    clicks["joints"] = {j: {k: [float(x) for x in uv] for k, uv in v.items()}
-                        for j, v in clicks["joints"].items()}
+    clicks["joints"] = {
+        j: {k: [float(x) for x in uv] for k, uv in v.items()} for j, v in clicks["joints"].items()
+    }
     (root / "clicks.json").write_text(json.dumps(clicks))
 
 
@@ -253,8 +279,21 @@ def test_cli_contours_alone_with_one_unusable_camera(tmp_path, capsys):
     from core.state import read_state
 
     _silhouette_scene(tmp_path, noise_cams=(1,))
-    assert main(["fit", str(tmp_path), "--cues", "contours", "--model", "simplified",
-                 "--shape", "written"]) == 0
+    assert (
+        main(
+            [
+                "fit",
+                str(tmp_path),
+                "--cues",
+                "contours",
+                "--model",
+                "simplified",
+                "--shape",
+                "written",
+            ]
+        )
+        == 0
+    )
     out = capsys.readouterr().out
     assert "camera cam02: no usable background" in out
     assert "silhouette contours alone" in out
@@ -266,8 +305,13 @@ def test_cli_contours_alone_with_one_unusable_camera(tmp_path, capsys):
     for arr in (st.theta, st.root_xyz, st.s, st.metaballs.radii, st.metaballs.visible):
         assert np.all(np.isfinite(arr))
     assert st.quality.diverged.sum() <= 1
-    used = {c for f in range(st.n_frames) if not st.quality.diverged[f]
-            for cams in st.quality.cameras[f].values() for c in cams}
+    used = {
+        c
+        for f in range(st.n_frames)
+        if not st.quality.diverged[f]
+        for cams in st.quality.cameras[f].values()
+        for c in cams
+    }
     assert used and "cam02" not in used
 
 
@@ -276,8 +320,9 @@ def test_skipped_parts_get_no_contour_pairs(body):
     head, neck = skel.bone_index("head"), skel.bone_index("neck")
     full, _ = match_frame(skel, balls, theta, root, s, cams, observed, ContourSettings())
     assert (full.bone == head).sum() > 20
-    skip, sel = match_frame(skel, balls, theta, root, s, cams, observed,
-                            ContourSettings(skip_parts=("head", "neck")))
+    skip, sel = match_frame(
+        skel, balls, theta, root, s, cams, observed, ContourSettings(skip_parts=("head", "neck"))
+    )
     assert not np.isin(skip.bone, [head, neck]).any()
     assert not sel.use[[head, neck]].any()
     others = ~np.isin(full.bone, [head, neck])
@@ -288,10 +333,20 @@ def test_selection_by_visibility_alone_ignores_the_predicted_motion(body):
     skel, balls, s, theta, root, cams, observed = body
     rate = np.zeros(skel.n_dof)
     rate[skel.dof_index("l_hip_x")] = 0.2
-    _, by_motion = match_frame(skel, balls, theta, root, s, cams, observed, ContourSettings(),
-                               theta_rate=rate)
-    _, by_vis = match_frame(skel, balls, theta, root, s, cams, observed,
-                            ContourSettings(rank_motion=False), theta_rate=rate)
+    _, by_motion = match_frame(
+        skel, balls, theta, root, s, cams, observed, ContourSettings(), theta_rate=rate
+    )
+    _, by_vis = match_frame(
+        skel,
+        balls,
+        theta,
+        root,
+        s,
+        cams,
+        observed,
+        ContourSettings(rank_motion=False),
+        theta_rate=rate,
+    )
     visible = np.nan_to_num(by_vis.visibility, nan=0.0) >= 0.2
     np.testing.assert_array_equal(by_vis.use, visible)
     assert np.all(by_motion.use <= by_vis.use)
@@ -339,19 +394,25 @@ def test_contours_alone_find_an_arm_that_swung_beyond_the_pairing_reach():
     root = np.repeat(np.array([[0.0, 0.0, 1.0]]), nf, axis=0)
     cams = _cams()
     cons = [_silhouettes(skel, balls, theta[f], root[f], s, cams) for f in range(nf)]
-    init = initialise(clicks_of(skel, theta[0], root[0], s, cams, CLICK_JOINTS), cams,
-                      model="simplified")
+    init = initialise(
+        clicks_of(skel, theta[0], root[0], s, cams, CLICK_JOINTS), cams, model="simplified"
+    )
     init.metaballs = balls.copy()
     frames = [FramePoints(np.zeros((0, 3)), np.zeros(0)) for _ in range(nf)]
     wrist = skel.joint_index("r_wrist")
     err = {}
     for on in (False, True):
         cfr = contour_frames(cams, cons, ContourSettings(sigma_px=1.0, huber_px=2.0))
-        res = fit_sequence(frames, init, SequenceSettings(max_nfev=15, shape_frames=1,
-                                                          silhouette_search=on,
-                                                          shape="template"), contours=cfr)
-        err[on] = np.linalg.norm(res.state.joints_xyz()[:, wrist]
-                                 - sk.joint_positions(skel, theta, root, s)[:, wrist], axis=-1)
+        res = fit_sequence(
+            frames,
+            init,
+            SequenceSettings(max_nfev=15, shape_frames=1, silhouette_search=on, shape="template"),
+            contours=cfr,
+        )
+        err[on] = np.linalg.norm(
+            res.state.joints_xyz()[:, wrist] - sk.joint_positions(skel, theta, root, s)[:, wrist],
+            axis=-1,
+        )
     assert err[False][-1] > 0.2, err
     assert np.all(err[True] < 0.05), err
 
@@ -373,21 +434,31 @@ def test_containment_jacobians_match_finite_differences(body):
     for k in live:
         d = np.zeros_like(th)
         d[k] = eps
-        num = (cf.containment_block(skel, balls, th + d, rt, s)[0]
-               - cf.containment_block(skel, balls, th - d, rt, s)[0]) / (2 * eps)
+        num = (
+            cf.containment_block(skel, balls, th + d, rt, s)[0]
+            - cf.containment_block(skel, balls, th - d, rt, s)[0]
+        ) / (2 * eps)
         # the distance field is bilinear: compare where no sample crossed a pixel edge
-        np.testing.assert_allclose(np.median(np.abs(Jt[:, k] - num)), 0.0,
-                                   atol=1e-3 * max(np.abs(num).max(), 1e-9))
+        np.testing.assert_allclose(
+            np.median(np.abs(Jt[:, k] - num)), 0.0, atol=1e-3 * max(np.abs(num).max(), 1e-9)
+        )
     for k in range(3):
         d = np.zeros(3)
         d[k] = eps
-        num = (cf.containment_block(skel, balls, th, rt + d, s)[0]
-               - cf.containment_block(skel, balls, th, rt - d, s)[0]) / (2 * eps)
-        np.testing.assert_allclose(np.median(np.abs(Jr[:, k] - num)), 0.0,
-                                   atol=1e-3 * np.abs(num).max())
+        num = (
+            cf.containment_block(skel, balls, th, rt + d, s)[0]
+            - cf.containment_block(skel, balls, th, rt - d, s)[0]
+        ) / (2 * eps)
+        np.testing.assert_allclose(
+            np.median(np.abs(Jr[:, k] - num)), 0.0, atol=1e-3 * np.abs(num).max()
+        )
     # off: no rows; at the silhouettes' own pose nothing is outside
-    assert ContourFrame(cams, observed, ContourSettings(containment_px=0.0)).containment_block(
-        skel, balls, th, rt, s) is None
+    assert (
+        ContourFrame(cams, observed, ContourSettings(containment_px=0.0)).containment_block(
+            skel, balls, th, rt, s
+        )
+        is None
+    )
     r0 = cf.containment_block(skel, balls, theta, root, s)[0]
     assert np.all(r0 == 0)
     # the parts it holds: the same rows as the whole body's, restricted to them
@@ -395,14 +466,22 @@ def test_containment_jacobians_match_finite_differences(body):
 
     fields = [silhouette_field(cons, cam.size) for cons, cam in zip(observed, cams, strict=True)]
     full = containment_observations(skel, th, rt, s, balls, cams, fields, tol_px=2.0)
-    arm = np.isin(np.arange(len(skel.bone_names)),
-                  [skel.bone_index(b) for b in ("r_shoulder", "r_elbow", "r_wrist")])
+    arm = np.isin(
+        np.arange(len(skel.bone_names)),
+        [skel.bone_index(b) for b in ("r_shoulder", "r_elbow", "r_wrist")],
+    )
     cf.containment_parts = arm
     ra, Jta, _ = cf.containment_block(skel, balls, th, rt, s)
     sel = arm[full.part]
     assert 0 < len(ra) == sel.sum() < len(full.residual)
-    np.testing.assert_allclose(ra * 2.0, np.where(full.residual[sel] > 4.0, np.sqrt(
-        np.maximum(8.0 * full.residual[sel] - 16.0, 0.0)), full.residual[sel]))
+    np.testing.assert_allclose(
+        ra * 2.0,
+        np.where(
+            full.residual[sel] > 4.0,
+            np.sqrt(np.maximum(8.0 * full.residual[sel] - 16.0, 0.0)),
+            full.residual[sel],
+        ),
+    )
     cf.containment_parts = np.zeros(len(skel.bone_names), bool)
     assert cf.containment_block(skel, balls, th, rt, s) is None
 
@@ -413,8 +492,7 @@ def test_containment_brings_back_an_arm_beyond_the_pairing_reach(body):
     weighted LM pulls it back inside every camera's foreground."""
     skel, balls, s, theta, root, cams, observed = body
     th0 = theta.copy()
-    arm = [skel.dof_index(n) for n in ("r_shoulder_x", "r_shoulder_y", "r_shoulder_z",
-                                       "r_elbow_x")]
+    arm = [skel.dof_index(n) for n in ("r_shoulder_x", "r_shoulder_y", "r_shoulder_z", "r_elbow_x")]
     th0[skel.dof_index("r_shoulder_y")] += 1.2
     truth = sk.joint_positions(skel, theta, root, s)
     wrist = skel.joint_index("r_wrist")
@@ -424,10 +502,19 @@ def test_containment_brings_back_an_arm_beyond_the_pairing_reach(body):
     for px in (0.0, 3.0):
         cf = ContourFrame(cams, observed, ContourSettings(containment_px=px))
         obs = Observations(theta_pred=th0, sigma_pred=sig, contours=cf)
-        r = fit(skel, balls, obs, th0, root, s, solve="pose",
-                settings=FitSettings(irls_rounds=4, max_nfev=40))
-        err[px] = np.linalg.norm(sk.joint_positions(skel, r.theta, r.root_xyz, s)[wrist]
-                                 - truth[wrist])
+        r = fit(
+            skel,
+            balls,
+            obs,
+            th0,
+            root,
+            s,
+            solve="pose",
+            settings=FitSettings(irls_rounds=4, max_nfev=40),
+        )
+        err[px] = np.linalg.norm(
+            sk.joint_positions(skel, r.theta, r.root_xyz, s)[wrist] - truth[wrist]
+        )
         if px:
             assert np.all(cf.containment_block(skel, balls, r.theta, r.root_xyz, s)[0] < 1.0)
     assert err[0.0] > 0.25, err
@@ -439,8 +526,9 @@ def test_containment_holds_the_untextured_parts_in_frames_with_points_only():
 
     counts = np.array([0, 3, 8, 40])
     cfg = ContourSettings(containment_px=3.0, containment_textured=False)
-    np.testing.assert_array_equal(containment_parts(counts, True, 8, cfg),
-                                  [True, True, False, False])
+    np.testing.assert_array_equal(
+        containment_parts(counts, True, 8, cfg), [True, True, False, False]
+    )
     np.testing.assert_array_equal(containment_parts(counts, False, 8, cfg), [False] * 4)
     every = ContourSettings(containment_px=3.0, containment_textured=True)
     assert containment_parts(counts, True, 8, every).all()
@@ -464,7 +552,6 @@ def test_tracking_inside_fit_reports_bad_clicks_in_one_line(tmp_path, capsys):
     assert len(err) == 1, err
     assert str(tmp_path / "clicks.json") in err[0]
     assert not (tmp_path / "fit.json").exists() and not (tmp_path / "tracks.npz").exists()
-
 
 
 def test_one_view_depth_holds_keep_the_arm_on_its_side_of_the_image_plane(body):
@@ -499,10 +586,19 @@ def test_one_view_depth_holds_keep_the_arm_on_its_side_of_the_image_plane(body):
         if held:
             obs.depth = depth_holds(skel, prev, root, s, view, cams, np.ones(B, bool), 0.03)
             assert len(obs.depth) == 2  # the elbow and the wrist
-        r = fit(skel, balls, obs, start, root, s, solve="pose",
-                settings=FitSettings(irls_rounds=6, max_nfev=30))
-        err[held] = np.linalg.norm(sk.joint_positions(skel, r.theta, r.root_xyz, s)[joints]
-                                   - truth, axis=1).max()
+        r = fit(
+            skel,
+            balls,
+            obs,
+            start,
+            root,
+            s,
+            solve="pose",
+            settings=FitSettings(irls_rounds=6, max_nfev=30),
+        )
+        err[held] = np.linalg.norm(
+            sk.joint_positions(skel, r.theta, r.root_xyz, s)[joints] - truth, axis=1
+        ).max()
         rms[held] = cf.stats(skel, balls, r.theta, r.root_xyz, s)["rms_px"]
     assert err[False] > 0.08, err  # stayed on the mirror side
     assert err[True] < 0.015, err
@@ -522,8 +618,9 @@ def test_frame_depth_holds_cover_the_single_view_parts_that_are_not_hidden(body)
     one.freeze(skel, balls, theta, root, s)
     holds = frame_depth_holds(skel, one, hidden, theta, root, s)
     carried = {skel.bone_names[skel.joint_bone[j]] for j in holds.joint}
-    seen = {skel.bone_names[b] for b in np.unique(one.pairs.bone)
-            if np.sum(one.pairs.bone == b) >= 10}
+    seen = {
+        skel.bone_names[b] for b in np.unique(one.pairs.bone) if np.sum(one.pairs.bone == b) >= 10
+    }
     assert carried == seen - {"r_shoulder"} and "r_elbow" in carried
     x = sk.joint_positions(skel, theta, root, s)[holds.joint]
     np.testing.assert_allclose(np.cross(holds.direction, x - cams[0].center), 0.0, atol=1e-12)
@@ -554,16 +651,22 @@ def test_a_leg_the_tracker_lost_is_found_by_the_silhouettes_in_frames_with_point
         xyz, ok = mb.sample_surface(skel, pose, balls, s, per_ball=30, seed=f)
         keep = ok & (~np.repeat(leg, 30) if f else ok)
         frames.append(FramePoints(xyz[keep], np.full(keep.sum(), 0.002)))
-    init = initialise(clicks_of(skel, theta[0], root[0], s, cams, CLICK_JOINTS), cams,
-                      model="simplified")
+    init = initialise(
+        clicks_of(skel, theta[0], root[0], s, cams, CLICK_JOINTS), cams, model="simplified"
+    )
     init.metaballs = balls.copy()
     ankle = skel.joint_index("l_ankle")
     truth = sk.joint_positions(skel, theta, root, s)[:, ankle]
     err = {}
     for search in (True, False):
-        res = fit_sequence(frames, init, SequenceSettings(
-            max_nfev=15, shape_frames=1, shape="template", silhouette_search_points=search),
-            contours=contour_frames(cams, cons, ContourSettings(sigma_px=1.0, huber_px=2.0)))
+        res = fit_sequence(
+            frames,
+            init,
+            SequenceSettings(
+                max_nfev=15, shape_frames=1, shape="template", silhouette_search_points=search
+            ),
+            contours=contour_frames(cams, cons, ContourSettings(sigma_px=1.0, huber_px=2.0)),
+        )
         assert not res.state.quality.diverged.any()
         err[search] = np.linalg.norm(res.state.joints_xyz()[1:, ankle] - truth[1:], axis=-1)
     assert err[False].max() > 0.2, err  # lost in a frame without it

@@ -22,8 +22,14 @@ def _body():
     s = np.ones(skel.n_groups)
     balls = make_metaballs(skel, "simplified", s)
     theta0 = np.zeros(skel.n_dof)
-    for d, a in (("l_shoulder_x", 0.3), ("r_shoulder_x", -0.2), ("l_elbow_x", -0.4),
-                 ("l_hip_x", 0.2), ("r_hip_x", -0.2), ("r_knee_x", 0.3)):
+    for d, a in (
+        ("l_shoulder_x", 0.3),
+        ("r_shoulder_x", -0.2),
+        ("l_elbow_x", -0.4),
+        ("l_hip_x", 0.2),
+        ("r_hip_x", -0.2),
+        ("r_knee_x", 0.3),
+    ):
         if d in skel.dof_names:
             theta0[skel.dof_index(d)] = a
     return skel, s, balls, theta0, np.array([0.0, 0.0, 1.0])
@@ -66,8 +72,7 @@ def test_lifted_corners_lie_on_the_rendered_body_and_project_back():
     cam = cameras()[1]
     rays = camera_rays(cam)
     img = _textured(skel, balls, theta, root, s, cam, rays)
-    uv, bone, q0 = lift_corners(skel, balls, theta, root, s, cam, img, None, FlowSettings(),
-                                rays)
+    uv, bone, q0 = lift_corners(skel, balls, theta, root, s, cam, img, None, FlowSettings(), rays)
     assert len(uv) > 100 and len(np.unique(bone)) >= 12, (len(uv), len(np.unique(bone)))
     pose = forward(skel, theta[None], root[None], s)
     x = points_world(skel, pose, bone, q0, np.full(len(bone), -1), s)[0]
@@ -89,13 +94,20 @@ def test_followed_corners_recover_the_next_pose():
     cams = cameras()
     rays = [camera_rays(c) for c in cams]
     theta1 = theta0.copy()
-    for d, a in (("r_shoulder_x", 0.08), ("r_elbow_x", 0.1), ("r_hip_x", 0.06),
-                 ("r_knee_x", -0.08), ("l_hip_x", -0.05)):
+    for d, a in (
+        ("r_shoulder_x", 0.08),
+        ("r_elbow_x", 0.1),
+        ("r_hip_x", 0.06),
+        ("r_knee_x", -0.08),
+        ("l_hip_x", -0.05),
+    ):
         theta1[skel.dof_index(d)] += a
     root1 = root0 + np.array([0.012, -0.008, 0.0])
-    imgs = {(c, f): _textured(skel, balls, th, rt, s, cam, rays[c])
-            for c, cam in enumerate(cams) for f, th, rt in ((0, theta0, root0),
-                                                            (1, theta1, root1))}
+    imgs = {
+        (c, f): _textured(skel, balls, th, rt, s, cam, rays[c])
+        for c, cam in enumerate(cams)
+        for f, th, rt in ((0, theta0, root0), (1, theta1, root1))
+    }
     anchors = FlowAnchors(cams, lambda c, f: imgs[c, f], FlowSettings(), rays=rays)
     anchors.set(skel, balls, theta0, root0, s, 0)
     assert anchors.observations(5) is None  # only the next or the previous frame
@@ -115,8 +127,9 @@ def test_followed_corners_recover_the_next_pose():
 def test_follow_corners_rejects_what_it_cannot_follow():
     rng = np.random.default_rng(4)
     img0 = (rng.random((120, 160)) * 255).astype(np.uint8)
-    img0 = np.asarray(np.clip(
-        np.kron(img0[::4, ::4], np.ones((4, 4))), 0, 255), np.uint8)[:120, :160]
+    img0 = np.asarray(np.clip(np.kron(img0[::4, ::4], np.ones((4, 4))), 0, 255), np.uint8)[
+        :120, :160
+    ]
     img1 = np.roll(img0, (2, 3), axis=(0, 1))  # moved by (3, 2) px
     flat = np.full_like(img0, 100)
     uv = np.array([[60.0, 60.0], [80.0, 50.0], [158.5, 60.0]])
@@ -138,8 +151,10 @@ def test_persistent_corners_keep_their_points_and_drop_when_they_slip():
     theta1 = theta0.copy()
     theta1[skel.dof_index("r_hip_x")] += 0.05
     root1 = root0 + np.array([0.01, 0.0, 0.0])
-    imgs = {(0, 0): _textured(skel, balls, theta0, root0, s, cams[0], rays[0]),
-            (0, 1): _textured(skel, balls, theta1, root1, s, cams[0], rays[0])}
+    imgs = {
+        (0, 0): _textured(skel, balls, theta0, root0, s, cams[0], rays[0]),
+        (0, 1): _textured(skel, balls, theta1, root1, s, cams[0], rays[0]),
+    }
     a = FlowAnchors(cams, lambda c, f: imgs[c, f], FlowSettings(), rays=rays)
     a.set(skel, balls, theta0, root0, s, 0)
     uv0, b0, q00 = a._lifted[0]
@@ -148,9 +163,24 @@ def test_persistent_corners_keep_their_points_and_drop_when_they_slip():
     followed_uv[0] += 10.0  # this one slipped 10 px off its point
     a.set(skel, balls, theta1, root1, s, 1)
     uv1, b1, q01 = a._lifted[0]
-    n_kept = len(obs) - 1 - np.sum(~_kept_mask(skel, balls, theta1, root1, s, cams[0],
-                                                rays[0], followed_uv[1:], followed_b[1:],
-                                                followed_q[1:]))
+    n_kept = (
+        len(obs)
+        - 1
+        - np.sum(
+            ~_kept_mask(
+                skel,
+                balls,
+                theta1,
+                root1,
+                s,
+                cams[0],
+                rays[0],
+                followed_uv[1:],
+                followed_b[1:],
+                followed_q[1:],
+            )
+        )
+    )
     assert n_kept > 0.8 * len(obs)
     # the kept corners come first, with their frame-0 points unchanged
     np.testing.assert_array_equal(q01[:n_kept], followed_q[1:][:n_kept])
@@ -167,12 +197,14 @@ def _kept_mask(skel, balls, theta, root, s, cam, rays, uv, bone, q0):
     """Which followed corners lift_corners keeps (its rule, restated)."""
     pose = forward(skel, theta[None], root[None], s)
     Rw, cw = world_frames(skel, pose, balls, s)
-    ren = render_parts(cam, cw[0], Rw[0], balls.visible, balls.bone, len(skel.bone_names),
-                       rays=rays)
+    ren = render_parts(
+        cam, cw[0], Rw[0], balls.visible, balls.bone, len(skel.bone_names), rays=rays
+    )
     x = points_world(skel, pose, bone, q0, np.full(len(bone), -1), s)[0]
     iu, iv = np.rint(uv).astype(int).T
-    return ((np.linalg.norm(cam.project(x) - uv, axis=1) <= FlowSettings().keep_px)
-            & (ren.part_id[iv, iu] == bone))
+    return (np.linalg.norm(cam.project(x) - uv, axis=1) <= FlowSettings().keep_px) & (
+        ren.part_id[iv, iu] == bone
+    )
 
 
 def test_sequence_without_points_follows_the_texture_where_the_outline_misleads():
@@ -189,18 +221,21 @@ def test_sequence_without_points_follows_the_texture_where_the_outline_misleads(
     skel, s, balls, theta0, root0 = _body()
     nf = 5
     theta = np.repeat(theta0[None], nf, axis=0)
-    for d, a in (("r_shoulder_x", 0.25), ("l_hip_x", -0.2), ("r_knee_x", 0.25),
-                 ("spine_z", 0.15)):
+    for d, a in (("r_shoulder_x", 0.25), ("l_hip_x", -0.2), ("r_knee_x", 0.25), ("spine_z", 0.15)):
         theta[:, skel.dof_index(d)] += np.linspace(0.0, a, nf)
     root = root0 + np.array([[0.0, -0.02 * f, 0.0] for f in range(nf)])
     body = balls.copy(radii=balls.radii * 1.12)  # the subject is not the template
     cams = _cams()
     rays = [camera_rays(c) for c in cams]
     cons = [_silhouettes(skel, body, theta[f], root[f], s, cams) for f in range(nf)]
-    imgs = {(c, f): _textured(skel, body, theta[f], root[f], s, cam, rays[c])
-            for c, cam in enumerate(cams) for f in range(nf)}
-    init = initialise(clicks_of(skel, theta[0], root[0], s, cams, CLICK_JOINTS), cams,
-                      model="simplified")
+    imgs = {
+        (c, f): _textured(skel, body, theta[f], root[f], s, cam, rays[c])
+        for c, cam in enumerate(cams)
+        for f in range(nf)
+    }
+    init = initialise(
+        clicks_of(skel, theta[0], root[0], s, cams, CLICK_JOINTS), cams, model="simplified"
+    )
     init.metaballs = balls.copy()
     frames = [FramePoints(np.zeros((0, 3)), np.zeros(0)) for _ in range(nf)]
     idx = [skel.joint_index(j) for j in METRIC_JOINTS]
@@ -209,9 +244,13 @@ def test_sequence_without_points_follows_the_texture_where_the_outline_misleads(
     for use in (False, True):
         cfr = contour_frames(cams, cons, ContourSettings())
         anchors = FlowAnchors(cams, lambda c, f: imgs[c, f], FlowSettings(), rays=rays)
-        res = fit_sequence(frames, init,
-                           SequenceSettings(max_nfev=15, shape_frames=1, shape="template"),
-                           contours=cfr, flow=anchors if use else None)
+        res = fit_sequence(
+            frames,
+            init,
+            SequenceSettings(max_nfev=15, shape_frames=1, shape="template"),
+            contours=cfr,
+            flow=anchors if use else None,
+        )
         assert not res.state.quality.diverged.any()
         err[use] = np.linalg.norm(res.state.joints_xyz()[:, idx] - truth, axis=-1)
     mean = {k: v[1:].mean() for k, v in err.items()}
@@ -230,7 +269,6 @@ def test_foreground_at_another_resolution_is_resized():
     left = np.zeros((h // 4, w // 4), bool)
     left[:, : w // 8] = True  # the image's left half
     uv, _, _ = lift_corners(skel, balls, theta, root, s, cam, img, left, FlowSettings(), rays)
-    every, _, _ = lift_corners(skel, balls, theta, root, s, cam, img, None, FlowSettings(),
-                               rays)
+    every, _, _ = lift_corners(skel, balls, theta, root, s, cam, img, None, FlowSettings(), rays)
     assert 0 < len(uv) < len(every)
     assert uv[:, 0].max() < w / 2

@@ -22,11 +22,19 @@ def _jumps(rng, legs="mirrored"):
     if legs != "still":
         theta[:, skel.dof_index("l_hip_x")] = 0.5 * np.sin(phase)
         theta[:, skel.dof_index("l_knee_x")] = -0.6 - 0.5 * np.sin(phase)
-    for k, v in (("l_shoulder_x", 0.6 * np.sin(phase - 0.3)), ("l_shoulder_z", 0.2 + 0.1 * t),
-                 ("l_elbow_x", -0.5 - 0.3 * np.cos(phase))):
+    for k, v in (
+        ("l_shoulder_x", 0.6 * np.sin(phase - 0.3)),
+        ("l_shoulder_z", 0.2 + 0.1 * t),
+        ("l_elbow_x", -0.5 - 0.3 * np.cos(phase)),
+    ):
         theta[:, skel.dof_index(k)] = v
-    mirror = np.isin(left, [skel.dof_index(n) for n in
-                            ("l_hip_x", "l_knee_x", "l_shoulder_x", "l_shoulder_z", "l_elbow_x")])
+    mirror = np.isin(
+        left,
+        [
+            skel.dof_index(n)
+            for n in ("l_hip_x", "l_knee_x", "l_shoulder_x", "l_shoulder_z", "l_elbow_x")
+        ],
+    )
     theta[:, right[mirror]] = theta[:, left[mirror]] * sign[mirror]
     if legs == "gait":  # the right leg half a period behind
         for k in ("r_hip_x", "r_knee_x"):
@@ -88,8 +96,7 @@ def test_a_hidden_arm_in_a_jump_follows_the_other_arm_mirrored(rng):
     assert [(m.limb, m.mirrored) for m in report] == [("r_arm", True)] and report[0].r2 > 0.95
     # the clicked frame, the left arm and the seen hand keep their own angles
     assert np.array_equal(out[0], held[0]) and not mirrored[0].any()
-    assert np.array_equal(out[:, limb_dofs(skel, "l", "arm")],
-                          held[:, limb_dofs(skel, "l", "arm")])
+    assert np.array_equal(out[:, limb_dofs(skel, "l", "arm")], held[:, limb_dofs(skel, "l", "arm")])
     hand = skel.dof_index("r_wrist_x")
     assert np.array_equal(out[list(seen), hand], held[list(seen), hand])
     # every shoulder, elbow and wrist angle is mirrored; the clavicle's are left
@@ -121,8 +128,9 @@ def test_the_fit_s_last_step_mirrors_before_it_bridges(rng):
     div = np.zeros(NF, bool)
     k = skel.dof_index("r_shoulder_x")
     on, msgs = fill_unobserved(skel, held, root, s, hidden, div, hidden=hidden, anchors=(0,))
-    off, _ = fill_unobserved(skel, held, root, s, hidden, div, hidden=hidden, anchors=(0,),
-                             mirror=False)
+    off, _ = fill_unobserved(
+        skel, held, root, s, hidden, div, hidden=hidden, anchors=(0,), mirror=False
+    )
     err_on = np.abs(on[:, k] - truth[:, k]).max()
     err_off = np.abs(off[:, k] - truth[:, k]).max()
     assert err_on < np.radians(2.5) and err_off > 10 * err_on, (err_on, err_off)

@@ -33,8 +33,9 @@ def _body():
 def _clicked(skel, theta0, root0, s):
     """The initialisation from exact clicks of the pose at frame 0."""
     cams = cameras()
-    return initialise(clicks_of(skel, theta0, root0, s, cams, CLICK_JOINTS), cams,
-                      model="simplified")
+    return initialise(
+        clicks_of(skel, theta0, root0, s, cams, CLICK_JOINTS), cams, model="simplified"
+    )
 
 
 @pytest.mark.slow
@@ -47,21 +48,27 @@ def test_a_kick_is_refound_and_a_hidden_arm_coasts_with_growing_sigma(rng):
     theta[:, skel.dof_index("r_shoulder_x")] = -0.1 * np.arange(nf)  # swings on, hidden
     root = np.array([[0.0, -0.01 * f, 1.0] for f in range(nf)])
     hidden = ("r_shoulder", "r_elbow", "r_wrist")
-    frames = [FramePoints(xyz=_outer_points(skel, balls, theta[f], root[f], s, rng,
-                                            hidden if f >= 4 else ()), sigma=0.001)
-              for f in range(nf)]
+    frames = [
+        FramePoints(
+            xyz=_outer_points(skel, balls, theta[f], root[f], s, rng, hidden if f >= 4 else ()),
+            sigma=0.001,
+        )
+        for f in range(nf)
+    ]
     init = _clicked(skel, theta[0], root[0], s)
     # hidden parts coast on the damped prediction here (the default holds them at the
     # previous frame's angles, which suits the swinging arms of a walk better)
-    cfg = SequenceSettings(max_nfev=15, max_nfev_shape=15, fit=FitSettings(members="part"),
-                           hold_hidden=False)
+    cfg = SequenceSettings(
+        max_nfev=15, max_nfev_shape=15, fit=FitSettings(members="part"), hold_hidden=False
+    )
     res = fit_sequence(frames, init, cfg)
     st = res.state
     assert not st.quality.diverged.any(), res.messages
     fit_x = st.joints_xyz()
     true_x = sk.joint_positions(skel, theta, root, s)
     err = lambda j: np.linalg.norm(  # noqa: E731
-        fit_x[:, st.skeleton.joint_index(j)] - true_x[:, skel.joint_index(j)], axis=-1)
+        fit_x[:, st.skeleton.joint_index(j)] - true_x[:, skel.joint_index(j)], axis=-1
+    )
     e = err("l_ankle")  # the thigh turns 0.7 rad from frame 2 to 3: ~0.4 m at the ankle
     assert e[3] < 0.04 and np.all(e[4:] < 0.01), e
     assert res.retried[3]
@@ -83,14 +90,19 @@ def test_a_frame_of_clutter_is_marked_not_fitted(rng):
     theta = np.zeros((nf, skel.n_dof))
     theta[:, skel.dof_index("l_elbow_x")] = -0.1 * np.arange(nf)
     root = np.array([[0.0, -0.01 * f, 1.0] for f in range(nf)])
-    frames = [FramePoints(xyz=_outer_points(skel, balls, theta[f], root[f], s, rng),
-                          sigma=0.001) for f in range(nf)]
+    frames = [
+        FramePoints(xyz=_outer_points(skel, balls, theta[f], root[f], s, rng), sigma=0.001)
+        for f in range(nf)
+    ]
     # frame 2: as many points, but scattered through the body's box (nothing fits them)
     box = rng.uniform([-0.5, -0.4, 0.0], [0.5, 0.4, 1.8], (len(frames[2].xyz), 3))
     frames[2] = FramePoints(xyz=box, sigma=0.001)
     init = _clicked(skel, theta[0], root[0], s)
-    res = fit_sequence(frames, init, SequenceSettings(max_nfev=15, max_nfev_shape=15,
-                                                      fit=FitSettings(members="part")))
+    res = fit_sequence(
+        frames,
+        init,
+        SequenceSettings(max_nfev=15, max_nfev_shape=15, fit=FitSettings(members="part")),
+    )
     q = res.state.quality
     assert q.diverged.tolist() == [False, False, True, False], res.messages
     assert any(m.startswith("frame 2") for m in res.messages)
@@ -106,18 +118,23 @@ def test_a_body_that_walked_on_while_unobserved_is_found_again(rng):
     # frames 2-4 have no points; meanwhile the person walks 0.4 m sideways
     root = np.array([[0.0, -0.01 * f, 1.0] for f in range(nf)])
     root[5:, 0] += 0.4
-    frames = [FramePoints(xyz=_outer_points(skel, balls, theta[f], root[f], s, rng),
-                          sigma=0.001) for f in range(nf)]
+    frames = [
+        FramePoints(xyz=_outer_points(skel, balls, theta[f], root[f], s, rng), sigma=0.001)
+        for f in range(nf)
+    ]
     for f in (2, 3, 4):
         frames[f] = FramePoints(xyz=np.zeros((0, 3)), sigma=0.001)
     init = _clicked(skel, theta[0], root[0], s)
-    res = fit_sequence(frames, init, SequenceSettings(max_nfev=15, max_nfev_shape=15,
-                                                      fit=FitSettings(members="part")))
+    res = fit_sequence(
+        frames,
+        init,
+        SequenceSettings(max_nfev=15, max_nfev_shape=15, fit=FitSettings(members="part")),
+    )
     q = res.state.quality
-    assert q.diverged.tolist() == [False, False, True, True, True, False, False, False], \
+    assert q.diverged.tolist() == [False, False, True, True, True, False, False, False], (
         res.messages
-    err = np.linalg.norm(res.state.joints_xyz() - sk.joint_positions(skel, theta, root, s),
-                         axis=-1)
+    )
+    err = np.linalg.norm(res.state.joints_xyz() - sk.joint_positions(skel, theta, root, s), axis=-1)
     assert np.all(np.median(err[5:], axis=1) < 0.01), np.median(err, axis=1)
 
 
@@ -132,15 +149,23 @@ def test_an_arm_hidden_through_a_jump_follows_the_other_arm(rng):
     left, right, sign = mirror_pairs(skel, s)
     theta = np.zeros((nf, skel.n_dof))
     crouch = np.sin(np.linspace(0.3, 2.6, nf))  # down and up again, both legs alike
-    for name, v in (("l_hip_x", -0.5 * crouch), ("l_knee_x", 0.8 * crouch),
-                    ("l_shoulder_x", -1.0 * crouch), ("l_elbow_x", -0.6 * crouch)):
+    for name, v in (
+        ("l_hip_x", -0.5 * crouch),
+        ("l_knee_x", 0.8 * crouch),
+        ("l_shoulder_x", -1.0 * crouch),
+        ("l_elbow_x", -0.6 * crouch),
+    ):
         theta[:, skel.dof_index(name)] = v
     theta[:, right] = theta[:, left] * sign
     root = np.array([[0.0, -0.02 * f, 1.0 - 0.1 * c] for f, c in enumerate(crouch)])
     hidden = ("r_shoulder", "r_elbow", "r_wrist")  # no point on the right arm after frame 0
-    frames = [FramePoints(xyz=_outer_points(skel, balls, theta[f], root[f], s, rng,
-                                            hidden if f else ()), sigma=0.001)
-              for f in range(nf)]
+    frames = [
+        FramePoints(
+            xyz=_outer_points(skel, balls, theta[f], root[f], s, rng, hidden if f else ()),
+            sigma=0.001,
+        )
+        for f in range(nf)
+    ]
     init = _clicked(skel, theta[0], root[0], s)
     cfg = SequenceSettings(max_nfev=15, max_nfev_shape=15, fit=FitSettings(members="part"))
     true_x = sk.joint_positions(skel, theta, root, s)
@@ -151,9 +176,9 @@ def test_an_arm_hidden_through_a_jump_follows_the_other_arm(rng):
         assert not res.state.quality.diverged.any(), res.messages
         err[mirror] = np.linalg.norm(res.state.joints_xyz()[:, w] - true_x[:, w], axis=-1)
         if mirror:
-            assert any(m.startswith("r_arm: hidden in frames 1–") and "mirrored" in m
-                       for m in res.messages), \
-                res.messages
+            assert any(
+                m.startswith("r_arm: hidden in frames 1–") and "mirrored" in m for m in res.messages
+            ), res.messages
     # the arms swing forward and back by 0.6 rad; held near the clicked pose the right
     # wrist is lost by decimetres, mirrored from the left arm it stays within 4 cm
     assert err[True].max() < 0.04 and err[False].max() > 0.2, (err[True], err[False])

@@ -57,20 +57,38 @@ def test_a_limb_that_moved_far_is_found_and_a_hidden_one_stays(body, rng):
     # the left arm is hidden: none of its points are observed
     pose = sk.forward(skel, true[None], root[None], s)
     Rw, cw = mb.world_frames(skel, pose, balls, s)
-    left_arm = np.isin(balls.bone, [skel.bone_index(b) for b in ("l_shoulder", "l_elbow",
-                                                                   "l_wrist")])
-    near_arm = np.abs(explain_distance(x, skel, mb.Metaballs(
-        balls.bone[left_arm], balls.center0[left_arm], balls.group[left_arm],
-        balls.rot[left_arm], balls.radii[left_arm]), s, balls.radii[left_arm], true,
-        root)) < 0.05
+    left_arm = np.isin(
+        balls.bone, [skel.bone_index(b) for b in ("l_shoulder", "l_elbow", "l_wrist")]
+    )
+    near_arm = (
+        np.abs(
+            explain_distance(
+                x,
+                skel,
+                mb.Metaballs(
+                    balls.bone[left_arm],
+                    balls.center0[left_arm],
+                    balls.group[left_arm],
+                    balls.rot[left_arm],
+                    balls.radii[left_arm],
+                ),
+                s,
+                balls.radii[left_arm],
+                true,
+                root,
+            )
+        )
+        < 0.05
+    )
     x = x[~near_arm]
     start = np.zeros(skel.n_dof)
     start[skel.dof_index("l_shoulder_x")] = -1.4  # the hidden arm, forward in free space
     res = search_limbs(x, skel, balls, s, balls.radii, start, root)
     got = sk.joint_positions(skel, res.theta, root, s)
     for j in ("l_knee", "l_ankle", "r_elbow", "r_wrist"):
-        before = np.linalg.norm(sk.joint_positions(skel, start, root, s)[skel.joint_index(j)]
-                                - xs[skel.joint_index(j)])
+        before = np.linalg.norm(
+            sk.joint_positions(skel, start, root, s)[skel.joint_index(j)] - xs[skel.joint_index(j)]
+        )
         after = np.linalg.norm(got[skel.joint_index(j)] - xs[skel.joint_index(j)])
         assert before > 0.25 and after < 0.1, (j, before, after)
     assert res.cost_after < 0.2 * res.cost_before
@@ -88,9 +106,26 @@ def test_a_hidden_limb_does_not_keep_points_another_limb_then_took(body):
     true[skel.dof_index("r_knee_x")] = 1.0
     x = _outer(skel, balls, true, root, s, rng)
     leg = np.isin(balls.bone, [skel.bone_index(b) for b in ("r_hip", "r_knee", "r_ankle")])
-    on_leg = np.abs(explain_distance(x, skel, mb.Metaballs(
-        balls.bone[leg], balls.center0[leg], balls.group[leg], balls.rot[leg],
-        balls.radii[leg]), s, balls.radii[leg], true, root)) < 0.05
+    on_leg = (
+        np.abs(
+            explain_distance(
+                x,
+                skel,
+                mb.Metaballs(
+                    balls.bone[leg],
+                    balls.center0[leg],
+                    balls.group[leg],
+                    balls.rot[leg],
+                    balls.radii[leg],
+                ),
+                s,
+                balls.radii[leg],
+                true,
+                root,
+            )
+        )
+        < 0.05
+    )
     x = x[~on_leg]  # ... and hidden: none of its points are observed
     start = true.copy()
     start[skel.dof_index("r_shoulder_x")] = 0.0  # the arm moved since the last frame
@@ -102,8 +137,9 @@ def test_a_hidden_limb_does_not_keep_points_another_limb_then_took(body):
     assert res.theta[skel.dof_index("r_hip_x")] == pytest.approx(-1.2)
     got, want = (sk.joint_positions(skel, th, root, s) for th in (res.theta, true))
     assert np.linalg.norm(got[ankle] - want[ankle]) < 1e-9
-    assert np.linalg.norm(got[skel.joint_index("r_wrist")]
-                          - want[skel.joint_index("r_wrist")]) < 0.02
+    assert (
+        np.linalg.norm(got[skel.joint_index("r_wrist")] - want[skel.joint_index("r_wrist")]) < 0.02
+    )
     assert res.cost_after <= greedy.cost_after + 100.0
 
 
@@ -117,14 +153,16 @@ def test_recentred_starts_carry_the_root_with_the_points_and_one_explains_them(b
     up = np.array([0.0, 0.0, 1.0])
     cands = recentred_starts(now, q, ref, root0, up)
     assert cands.shape == (25, skel.n_dof + 3)
-    assert np.all(cands[:, :skel.n_dof] == theta)
+    assert np.all(cands[:, : skel.n_dof] == theta)
     assert np.allclose(cands[:, -1], q[-1])  # the height is the prediction's
-    centre = cands[12, skel.n_dof:]  # the zero offset: the points' median motion
+    centre = cands[12, skel.n_dof :]  # the zero offset: the points' median motion
     assert np.linalg.norm(centre[:2] - root1[:2]) < 0.05, centre
-    cost = explain_cost(now, skel, balls, s, balls.radii, cands[:, :skel.n_dof],
-                        cands[:, skel.n_dof:])
-    stale = explain_cost(now, skel, balls, s, balls.radii, q[None, :skel.n_dof],
-                         q[None, skel.n_dof:])[0]
-    best = cands[int(np.argmin(cost)), skel.n_dof:]
+    cost = explain_cost(
+        now, skel, balls, s, balls.radii, cands[:, : skel.n_dof], cands[:, skel.n_dof :]
+    )
+    stale = explain_cost(
+        now, skel, balls, s, balls.radii, q[None, : skel.n_dof], q[None, skel.n_dof :]
+    )[0]
+    best = cands[int(np.argmin(cost)), skel.n_dof :]
     assert np.linalg.norm(best - root1) < 0.08 and cost.min() < 0.2 * stale, (best, stale)
     assert recentred_starts(np.zeros((0, 3)), q, ref, root0, up).shape == (0, skel.n_dof + 3)

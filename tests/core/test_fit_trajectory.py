@@ -41,17 +41,17 @@ def test_block_jacobians_match_finite_differences():
     for k in rng.choice(skel.n_dof, 8, replace=False):
         d = np.zeros(skel.n_dof)
         d[k] = h
-        fd = (obs.block(skel, theta + d, root, s)[0] - obs.block(skel, theta - d, root, s)[0])
+        fd = obs.block(skel, theta + d, root, s)[0] - obs.block(skel, theta - d, root, s)[0]
         np.testing.assert_allclose(fd / (2 * h), Jt[:, k], atol=1e-5 * np.abs(Jt).max())
     for k in range(3):
         d = np.zeros(3)
         d[k] = h
-        fd = (obs.block(skel, theta, root + d, s)[0] - obs.block(skel, theta, root - d, s)[0])
+        fd = obs.block(skel, theta, root + d, s)[0] - obs.block(skel, theta, root - d, s)[0]
         np.testing.assert_allclose(fd / (2 * h), Jr[:, k], atol=1e-6 * np.abs(Jr).max())
     for g in range(skel.n_groups):
         d = np.zeros(skel.n_groups)
         d[g] = h
-        fd = (obs.block(skel, theta, root, s + d)[0] - obs.block(skel, theta, root, s - d)[0])
+        fd = obs.block(skel, theta, root, s + d)[0] - obs.block(skel, theta, root, s - d)[0]
         np.testing.assert_allclose(fd / (2 * h), Js[:, g], atol=1e-5 * max(np.abs(Js).max(), 1))
 
 
@@ -108,16 +108,21 @@ def test_trajectories_recover_a_twist_the_surface_cannot_see():
     q0 = bone_local(skel, theta0, root, s, x0, bone)
     pose1 = forward(skel, theta1[None], root[None], s)
     x1 = points_world(skel, pose1, bone, q0, np.full(200, -1), s)[0]
-    cfg = FitSettings(members="part", robust_scale=0.0, irls_rounds=2, max_nfev=50,
-                      use_limits=False)
+    cfg = FitSettings(
+        members="part", robust_scale=0.0, irls_rounds=2, max_nfev=50, use_limits=False
+    )
     mask = np.zeros(skel.n_dof, bool)
     mask[[skel.dof_index(d) for d in skel.dof_names if d.startswith("l_shoulder")]] = True
     sig_prior = np.where(mask, 10.0, 1e-4)  # everything else held by the prior
-    plain = Observations(xyz=x1, part=bone, sigma=0.002, theta_pred=theta0,
-                         sigma_pred=sig_prior)
-    with_traj = Observations(xyz=x1, part=bone, sigma=0.002, theta_pred=theta0,
-                             sigma_pred=sig_prior,
-                             trajectory=TrajectoryObs(bone, q0, x1, np.full(200, 0.002)))
+    plain = Observations(xyz=x1, part=bone, sigma=0.002, theta_pred=theta0, sigma_pred=sig_prior)
+    with_traj = Observations(
+        xyz=x1,
+        part=bone,
+        sigma=0.002,
+        theta_pred=theta0,
+        sigma_pred=sig_prior,
+        trajectory=TrajectoryObs(bone, q0, x1, np.full(200, 0.002)),
+    )
     r0 = fit(skel, balls, plain, theta0, root, s, solve="pose", settings=cfg)
     r1 = fit(skel, balls, with_traj, theta0, root, s, solve="pose", settings=cfg)
     assert abs(r0.theta[k_twist] - 0.25) > 0.2  # the surface alone does not see the twist

@@ -57,7 +57,7 @@ def test_blend_scale_renders_the_blended_surface():
     def level(axes):
         """Mean |ln Σf − ln 0.5| on the union of the ellipsoids ``axes`` (M, 3): points
         spread over each, those inside another left out."""
-        x = (cw[0][:, None] + np.einsum("mij,mpj->mpi", Rw[0], u[None] * axes[:, None]))
+        x = cw[0][:, None] + np.einsum("mij,mpj->mpi", Rw[0], u[None] * axes[:, None])
         x = x.reshape(-1, 3)
         y = mb.local_coords(x, Rw[0], cw[0])
         inside = np.sum((y / axes[None]) ** 2, axis=-1) < 1.0 - 1e-9

@@ -41,9 +41,16 @@ def truth(rng):
 def test_noise_free_points_recover_pose_scales_and_radii(truth, rng):
     skel, balls, theta, root, s, obs = truth
     cfg = FitSettings(use_limits=False, shape_prior=False, rounds=1)
-    res = fit(skel, balls, obs, theta + rng.normal(0, 0.03, skel.n_dof), root + 0.01,
-              s * (1 + 0.02 * rng.normal(size=skel.n_groups)),
-              balls.radii * (1 + 0.03 * rng.normal(size=balls.radii.shape)), settings=cfg)
+    res = fit(
+        skel,
+        balls,
+        obs,
+        theta + rng.normal(0, 0.03, skel.n_dof),
+        root + 0.01,
+        s * (1 + 0.02 * rng.normal(size=skel.n_groups)),
+        balls.radii * (1 + 0.03 * rng.normal(size=balls.radii.shape)),
+        settings=cfg,
+    )
     assert res.converged and not res.diverged
     assert np.abs(res.theta - theta).max() < 1e-6
     assert np.abs(res.root_xyz - root).max() < 1e-6
@@ -61,10 +68,24 @@ def test_pose_only_with_outliers_and_joint_observations(truth, rng, robust):
     bad[:n_out] += rng.normal(0, 0.15, (n_out, 3))  # 10 % gross outliers
     x_j = sk.joint_positions(skel, theta, root, s)
     joints = np.array([skel.joint_index(j) for j in ("l_wrist", "r_wrist", "head")])
-    obs2 = Observations(xyz=bad, part=obs.part, sigma=0.001, joint_idx=joints,
-                        joint_xyz=x_j[joints], sigma_joint=0.005)
-    res = fit(skel, balls, obs2, theta + rng.normal(0, 0.03, skel.n_dof), root + 0.01, s,
-              solve="pose", settings=FitSettings(use_limits=False, robust_scale=2.0, robust=robust))
+    obs2 = Observations(
+        xyz=bad,
+        part=obs.part,
+        sigma=0.001,
+        joint_idx=joints,
+        joint_xyz=x_j[joints],
+        sigma_joint=0.005,
+    )
+    res = fit(
+        skel,
+        balls,
+        obs2,
+        theta + rng.normal(0, 0.03, skel.n_dof),
+        root + 0.01,
+        s,
+        solve="pose",
+        settings=FitSettings(use_limits=False, robust_scale=2.0, robust=robust),
+    )
     err = np.linalg.norm(sk.joint_positions(skel, res.theta, res.root_xyz, s) - x_j, axis=-1)
     assert err.max() < 0.01  # robust: outliers move no joint by a centimetre
     assert not res.diverged and np.all(np.isfinite(res.theta_sigma))
@@ -87,7 +108,8 @@ def test_shape_bounds_hold_a_ball_that_took_another_parts_points(truth):
         r = fit(skel, balls, wrong, theta, root, s, solve="shape", settings=cfg)
         ratio = r.radii[on] / balls.radii[on]
         shift = np.abs(r.centers[on] - balls.center0[on]) / balls.radii[on].max(
-            axis=1, keepdims=True)
+            axis=1, keepdims=True
+        )
         return ratio.max(), shift.max()
 
     free_ratio, free_shift = solve(radius_ratio=(0.0, np.inf), center_shift=np.inf)

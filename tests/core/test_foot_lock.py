@@ -40,10 +40,12 @@ def test_two_bone_ik_keeps_lengths_and_knee_side(rng):
     target = ankle + np.array([0.0, 0.0, 0.08]) + rng.normal(0, 0.02, (F, 3))  # in reach
     k2, a2 = two_bone_ik(hip, knee, ankle, target)
     np.testing.assert_allclose(a2, target, atol=1e-9)
-    np.testing.assert_allclose(np.linalg.norm(k2 - hip, axis=1),
-                               np.linalg.norm(knee - hip, axis=1), atol=1e-9)
-    np.testing.assert_allclose(np.linalg.norm(a2 - k2, axis=1),
-                               np.linalg.norm(ankle - knee, axis=1), atol=1e-9)
+    np.testing.assert_allclose(
+        np.linalg.norm(k2 - hip, axis=1), np.linalg.norm(knee - hip, axis=1), atol=1e-9
+    )
+    np.testing.assert_allclose(
+        np.linalg.norm(a2 - k2, axis=1), np.linalg.norm(ankle - knee, axis=1), atol=1e-9
+    )
     assert np.all(k2[:, 0] > hip[:, 0] - 0.05)  # the knee stays forward (+x)
     # out of reach: the leg straightens towards the target
     far = hip + np.array([0.0, 0.0, -2.0])
@@ -84,5 +86,6 @@ def test_lock_leg_pins_the_ankle_and_keeps_bone_lengths():
     np.testing.assert_allclose(new_ankle, after, atol=1e-9)
     np.testing.assert_allclose(Rt[~contact], R_thigh[~contact])
     for R in (Rt, Rs):
-        np.testing.assert_allclose(R @ np.swapaxes(R, 1, 2), np.broadcast_to(np.eye(3), R.shape),
-                                   atol=1e-9)
+        np.testing.assert_allclose(
+            R @ np.swapaxes(R, 1, 2), np.broadcast_to(np.eye(3), R.shape), atol=1e-9
+        )

@@ -17,9 +17,11 @@ def test_opencv_yaml_round_trip(tmp_path, rng):
 
 def test_opencv_yaml_missing_key(tmp_path):
     path = tmp_path / "bad.yml"
-    path.write_text("%YAML:1.0\n---\nimage_width: 10\nimage_height: 10\n"
-                    "camera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n"
-                    "   data: [1., 0., 0., 0., 1., 0., 0., 0., 1.]\n")
+    path.write_text(
+        "%YAML:1.0\n---\nimage_width: 10\nimage_height: 10\n"
+        "camera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n"
+        "   data: [1., 0., 0., 0., 1., 0., 0., 0., 1.]\n"
+    )
     with pytest.raises(InputError, match="missing the key 'R'"):
         read_opencv_yaml(path)
 
@@ -40,13 +42,15 @@ def test_qualisys_cameras_look_at_one_place(shared_data):
         u, v = c.project(X)
         assert 0 <= u < c.size[0] and 0 <= v < c.size[1]
         assert np.linalg.norm(np.cross(c.R[2], X - c.center)) < 0.2
-    assert 1000 < cams[0].K[0, 0] < 2000          # 107600 / 64 px
+    assert 1000 < cams[0].K[0, 0] < 2000  # 107600 / 64 px
 
 
 def test_qualisys_missing_key(tmp_path):
     p = tmp_path / "c.qca.txt"
-    p.write_text('<calibration><cameras><camera serial="c1"><transform r11="1"/>'
-                 '<intrinsic/><fov_video left="0" right="9" top="0" bottom="9"/>'
-                 '</camera></cameras></calibration>')
+    p.write_text(
+        '<calibration><cameras><camera serial="c1"><transform r11="1"/>'
+        '<intrinsic/><fov_video left="0" right="9" top="0" bottom="9"/>'
+        "</camera></cameras></calibration>"
+    )
     with pytest.raises(InputError, match="missing the key"):
         read_qca(p)

@@ -64,8 +64,7 @@ def seen_arm(rng):
     return skel, s, balls, root, true, x[seen], views[seen], cams
 
 
-def test_a_limb_in_front_of_its_own_points_pays_for_the_body_in_their_line_of_sight(
-        seen_arm):
+def test_a_limb_in_front_of_its_own_points_pays_for_the_body_in_their_line_of_sight(seen_arm):
     skel, s, balls, root, true, x, views, cams = seen_arm
     pr = probes(x, views, cams)
     # the arm swung forward, between the cameras and points it no longer explains
@@ -73,8 +72,7 @@ def test_a_limb_in_front_of_its_own_points_pays_for_the_body_in_their_line_of_si
     wrong[skel.dof_index("r_shoulder_x")] -= np.radians(10)
     roots = np.stack([root, root])
     plain = explain_cost(x, skel, balls, s, balls.radii, np.stack([true, wrong]), roots)
-    seen = explain_cost(x, skel, balls, s, balls.radii, np.stack([true, wrong]), roots,
-                        probes=pr)
+    seen = explain_cost(x, skel, balls, s, balls.radii, np.stack([true, wrong]), roots, probes=pr)
     assert plain[0] < 1e-9 and seen[0] < 1e-9  # the truth: nothing in front of its points
     assert seen[1] - plain[1] > 100  # the wrong pose occludes many of them
     # the search with the lines of sight still returns to the truth
@@ -111,8 +109,9 @@ def test_a_hidden_leg_that_swung_into_the_other_is_moved_out_of_its_points(rng):
     start[skel.dof_index("r_hip_y")] -= 0.25  # across the body, into the left leg
     buried = explain_distance(x, skel, balls, s, balls.radii, start, root) > 0.01
     assert buried.sum() > 50
-    res = search_limbs(x, skel, balls, s, balls.radii, start, root,
-                       probes=probes(x, seen[:, None], centre[None]))
+    res = search_limbs(
+        x, skel, balls, s, balls.radii, start, root, probes=probes(x, seen[:, None], centre[None])
+    )
     assert "r_leg" in res.moved
     after = explain_distance(x, skel, balls, s, balls.radii, res.theta, root)
     assert (after > 0.01).sum() < 5

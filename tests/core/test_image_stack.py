@@ -21,7 +21,7 @@ def _images(rng, m=3, h=60, w=70):
 
 def test_windows_sample_like_the_whole_upsampled_image(rng):
     n = 300
-    imgs = _images(rng, m=n, h=40, w=44)           # one image per patch (as in tracking)
+    imgs = _images(rng, m=n, h=40, w=44)  # one image per patch (as in tracking)
     index = np.arange(n)
     # Centres anywhere, also within a few pixels of the image borders.
     # Positions on cv2.remap's 1/32 px grid (as LSM snaps them): exact in both paths.
@@ -32,9 +32,9 @@ def test_windows_sample_like_the_whole_upsampled_image(rng):
     uv, index, pos = uv[keep], index[keep], pos[keep]
     for upsample in (True, False):
         win = PatchSource(ImageStack(imgs), index, uv, 5.0, upsample)
-        assert not win._whole                    # compact windows: fewer samples
+        assert not win._whole  # compact windows: fewer samples
         stack = ImageStack(imgs)
-        _ = stack.up, stack.mosaic               # cached: the whole image is sampled
+        _ = stack.up, stack.mosaic  # cached: the whole image is sampled
         whole = PatchSource(stack, index, uv, 5.0, upsample)
         assert whole._whole
         a, b = _sample(win, uv, offsets), _sample(whole, uv, offsets)
@@ -45,7 +45,7 @@ def test_windows_sample_like_the_whole_upsampled_image(rng):
 
 
 def test_many_windows_are_split_into_remap_sized_chunks(rng):
-    n = 2000                                     # more windows than one remap image holds
+    n = 2000  # more windows than one remap image holds
     imgs = _images(rng, m=n, h=30, w=30)
     uv = np.rint(32 * rng.uniform(10, 19, (n, 2))) / 32
     offsets = np.rint(32 * rng.uniform(-4.0, 4.0, (10, 2))) / 32
@@ -54,8 +54,9 @@ def test_many_windows_are_split_into_remap_sized_chunks(rng):
     stack = ImageStack(imgs)
     _ = stack.up
     got = _sample(win, uv, offsets)
-    assert np.max(np.abs(got - _sample(PatchSource(stack, np.arange(n), uv, 4.0), uv,
-                                       offsets))) < 1e-3
+    assert (
+        np.max(np.abs(got - _sample(PatchSource(stack, np.arange(n), uv, 4.0), uv, offsets))) < 1e-3
+    )
     # A subset of rows (ascending, crossing chunks) samples the same values.
     rows = np.sort(rng.choice(n, 300, replace=False))
     pu = (win.bu[rows, None] + 2 * (uv[rows, 0, None] + offsets[None, :, 0])).astype(np.float32)

@@ -22,8 +22,7 @@ def _rig():
     return [
         _look_at("cam01", np.array([-2.0, -4.0, 1.5]), target, dist=dist),
         _look_at("cam02", np.array([0.0, -4.5, 1.2]), target),
-        _look_at("cam03", np.array([2.5, -3.5, 1.6]), target, aspect=2.0,
-                 size=(512, 192)),
+        _look_at("cam03", np.array([2.5, -3.5, 1.6]), target, aspect=2.0, size=(512, 192)),
     ]
 
 
@@ -61,9 +60,9 @@ def test_missing_views_and_flags(rng):
     cams = _rig()
     xyz = rng.uniform([-0.5, -0.5, 0.5], [0.5, 0.5, 1.5], size=(6, 3))
     uv = _project(cams, xyz)
-    uv[0, 0] = np.nan                # two views left
-    uv[1, :2] = np.nan               # one view: not ok
-    uv[2] = np.nan                   # none
+    uv[0, 0] = np.nan  # two views left
+    uv[1, :2] = np.nan  # one view: not ok
+    uv[2] = np.nan  # none
     res = triangulate(cams, uv)
     np.testing.assert_array_equal(res.n_views, [2, 1, 0, 3, 3, 3])
     np.testing.assert_array_equal(res.ok, [True, False, False, True, True, True])
@@ -79,4 +78,3 @@ def test_single_point_and_shape_check(rng):
     assert res.ok
     with pytest.raises(ValueError, match="shape"):
         triangulate(cams, np.zeros((4, 2, 2)))
-

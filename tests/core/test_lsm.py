@@ -38,8 +38,15 @@ def lsm_path(request, monkeypatch):
 def _match(P, **kw):
     n = len(P.template)
     start = np.full((n, 2), P.centre)
-    return match(P.template, P.search, start, start, template_index=np.arange(n),
-                 search_index=np.arange(n), **kw)
+    return match(
+        P.template,
+        P.search,
+        start,
+        start,
+        template_index=np.arange(n),
+        search_index=np.arange(n),
+        **kw,
+    )
 
 
 def test_shift_precision_matches_predicted_sigma():
@@ -47,7 +54,7 @@ def test_shift_precision_matches_predicted_sigma():
     r = _match(P)
     assert r.ok.mean() > 0.98
     err = (r.uv - P.uv_true)[r.ok]
-    rms = np.sqrt(np.mean(err ** 2))
+    rms = np.sqrt(np.mean(err**2))
     pred = np.sqrt(np.mean(r.sigma_uv[r.ok] ** 2))
     assert rms < 0.03
     assert 0.8 < rms / pred < 1.25
@@ -82,8 +89,15 @@ def test_one_gauss_newton_step_is_quadratic():
     P = make_pairs(50, seed=6, max_shift=0.0, noise=0.0, fmax=0.15)
     n = len(P.template)
     start = np.full((n, 2), P.centre) + np.array([0.05, -0.04])
-    r = match(P.template, P.search, np.full((n, 2), P.centre), start,
-              template_index=np.arange(n), search_index=np.arange(n), max_iter=2)
+    r = match(
+        P.template,
+        P.search,
+        np.full((n, 2), P.centre),
+        start,
+        template_index=np.arange(n),
+        search_index=np.arange(n),
+        max_iter=2,
+    )
     before = np.linalg.norm(start - P.uv_true, axis=1)
     after = np.linalg.norm(r.uv - P.uv_true, axis=1)
     assert np.median(after / before) < 0.1
@@ -102,7 +116,7 @@ def test_bilinear_without_upsampling_also_works():
 def test_template_slopes_are_the_cubic_spline_derivative():
     y, x = np.mgrid[0:21, 0:21].astype(float)
     ramp = 3.0 * x - 2.0 * y
-    f = 0.2                                   # cycles / px: central differences lose 24 %
+    f = 0.2  # cycles / px: central differences lose 24 %
     wave = np.sin(2 * np.pi * f * x + 0.3)
     gu, gv = template_slopes(np.stack([ramp, wave]).astype(np.float32))
     assert np.allclose(gu[0], 3.0, atol=1e-4) and np.allclose(gv[0], -2.0, atol=1e-4)
@@ -115,13 +129,13 @@ def test_template_slopes_are_the_cubic_spline_derivative():
 def test_rejections_are_flagged_per_patch():
     P = make_pairs(5, seed=8, max_shift=0.5)
     T = P.template.copy()
-    T[1] = 100          # textureless template
+    T[1] = 100  # textureless template
     S = P.search.copy()
-    S[4] = 115          # flat search image (e.g. a saturated background): gain undetermined
+    S[4] = 115  # flat search image (e.g. a saturated background): gain undetermined
     start = np.full((5, 2), P.centre)
-    start[2] = [2.0, 2.0]          # template leaves the image
+    start[2] = [2.0, 2.0]  # template leaves the image
     uv_s = np.full((5, 2), P.centre)
-    uv_s[3] = np.nan               # no start
+    uv_s[3] = np.nan  # no start
     r = match(T, S, start, uv_s, template_index=np.arange(5), search_index=np.arange(5))
     assert r.status[0] == Status.OK
     assert r.status[1] == Status.WEAK_TEXTURE
@@ -134,8 +148,15 @@ def test_drift_out_of_search_area_is_flagged():
     P = make_pairs(50, seed=9, max_shift=0.0, noise=2.0)
     n = len(P.template)
     c = np.full((n, 2), P.centre)
-    r = match(P.template, P.search, c, c + 1.5, template_index=np.arange(n),
-              search_index=np.arange(n), max_shift_px=0.5)
+    r = match(
+        P.template,
+        P.search,
+        c,
+        c + 1.5,
+        template_index=np.arange(n),
+        search_index=np.arange(n),
+        max_shift_px=0.5,
+    )
     assert np.all(r.status[~r.ok] == Status.OUT_OF_SEARCH)
     assert (r.status == Status.OUT_OF_SEARCH).mean() > 0.9
 
@@ -143,8 +164,15 @@ def test_drift_out_of_search_area_is_flagged():
 def test_search_leaving_the_image_is_flagged():
     P = make_pairs(3, seed=10, max_shift=0.0)
     c = np.full((3, 2), P.centre)
-    r = match(P.template, P.search, c, c + np.array([13.0, 0.0]), template_index=np.arange(3),
-              search_index=np.arange(3), max_shift_px=50)
+    r = match(
+        P.template,
+        P.search,
+        c,
+        c + np.array([13.0, 0.0]),
+        template_index=np.arange(3),
+        search_index=np.arange(3),
+        max_shift_px=50,
+    )
     assert np.all(r.status == Status.OUT_OF_IMAGE)
 
 
@@ -174,8 +202,9 @@ def test_template_near_the_border_is_centred_on_its_point(rng, lsm_path):
     """A template 8 px from the border (inside the matcher's 7 px margin, but its
     slope border of 4 px leaves the image): the patch is still centred on uv."""
     img = rng.uniform(0, 255, (40, 50)).astype(np.float32)
-    T, gu, _ = template_patches(img, np.array([[8.0, 20.0], [25.0, 31.0]]),
-                                kernel=lsm_path == "numba")
+    T, gu, _ = template_patches(
+        img, np.array([[8.0, 20.0], [25.0, 31.0]]), kernel=lsm_path == "numba"
+    )
     assert np.array_equal(T[0], img[14:27, 2:15]) and np.array_equal(T[1], img[25:38, 19:32])
     # Slopes from the border pixels repeated beyond the image (row 31 + 4 > 39).
     ref = template_patches(np.pad(img, 10, mode="edge"), np.array([[35.0, 41.0]]))[1]
@@ -187,8 +216,7 @@ def test_subpixel_template_is_resampled(rng):
     uv = np.array([[20.3, 18.8], [25.0, 21.45]])
     T = template_patches(img, uv)[0]
     y, x = np.mgrid[-6:7, -6:7]
-    ref = [ndimage.map_coordinates(img, [p[1] + y.ravel(), p[0] + x.ravel()], order=3)
-           for p in uv]
+    ref = [ndimage.map_coordinates(img, [p[1] + y.ravel(), p[0] + x.ravel()], order=3) for p in uv]
     # Bilinear between the 2x samples: a small symmetric smoothing (spread ~15 grey).
     assert np.max(np.abs(T.reshape(2, -1) - np.array(ref))) < 0.6
     assert np.median(np.abs(T.reshape(2, -1) - np.array(ref))) < 0.15
@@ -203,8 +231,9 @@ def _stereo_pair():
 
 def test_epipolar_lines_contain_the_true_match(rng):
     left, right = _stereo_pair()
-    xyz = np.column_stack([rng.uniform(-0.3, 0.3, 20), rng.uniform(-0.2, 0.2, 20),
-                           rng.uniform(1.5, 3.0, 20)])
+    xyz = np.column_stack(
+        [rng.uniform(-0.3, 0.3, 20), rng.uniform(-0.2, 0.2, 20), rng.uniform(1.5, 3.0, 20)]
+    )
     uv_l, uv_r = left.project(xyz), right.project(xyz)
     normal, d = epipolar_lines(left, right, uv_l, uv_r + 3.0)
     assert np.allclose(np.linalg.norm(normal, axis=1), 1.0)
@@ -215,10 +244,18 @@ def test_epipolar_constraint_pulls_the_match_onto_the_line():
     P = make_pairs(100, seed=11, max_shift=1.0, noise=2.0)
     n = len(P.template)
     c = np.full((n, 2), P.centre)
-    normal = np.tile([0.0, 1.0], (n, 1))          # horizontal line v = true v + 0.3
+    normal = np.tile([0.0, 1.0], (n, 1))  # horizontal line v = true v + 0.3
     d = P.uv_true[:, 1] + 0.3
-    r = match(P.template, P.search, c, c, template_index=np.arange(n),
-              search_index=np.arange(n), lines=(normal, d), sigma_line_px=0.001)
+    r = match(
+        P.template,
+        P.search,
+        c,
+        c,
+        template_index=np.arange(n),
+        search_index=np.arange(n),
+        lines=(normal, d),
+        sigma_line_px=0.001,
+    )
     free = _match(P)
     assert np.median(np.abs(r.uv[:, 1] - d)) < 0.01
     assert np.median(np.abs(free.uv[:, 1] - d)) > 0.25
@@ -229,8 +266,7 @@ def test_mismatched_inputs_raise():
     with pytest.raises(ValueError, match="differ"):
         match(P.template, P.search, np.zeros((2, 2)), np.zeros((3, 2)))
     with pytest.raises(ValueError, match="outside the image stacks"):
-        match(P.template, P.search, np.zeros((2, 2)), np.zeros((2, 2)),
-              search_index=[0, 5])
+        match(P.template, P.search, np.zeros((2, 2)), np.zeros((2, 2)), search_index=[0, 5])
 
 
 def test_gaussian_weighting_keeps_predicted_sigma_consistent():
@@ -239,7 +275,7 @@ def test_gaussian_weighting_keeps_predicted_sigma_consistent():
     u = _match(P)
     assert r.ok.mean() > 0.98
     err = (r.uv - P.uv_true)[r.ok]
-    rms = np.sqrt(np.mean(err ** 2))
+    rms = np.sqrt(np.mean(err**2))
     assert 0.8 < rms / np.sqrt(np.mean(r.sigma_uv[r.ok] ** 2)) < 1.25
     # Fewer effective pixels: larger predicted and real errors than the uniform patch.
     assert np.median(r.sigma_uv) > 1.1 * np.median(u.sigma_uv)
@@ -253,10 +289,11 @@ def test_normal_matrix_is_the_weighted_design_product(rng):
     xs, ys = xg.ravel(), yg.ravel()
     T = (100 + 25 * rng.normal(size=(n, xs.size))).astype(np.float32)
     gx, gy = (8 * rng.normal(size=(2, n, xs.size))).astype(np.float32)
-    w = np.exp(-(xs ** 2 + ys ** 2) / 18.0).astype(np.float32)
+    w = np.exp(-(xs**2 + ys**2) / 18.0).astype(np.float32)
     m = np.stack([np.ones_like(xs), xs, ys]).astype(float)
-    J = np.concatenate([gx[:, None] * m, gy[:, None] * m, np.ones((n, 1, xs.size)),
-                        T[:, None]], axis=1)                       # (n, 8, P) float64
+    J = np.concatenate(
+        [gx[:, None] * m, gy[:, None] * m, np.ones((n, 1, xs.size)), T[:, None]], axis=1
+    )  # (n, 8, P) float64
     exact = np.einsum("nip,p,njp->nij", J, w.astype(float), J)
     N = normal_matrix(T, gx, gy, xs, ys, w)
     scale = np.sqrt(np.einsum("nii->ni", exact))
@@ -282,17 +319,17 @@ def test_shift_radiometry_solve_matches_the_normal_matrix_block(rng):
     n, half = 40, 6
     r = np.arange(-half, half + 1, dtype=np.float32)
     yg, xg = np.meshgrid(r, r, indexing="ij")
-    T = (100 + 25 * rng.normal(size=(n, r.size ** 2))).astype(np.float32)
-    gx, gy = (8 * rng.normal(size=(2, n, r.size ** 2))).astype(np.float32)
-    w = np.ones(r.size ** 2, np.float32)
+    T = (100 + 25 * rng.normal(size=(n, r.size**2))).astype(np.float32)
+    gx, gy = (8 * rng.normal(size=(2, n, r.size**2))).astype(np.float32)
+    w = np.ones(r.size**2, np.float32)
     N = normal_matrix(T, gx, gy, xg.ravel(), yg.ravel(), w)
     m = shift_moments(T, gx, gy, w)
     m_n = shift_moments_from_normal(N)
-    assert np.max(np.abs(m - m_n) / np.abs(m_n).max(axis=0)) < 1e-5    # float32 sums
+    assert np.max(np.abs(m - m_n) / np.abs(m_n).max(axis=0)) < 1e-5  # float32 sums
     b = rng.normal(size=(n, 4)) * 50
     sub = [0, 3, 6, 7]
     exact = np.linalg.solve(N[:, sub][:, :, sub], b[:, :, None])[:, :, 0]
     got = solve_shift_radiometry(shift_moments_from_normal(N), b)
     assert np.allclose(got, exact, rtol=1e-6, atol=1e-9 * np.abs(exact).max())
-    m[0] = 0.0                                     # no texture, no grey-level spread
+    m[0] = 0.0  # no texture, no grey-level spread
     assert np.all(np.isnan(solve_shift_radiometry(m, b)[0]))

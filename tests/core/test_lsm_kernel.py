@@ -61,16 +61,16 @@ def test_compiled_and_numpy_paths_agree(monkeypatch, case):
     P = make_pairs(150, seed=21, max_shift=1.0, noise=2.0, **pairs_kw)
     n = len(P.template)
     T = P.template.copy()
-    T[0] = 90                                       # no texture
+    T[0] = 90  # no texture
     uv_t = np.full((n, 2), P.centre)
     uv_s = uv_t.copy()
-    uv_t[1] = [3.0, 3.0]                            # template leaves its image
-    uv_s[2] = np.nan                                # no start
-    uv_s[3] += [14.0, 0.0]                          # search patch leaves the image
-    uv_s[4] += [1.6, -1.2]                          # far start: drifts or converges
+    uv_t[1] = [3.0, 3.0]  # template leaves its image
+    uv_s[2] = np.nan  # no start
+    uv_s[3] += [14.0, 0.0]  # search patch leaves the image
+    uv_s[4] += [1.6, -1.2]  # far start: drifts or converges
     S = P.search.copy()
-    S[5] = 115                                      # flat search image
-    S[6, 18:23] = 250                               # a saturated stripe through the patch
+    S[5] = 115  # flat search image
+    S[6, 18:23] = 250  # a saturated stripe through the patch
     ref, got = _both(monkeypatch, T, S, uv_t, uv_s, **match_kw)
     assert ref.status[0] == Status.WEAK_TEXTURE and ref.status[1] == Status.OUT_OF_IMAGE
     assert ref.status[2] == Status.INVALID and ref.status[3] == Status.OUT_OF_IMAGE
@@ -92,12 +92,12 @@ def test_a_rewindowed_and_drifting_start_agrees(monkeypatch):
     real = lsm_kernel.iterate_round
 
     def spy(*args):
-        rounds.append(len(args[8]))                           # the patches of the round
+        rounds.append(len(args[8]))  # the patches of the round
         real(*args)
 
     monkeypatch.setattr(lsm_kernel, "iterate_round", spy)
     ref, got = _both(monkeypatch, P.template, P.search, c, c + off, max_shift_px=3.0)
-    assert len(rounds) >= 2 and rounds[0] == n                # some patches got a new window
+    assert len(rounds) >= 2 and rounds[0] == n  # some patches got a new window
     assert (ref.status == Status.OUT_OF_SEARCH).any() and ref.ok.any()
     _assert_same(ref, got)
 
@@ -107,8 +107,9 @@ def test_float_images_and_threads_agree(monkeypatch):
     P = make_pairs(200, seed=23, max_shift=1.0, noise=2.0)
     n = len(P.template)
     c = np.full((n, 2), P.centre)
-    ref, got = _both(monkeypatch, P.template.astype(np.float32), P.search.astype(np.float64),
-                     c, c, workers=3)
+    ref, got = _both(
+        monkeypatch, P.template.astype(np.float32), P.search.astype(np.float64), c, c, workers=3
+    )
     _assert_same(ref, got)
 
 
@@ -142,7 +143,7 @@ def test_without_numba_or_with_the_switch_the_numpy_path_runs(monkeypatch):
     r = match(P.template, P.search, c, c, template_index=np.arange(n), search_index=np.arange(n))
     assert r.ok.mean() > 0.9
     monkeypatch.setenv(lsm_kernel.ENV_OFF, "0")
-    monkeypatch.setattr(lsm_kernel, "numba", None)          # as inside Blender
+    monkeypatch.setattr(lsm_kernel, "numba", None)  # as inside Blender
     assert not lsm_kernel.enabled()
     r2 = match(P.template, P.search, c, c, template_index=np.arange(n), search_index=np.arange(n))
     assert np.array_equal(r.uv, r2.uv)
@@ -156,8 +157,8 @@ def test_normal_matrices_and_inverses_match_numpy(rng):
     xs, ys = xg.ravel(), yg.ravel()
     T = (100 + 25 * rng.normal(size=(n, xs.size))).astype(np.float32)
     gx, gy = (8 * rng.normal(size=(2, n, xs.size))).astype(np.float32)
-    gx[1] = gy[1] = 0.0                                       # singular: no gradients
-    w = np.exp(-(xs ** 2 + ys ** 2) / 18.0).astype(np.float32)
+    gx[1] = gy[1] = 0.0  # singular: no gradients
+    w = np.exp(-(xs**2 + ys**2) / 18.0).astype(np.float32)
     N = lsm_kernel.normal_matrices(T, gx, gy, w, xs, ys)
     ref = normal_matrix(T, gx, gy, xs, ys, w)
     sc = np.sqrt(np.maximum(np.einsum("nii->ni", ref), 1e-9))
@@ -174,8 +175,12 @@ def test_normal_matrices_and_inverses_match_numpy(rng):
     assert np.array_equal(N[2], np.eye(8)) and np.array_equal(Ninv[2], np.eye(8))
     k = np.flatnonzero(pd)
     assert np.allclose(Ninv[k] @ N[k], np.eye(8), atol=1e-8)
-    assert np.allclose(Ninv[k], inv_ref[k], rtol=1e-4,
-                       atol=1e-6 * np.abs(inv_ref[k]).max(axis=(1, 2), keepdims=True))
+    assert np.allclose(
+        Ninv[k],
+        inv_ref[k],
+        rtol=1e-4,
+        atol=1e-6 * np.abs(inv_ref[k]).max(axis=(1, 2), keepdims=True),
+    )
 
 
 @needs_numba
@@ -183,7 +188,7 @@ def test_upsampled_windows_match_numpy_also_at_the_border(rng):
     imgs = rng.integers(0, 256, (3, 30, 40)).astype(np.uint8)
     stack = image_stack.ImageStack(imgs)
     idx = np.array([0, 1, 2, 1])
-    u0 = np.array([10, -4, 30, 5])                            # 2nd and 3rd leave the image
+    u0 = np.array([10, -4, 30, 5])  # 2nd and 3rd leave the image
     v0 = np.array([8, 12, -3, 20])
     wr = 5
     got = lsm_kernel.upsampled_windows(stack, idx, u0, v0, wr)
@@ -191,8 +196,8 @@ def test_upsampled_windows_match_numpy_also_at_the_border(rng):
     win = image_stack._windows(stack, idx, u0 - m, v0 - m, 2 * (wr + m) + 1, transposed=True)
     ref = image_stack._upsample_windows(win, wr)
     assert got.shape == ref.shape == (4, 4 * wr + 1, 4 * wr + 1)
-    assert np.max(np.abs(got - ref)) < 1e-3                   # float32 sums, grey levels 0-255
-    assert np.array_equal(got[0, ::2, ::2], imgs[0, 8:8 + 2 * wr + 1, 10:10 + 2 * wr + 1])
+    assert np.max(np.abs(got - ref)) < 1e-3  # float32 sums, grey levels 0-255
+    assert np.array_equal(got[0, ::2, ::2], imgs[0, 8 : 8 + 2 * wr + 1, 10 : 10 + 2 * wr + 1])
 
 
 @needs_numba
@@ -202,8 +207,7 @@ def test_bilinear_is_cv2_remap_at_thirty_seconds(rng):
     img = rng.uniform(0, 255, (12, 9)).astype(np.float32)
     pu = (np.round(rng.uniform(-2, 10, 200) * 32) / 32).astype(np.float32)
     pv = (np.round(rng.uniform(-2, 13, 200) * 32) / 32).astype(np.float32)
-    ref = cv2.remap(img, pu[None], pv[None], cv2.INTER_LINEAR,
-                    borderMode=cv2.BORDER_REPLICATE)[0]
+    ref = cv2.remap(img, pu[None], pv[None], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)[0]
     got = np.array([_bilinear(img, 0, img.shape[0], u, v) for u, v in zip(pu, pv, strict=True)])
     assert np.max(np.abs(got - ref)) < 1e-4
 
@@ -235,15 +239,23 @@ def test_switch_at_start_up_does_not_import_numba():
     import sys
     from pathlib import Path
 
-    code = ("import sys, numpy as np; from bench.patches import make_pairs; "
-            "from core.lsm import match; from core import lsm_kernel; "
-            "P = make_pairs(20, seed=3); c = np.full((20, 2), P.centre); "
-            "r = match(P.template, P.search, c, c, template_index=np.arange(20), "
-            "search_index=np.arange(20)); "
-            "print('numba' in sys.modules, lsm_kernel.enabled(), r.ok.mean())")
+    code = (
+        "import sys, numpy as np; from bench.patches import make_pairs; "
+        "from core.lsm import match; from core import lsm_kernel; "
+        "P = make_pairs(20, seed=3); c = np.full((20, 2), P.centre); "
+        "r = match(P.template, P.search, c, c, template_index=np.arange(20), "
+        "search_index=np.arange(20)); "
+        "print('numba' in sys.modules, lsm_kernel.enabled(), r.ok.mean())"
+    )
     env = dict(os.environ, SOMACAP_NO_NUMBA="1")
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
-                         check=True, cwd=Path(__file__).resolve().parents[2]).stdout.split()
+    out = subprocess.run(
+        [sys.executable, "-c", code],
+        env=env,
+        capture_output=True,
+        text=True,
+        check=True,
+        cwd=Path(__file__).resolve().parents[2],
+    ).stdout.split()
     assert out[:2] == ["False", "False"] and float(out[2]) > 0.9
 
 

@@ -45,9 +45,17 @@ def test_gradient_and_radius_jacobian(setup, rng):
     x = cw[0, rng.integers(0, len(balls), 30)] + rng.normal(0, 0.05, (30, 3))
     F, grad, f, y = mb.field(x, Rw[0], cw[0], balls.radii)
     eps = 1e-6
-    num = np.stack([(mb.field(x + eps * e, Rw[0], cw[0], balls.radii)[0]
-                     - mb.field(x - eps * e, Rw[0], cw[0], balls.radii)[0]) / (2 * eps)
-                    for e in np.eye(3)], axis=-1)
+    num = np.stack(
+        [
+            (
+                mb.field(x + eps * e, Rw[0], cw[0], balls.radii)[0]
+                - mb.field(x - eps * e, Rw[0], cw[0], balls.radii)[0]
+            )
+            / (2 * eps)
+            for e in np.eye(3)
+        ],
+        axis=-1,
+    )
     np.testing.assert_allclose(grad, num, atol=1e-6)
     Jr = mb.radius_jacobian(f, y, balls.radii)
     m, a = 5, 1
@@ -74,14 +82,29 @@ def test_pose_and_scale_jacobians(setup, rng):
     _, _, f, y = mb.field(x, Rw[0], cw[0], balls.radii, member)
     J_theta, J_root, J_s = mb.pose_jacobian(skel, pose, balls, s, x, f, y, balls.radii)
     eps = 1e-6
-    num = np.stack([(F_of(theta + eps * e, root, s) - F_of(theta - eps * e, root, s)) / (2 * eps)
-                    for e in np.eye(skel.n_dof)], axis=-1)
+    num = np.stack(
+        [
+            (F_of(theta + eps * e, root, s) - F_of(theta - eps * e, root, s)) / (2 * eps)
+            for e in np.eye(skel.n_dof)
+        ],
+        axis=-1,
+    )
     np.testing.assert_allclose(J_theta, num, atol=1e-6)
-    num = np.stack([(F_of(theta, root + eps * e, s) - F_of(theta, root - eps * e, s)) / (2 * eps)
-                    for e in np.eye(3)], axis=-1)
+    num = np.stack(
+        [
+            (F_of(theta, root + eps * e, s) - F_of(theta, root - eps * e, s)) / (2 * eps)
+            for e in np.eye(3)
+        ],
+        axis=-1,
+    )
     np.testing.assert_allclose(J_root, num, atol=1e-6)
-    num = np.stack([(F_of(theta, root, s + eps * e) - F_of(theta, root, s - eps * e)) / (2 * eps)
-                    for e in np.eye(skel.n_groups)], axis=-1)
+    num = np.stack(
+        [
+            (F_of(theta, root, s + eps * e) - F_of(theta, root, s - eps * e)) / (2 * eps)
+            for e in np.eye(skel.n_groups)
+        ],
+        axis=-1,
+    )
     np.testing.assert_allclose(J_s, num, atol=1e-6)
 
 

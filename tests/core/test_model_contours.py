@@ -61,8 +61,15 @@ def test_contour_matching_recovers_offset(rng):
     medians = []
     for shift in (0.0, 0.01):  # 1 cm along world X = 1 px along u at 5 m
         moved = centers + np.array([shift, 0.0, 0.0])
-        rim = rim_points(cam, moved, axes, radii, part, n_per=256,
-                         render=render_parts(cam, moved, axes, radii, part))
+        rim = rim_points(
+            cam,
+            moved,
+            axes,
+            radii,
+            part,
+            n_per=256,
+            render=render_parts(cam, moved, axes, radii, part),
+        )
         m = match_contours(cam, contours, rim, max_dist_px=5.0)
         assert len(m) > 0.7 * sum(len(c) for c in contours)
         vertical = np.abs(m.contour_normal[:, 0]) > 0.95
@@ -77,12 +84,16 @@ def test_contour_matching_recovers_offset(rng):
 def test_camera_selection_drops_hidden_and_degenerate_views():
     vis = np.array([[0.9, 0.1, 0.8], [0.5, 0.6, np.nan]])
     # part 0 moves along camera 2's optical axis: almost no image motion there
-    disp = [[np.full((10, 2), 0.5), np.full((10, 2), 0.5), np.full((10, 2), 0.01)],
-            [np.full((10, 2), 0.2), np.full((10, 2), 0.3), np.zeros((0, 2))]]
+    disp = [
+        [np.full((10, 2), 0.5), np.full((10, 2), 0.5), np.full((10, 2), 0.01)],
+        [np.full((10, 2), 0.2), np.full((10, 2), 0.3), np.zeros((0, 2))],
+    ]
     obs = observability(disp)
     sel = select_cameras(vis, obs)
     assert sel.use.tolist() == [[True, False, False], [True, True, False]]
     assert sel.rank[0].tolist() == [0, -1, 1]
     # a still part uses every visible camera
-    assert select_cameras(vis, np.zeros_like(vis)).use.tolist() == [[True, False, True],
-                                                                   [True, True, False]]
+    assert select_cameras(vis, np.zeros_like(vis)).use.tolist() == [
+        [True, False, True],
+        [True, True, False],
+    ]

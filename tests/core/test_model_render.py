@@ -29,16 +29,18 @@ def test_sphere_area_and_occlusion():
     assert out.visible_area.sum() == out.mask.sum()
     # depth of the front sphere's centre pixel
     u, v = cam.project(centers[1])
-    np.testing.assert_allclose(out.depth[int(round(v)), int(round(u))],
-                               np.linalg.norm(centers[1] - cam.center) - r, atol=0.01)
+    np.testing.assert_allclose(
+        out.depth[int(round(v)), int(round(u))],
+        np.linalg.norm(centers[1] - cam.center) - r,
+        atol=0.01,
+    )
 
 
 def test_rotated_ellipsoid_projects_to_its_outline():
     cam = _camera()
     ang = 0.6
     Rz = np.array([[np.cos(ang), 0, -np.sin(ang)], [0, 1, 0], [np.sin(ang), 0, np.cos(ang)]])
-    out = render_parts(cam, np.zeros((1, 3)), Rz[None], np.array([[0.6, 0.1, 0.1]]),
-                       np.array([0]))
+    out = render_parts(cam, np.zeros((1, 3)), Rz[None], np.array([[0.6, 0.1, 0.1]]), np.array([0]))
     # tip of the long axis is inside the mask, a point just beyond is not
     tip = cam.project(Rz[:, 0] * 0.58)
     beyond = cam.project(Rz[:, 0] * 0.66)
@@ -48,8 +50,13 @@ def test_rotated_ellipsoid_projects_to_its_outline():
 
 def test_part_outside_image_has_nan_index():
     cam = _camera()
-    out = render_parts(cam, np.array([[10.0, 0.0, 0.0]]), np.eye(3)[None],
-                       np.array([[0.1, 0.1, 0.1]]), np.array([0]))
+    out = render_parts(
+        cam,
+        np.array([[10.0, 0.0, 0.0]]),
+        np.eye(3)[None],
+        np.array([[0.1, 0.1, 0.1]]),
+        np.array([0]),
+    )
     assert np.isnan(out.visibility_index[0])
 
 
@@ -77,5 +84,6 @@ def test_outer_only_leaves_out_the_buried_surface():
     sel = render_parts(cam, centers, axes, radii, part, outer_only=True, buried_by=only)
     assert sel.full_area[0] == plain.full_area[0]
     assert sel.full_area[1] == outer.full_area[1]
-    np.testing.assert_array_equal(neighbour_parts(np.array([-1, 0, 1])),
-                                  [[1, 1, 0], [1, 1, 1], [0, 1, 1]])
+    np.testing.assert_array_equal(
+        neighbour_parts(np.array([-1, 0, 1])), [[1, 1, 0], [1, 1, 1], [0, 1, 1]]
+    )

@@ -11,13 +11,13 @@ def test_orientation_from_nothing_close_to_truth(kind):
     cams = rig(kind)
     xyz, uv, _ = wand_capture(cams, n=100, noise_px=0.1, outlier_frac=0.03, seed=2)
     rng = np.random.default_rng(0)
-    swap = rng.random(uv.shape[:2]) < 0.5            # labels inconsistent across cameras
+    swap = rng.random(uv.shape[:2]) < 0.5  # labels inconsistent across cameras
     uv[swap] = uv[swap][:, ::-1]
     init = initial_orientation(uv, [c.size for c in cams], 0.5)
     centers = np.array([c.center for c in init.cameras])
     truth = np.array([c.center for c in cams])
     s, R, t = similarity(centers, truth)
-    assert abs(s - 1) < 0.25             # metric scale from L, focal length guessed
+    assert abs(s - 1) < 0.25  # metric scale from L, focal length guessed
     assert np.max(np.linalg.norm(s * centers @ R.T + t - truth, axis=1)) < 0.5
     # labels made consistent: the intersected bars have about the right length
     both = np.all(np.isfinite(init.uv), axis=(2, 3)).sum(axis=1) >= 2

@@ -23,8 +23,13 @@ def _iso_distance(balls, Rw, cw, x):
 
 def test_a_lone_metaball_keeps_its_visible_ellipsoid():
     skel, s, balls, pose = _body()
-    one = mb.Metaballs(balls.bone[:1], balls.center0[:1], balls.group[:1], balls.rot[:1],
-                       np.array([[0.2, 0.12, 0.08]]))
+    one = mb.Metaballs(
+        balls.bone[:1],
+        balls.center0[:1],
+        balls.group[:1],
+        balls.rot[:1],
+        np.array([[0.2, 0.12, 0.08]]),
+    )
     a = mb.render_radii(skel, pose, one, s)
     np.testing.assert_allclose(a, one.radii * mb.VISIBLE, rtol=1e-6)
 

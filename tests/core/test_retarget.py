@@ -19,8 +19,9 @@ def test_swing_is_minimal_rotation(rng):
     b[:3] = -a[:3]  # anti-parallel
     b[3:6] = a[3:6] * 2.0  # parallel
     R = rt.swing(a, b)
-    np.testing.assert_allclose(R @ np.swapaxes(R, -1, -2), np.broadcast_to(np.eye(3), R.shape),
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        R @ np.swapaxes(R, -1, -2), np.broadcast_to(np.eye(3), R.shape), atol=1e-12
+    )
     np.testing.assert_allclose(np.linalg.det(R), 1.0, atol=1e-12)
     au = a / np.linalg.norm(a, axis=1, keepdims=True)
     bu = b / np.linalg.norm(b, axis=1, keepdims=True)
@@ -42,8 +43,7 @@ def test_transfer_puts_bones_along_source_and_round_trips(rng):
     # gives the same twist angle on the target.
     twist = Rotation.from_rotvec(src_rest[:, :, 1] * 0.7).as_matrix()
     out = rt.transfer_rotations(src_rest, (twist @ src_rest)[None], tgt_rest)[0]
-    delta = out @ np.swapaxes(rt.transfer_rotations(src_rest, src_rest[None], tgt_rest)[0],
-                              -1, -2)
+    delta = out @ np.swapaxes(rt.transfer_rotations(src_rest, src_rest[None], tgt_rest)[0], -1, -2)
     np.testing.assert_allclose(Rotation.from_matrix(delta).magnitude(), 0.7, atol=1e-9)
 
 
@@ -56,8 +56,14 @@ def test_rest_pose_maps_to_aligned_rest(rng):
 
 
 def test_leg_length_and_root_path():
-    heads = {"l_thigh": [0.1, 0, 1.0], "l_shin": [0.1, 0, 0.55], "l_foot": [0.1, 0.05, 0.1],
-             "r_thigh": [-0.1, 0, 1.0], "r_shin": [-0.1, 0, 0.5], "r_foot": [-0.1, 0, 0.1]}
+    heads = {
+        "l_thigh": [0.1, 0, 1.0],
+        "l_shin": [0.1, 0, 0.55],
+        "l_foot": [0.1, 0.05, 0.1],
+        "r_thigh": [-0.1, 0, 1.0],
+        "r_shin": [-0.1, 0, 0.5],
+        "r_foot": [-0.1, 0, 0.1],
+    }
     want = (0.45 + np.hypot(0.45, 0.05) + 0.5 + 0.4) / 2
     assert rt.leg_length(heads) == pytest.approx(want)
     with pytest.raises(ValueError, match="no leg"):
@@ -84,8 +90,9 @@ def test_pose_matrices_follow_hierarchy(rng):
     rel = np.linalg.inv(rest[1]) @ rest[2]
     np.testing.assert_allclose(pose[:, 2], pose[:, 1] @ rel, atol=1e-12)
     # Head of 1 rides rigidly on 0.
-    np.testing.assert_allclose(pose[:, 1, :3, 3],
-                               (pose[:, 0] @ (np.linalg.inv(rest[0]) @ rest[1]))[:, :3, 3])
+    np.testing.assert_allclose(
+        pose[:, 1, :3, 3], (pose[:, 0] @ (np.linalg.inv(rest[0]) @ rest[1]))[:, :3, 3]
+    )
 
 
 def test_unkeyed_bones_keep_their_static_pose(rng):
@@ -96,6 +103,7 @@ def test_unkeyed_bones_keep_their_static_pose(rng):
     basis[1, :3, :3] = _rot(rng, 1)[0]  # the user's static pose of unmapped bone 1
     rot = {2: _rot(rng, 4)}
     pose = rt.pose_matrices(rest, parent, rot, {}, 4, basis=basis)
-    np.testing.assert_allclose(pose[:, 1, :3, :3],
-                               np.broadcast_to(basis[1, :3, :3], (4, 3, 3)), atol=1e-12)
+    np.testing.assert_allclose(
+        pose[:, 1, :3, :3], np.broadcast_to(basis[1, :3, :3], (4, 3, 3)), atol=1e-12
+    )
     np.testing.assert_allclose(pose[:, 2, :3, :3], rot[2])  # mapped: absolute world rotation

@@ -27,8 +27,9 @@ def _make_scene(root, frames=(3, 3), size=(32, 24), field="none"):
             img[np.arange(h) % 2 == 1] = 200  # odd rows (0-based) bright
             cv2.imwrite(str(folder / f"{i:06d}.png"), img)
     half = h if field == "none" else (h + 1) // 2
-    write_calibration(root / "calibration.toml",
-                      [Camera(c, (w, half), np.diag([50.0, 50.0, 1.0])) for c in cams])
+    write_calibration(
+        root / "calibration.toml", [Camera(c, (w, half), np.diag([50.0, 50.0, 1.0])) for c in cams]
+    )
     return cams
 
 
@@ -78,8 +79,9 @@ def test_missing_camera_folder(tmp_path):
 
 def test_calibration_missing_camera(tmp_path):
     _make_scene(tmp_path)
-    write_calibration(tmp_path / "calibration.toml",
-                      [Camera("cam01", (32, 24), np.diag([50.0, 50.0, 1.0]))])
+    write_calibration(
+        tmp_path / "calibration.toml", [Camera("cam01", (32, 24), np.diag([50.0, 50.0, 1.0]))]
+    )
     with pytest.raises(InputError, match=r"calibration.toml: .*missing \['cam02'\]"):
         load_scene(tmp_path).calibration()
 

@@ -76,8 +76,7 @@ def test_symmetry_rows_vanish_for_a_mirrored_shape_and_are_linear(rng):
     dx = rng.normal(0.0, 0.01, 6 * M)
     x = np.concatenate([truth.radii.ravel(), balls.center0.ravel()])
     x2 = x + dx
-    r3, _ = symmetry_rows(sym, M, 3 * M, 1.0, x2[:3 * M].reshape(M, 3),
-                           x2[3 * M:].reshape(M, 3))
+    r3, _ = symmetry_rows(sym, M, 3 * M, 1.0, x2[: 3 * M].reshape(M, 3), x2[3 * M :].reshape(M, 3))
     np.testing.assert_allclose(r3, r + J @ dx, atol=1e-12)
 
 
@@ -128,8 +127,9 @@ def test_system_jacobian_matches_finite_differences(rng):
     pose = sk.forward(skel, theta[None], root[None], s)
     x_obs = _surface(skel, s, truth, theta, root, 4, 2) + rng.normal(0, 0.002, (1, 3))
     cfg = ShapeSettings(samples_per_ball=3)
-    prob = ShapeProblem(skel, balls, s, [pose], [x_obs], [np.full(len(x_obs), 0.003)],
-                        cameras(), cfg)
+    prob = ShapeProblem(
+        skel, balls, s, [pose], [x_obs], [np.full(len(x_obs), 0.003)], cameras(), cfg
+    )
     x = prob.pack(balls.radii * 1.05, balls.center0 + rng.normal(0, 0.003, balls.center0.shape))
     prob.freeze(x)
     assert prob.frames[0].xs is not None and len(prob.frames[0].xs) > 20
@@ -151,10 +151,17 @@ def test_fit_recovers_a_synthetic_shape_from_its_surface_points(rng):
     root = np.array([0.0, 0.0, 1.0])
     thetas = [np.zeros(skel.n_dof), rng.normal(0.0, 0.15, skel.n_dof)]
     pts = [_surface(skel, s, truth, th, root, 25, k) for k, th in enumerate(thetas)]
-    cfg = ShapeSettings(sigma_radius=0.3, sigma_center=0.1, free_centers=False, rounds=8,
-                        max_nfev=30, robust_scale=20.0)
-    out = fit_shape(skel, balls, s, np.array(thetas), np.array([root, root]), pts, None,
-                    settings=cfg)
+    cfg = ShapeSettings(
+        sigma_radius=0.3,
+        sigma_center=0.1,
+        free_centers=False,
+        rounds=8,
+        max_nfev=30,
+        robust_scale=20.0,
+    )
+    out = fit_shape(
+        skel, balls, s, np.array(thetas), np.array([root, root]), pts, None, settings=cfg
+    )
     assert out.frame_ok.all()
     held = _surface(skel, s, truth, thetas[1], root, 15, 7)
     d_fit = _distance(skel, s, out.metaballs, thetas[1], root, held)
@@ -169,8 +176,15 @@ def test_fit_flags_a_frame_with_too_few_points(rng):
     root = np.array([0.0, 0.0, 1.0])
     theta = np.zeros(skel.n_dof)
     pts = [_surface(skel, s, truth, theta, root, 6, 0), np.full((5, 3), np.nan)]
-    out = fit_shape(skel, balls, s, np.array([theta, theta]), np.array([root, root]), pts,
-                    settings=ShapeSettings(rounds=1, max_nfev=3))
+    out = fit_shape(
+        skel,
+        balls,
+        s,
+        np.array([theta, theta]),
+        np.array([root, root]),
+        pts,
+        settings=ShapeSettings(rounds=1, max_nfev=3),
+    )
     assert out.frame_ok.tolist() == [True, False]
     assert np.isnan(out.rms_m[1]) and np.isfinite(out.rms_m[0])
     assert "left out" in out.message
@@ -189,8 +203,7 @@ def _blend_contours(skel, s, balls, theta, root, cams):
 
     c, a, _, p = body_ellipsoids(skel, theta, root, s, balls)
     r = mb.render_radii(skel, sk.forward(skel, theta[None], root[None], s), balls, s)
-    return [occluding_contours(render_parts(cam, c, a, r, p).mask, spacing=1.5)
-            for cam in cams]
+    return [occluding_contours(render_parts(cam, c, a, r, p).mask, spacing=1.5) for cam in cams]
 
 
 @pytest.mark.slow
@@ -204,29 +217,49 @@ def test_silhouettes_shape_the_side_no_point_sees(rng):
     # the flesh off the bones' axes, front to back (the body's y), as a real trunk's is
     A = mirror_pairs(skel, balls, s).A
     back = np.einsum("mji,j->mi", A, [0.0, 0.03, 0.0]) / np.einsum("mji,mji->mi", A, A)
-    truth = truth.with_parts(balls.center0 + back * rng.uniform(0.3, 1.0, (len(balls), 1)),
-                             truth.radii)
+    truth = truth.with_parts(
+        balls.center0 + back * rng.uniform(0.3, 1.0, (len(balls), 1)), truth.radii
+    )
     root = np.array([0.0, 0.0, 1.0])
     thetas = [np.zeros(skel.n_dof)] + [rng.normal(0.0, 0.12, skel.n_dof) for _ in range(2)]
-    cams = [look_at("front", (0.0, -4.0, 1.0)), look_at("left", (4.0, -0.5, 1.0)),
-            look_at("right", (-4.0, -0.5, 1.0))]
-    front = [p[p[:, 1] < np.median(p[:, 1])] for p in
-             (_surface(skel, s, truth, th, root, 25, k) for k, th in enumerate(thetas))]
+    cams = [
+        look_at("front", (0.0, -4.0, 1.0)),
+        look_at("left", (4.0, -0.5, 1.0)),
+        look_at("right", (-4.0, -0.5, 1.0)),
+    ]
+    front = [
+        p[p[:, 1] < np.median(p[:, 1])]
+        for p in (_surface(skel, s, truth, th, root, 25, k) for k, th in enumerate(thetas))
+    ]
     sil = [_blend_contours(skel, s, truth, th, root, cams) for th in thetas]
-    cfg = ShapeSettings(sigma_radius=0.3, sigma_center=0.1, sigma_symmetry=0.0,
-                        model_points=False, rounds=6, max_nfev=20, sigma_silhouette_px=1.0)
+    cfg = ShapeSettings(
+        sigma_radius=0.3,
+        sigma_center=0.1,
+        sigma_symmetry=0.0,
+        model_points=False,
+        rounds=6,
+        max_nfev=20,
+        sigma_silhouette_px=1.0,
+    )
     args = (skel, balls, s, np.array(thetas), np.array([root] * 3))
-    pts_only = fit_shape(*args, front, cams, settings=replace(cfg, sigma_silhouette_px=0.0),
-                         contours=sil)
+    pts_only = fit_shape(
+        *args, front, cams, settings=replace(cfg, sigma_silhouette_px=0.0), contours=sil
+    )
     both = fit_shape(*args, front, cams, settings=cfg, contours=sil)
     sil_only = fit_shape(*args, [np.zeros((0, 3))] * 3, cams, settings=cfg, contours=sil)
     assert both.frame_ok.all() and sil_only.frame_ok.all()
     assert np.all(both.silhouette_rms_px < 1.5) and np.isnan(pts_only.silhouette_rms_px).all()
     held = _surface(skel, s, truth, thetas[1], root, 15, 7)
     held = held[held[:, 1] > np.median(held[:, 1])]  # the back half
-    d = {k: _distance(skel, s, b.metaballs if k != "template" else b, thetas[1], root, held)
-         for k, b in (("template", balls), ("points", pts_only), ("both", both),
-                      ("silhouettes", sil_only))}
+    d = {
+        k: _distance(skel, s, b.metaballs if k != "template" else b, thetas[1], root, held)
+        for k, b in (
+            ("template", balls),
+            ("points", pts_only),
+            ("both", both),
+            ("silhouettes", sil_only),
+        )
+    }
     # seeded: template 21.5, points 6.6, both 3.0, silhouettes 4.7 mm on the back half
     assert d["points"].mean() < 0.5 * d["template"].mean()
     assert d["both"].mean() < 0.6 * d["points"].mean()

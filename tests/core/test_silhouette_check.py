@@ -55,9 +55,9 @@ def test_shift_iou_recovers_a_constant_offset(rng):
     image = np.zeros((5, h, w), bool)
     for f in range(5):  # blobs of varying position and size, like a moving person
         v, u = rng.integers(15, 40), rng.integers(15, 55)
-        image[f, v:v + rng.integers(8, 18), u:u + rng.integers(5, 12)] = True
+        image[f, v : v + rng.integers(8, 18), u : u + rng.integers(5, 12)] = True
     model = np.zeros_like(image)
-    model[:, :h - 2, :w - 3] = image[:, 2:, 3:]  # the model drawn 3 px left, 2 px up
+    model[:, : h - 2, : w - 3] = image[:, 2:, 3:]  # the model drawn 3 px left, 2 px up
     shift, iou = shift_iou(model, image, max_shift_px=6)
     np.testing.assert_array_equal(shift, [3, 2])
     np.testing.assert_allclose(iou, 1.0)

@@ -39,7 +39,7 @@ def test_image_ellipse_matches_the_ray_cast_outline(rng):
         radii = rng.uniform(0.04, 0.15, 3)
         mask = render_parts(cam, centre[None], q[None], radii[None], np.zeros(1, int)).mask
         mu, inv = image_ellipses(cam, centre[None], q[None], radii[None])
-        v, u = np.mgrid[0:mask.shape[0], 0:mask.shape[1]]
+        v, u = np.mgrid[0 : mask.shape[0], 0 : mask.shape[1]]
         d = np.stack([u - mu[0, 0], v - mu[0, 1]], axis=-1)
         ours = np.einsum("hwi,ij,hwj->hw", d, inv[0], d) <= 1.0
         iou = (ours & mask).sum() / (ours | mask).sum()
@@ -59,15 +59,20 @@ def test_an_arm_out_of_place_is_put_back_and_an_arm_without_evidence_stays(body)
     start[skel.dof_index("r_elbow_x")] = 0.0
     res = search_limbs_silhouette(skel, balls, s, start, root, cams, masks)
     wrist = skel.joint_index("r_wrist")
-    before = np.linalg.norm(sk.joint_positions(skel, start, root, s)[wrist]
-                            - sk.joint_positions(skel, true, root, s)[wrist])
-    after = np.linalg.norm(sk.joint_positions(skel, res.theta, root, s)[wrist]
-                           - sk.joint_positions(skel, true, root, s)[wrist])
+    before = np.linalg.norm(
+        sk.joint_positions(skel, start, root, s)[wrist]
+        - sk.joint_positions(skel, true, root, s)[wrist]
+    )
+    after = np.linalg.norm(
+        sk.joint_positions(skel, res.theta, root, s)[wrist]
+        - sk.joint_positions(skel, true, root, s)[wrist]
+    )
     assert before > 0.3 and after < 0.08, (before, after)
     assert res.moved == ["r_arm"]
     grids = [mask_grid(m) for m in masks]
-    assert (silhouette_disagreement(skel, balls, res.theta, root, s, cams, grids)
-            < 0.3 * silhouette_disagreement(skel, balls, start, root, s, cams, grids))
+    assert silhouette_disagreement(
+        skel, balls, res.theta, root, s, cams, grids
+    ) < 0.3 * silhouette_disagreement(skel, balls, start, root, s, cams, grids)
     # at the true pose nothing is left unexplained: no limb moves
     again = search_limbs_silhouette(skel, balls, s, true, root, cams, masks)
     assert again.moved == [] and np.array_equal(again.theta, true)
@@ -92,8 +97,9 @@ def test_a_vetoed_move_is_not_made(body):
     res = search_limbs_silhouette(skel, balls, s, start, root, cams, masks, allowed=veto)
     assert res.moved == [] and np.array_equal(res.theta, start)
     assert min(seen) < -0.5  # the raise was offered, and refused
-    assert search_limbs_silhouette(skel, balls, s, start, root, cams, masks,
-                                   allowed=lambda th, c: True).moved == ["r_arm"]
+    assert search_limbs_silhouette(
+        skel, balls, s, start, root, cams, masks, allowed=lambda th, c: True
+    ).moved == ["r_arm"]
 
 
 def test_a_camera_without_a_mask_is_left_out(body):

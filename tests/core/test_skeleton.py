@@ -60,15 +60,29 @@ def test_joint_jacobians_match_finite_differences(skel, rng):
     theta, root, s = _random_pose(skel, rng)
     _, J_theta, J_s = sk.joint_jacobians(skel, theta, root, s)
     eps = 1e-6
-    num = np.stack([
-        (sk.joint_positions(skel, theta + eps * e, root, s)
-         - sk.joint_positions(skel, theta - eps * e, root, s)) / (2 * eps)
-        for e in np.eye(skel.n_dof)], axis=-1)
+    num = np.stack(
+        [
+            (
+                sk.joint_positions(skel, theta + eps * e, root, s)
+                - sk.joint_positions(skel, theta - eps * e, root, s)
+            )
+            / (2 * eps)
+            for e in np.eye(skel.n_dof)
+        ],
+        axis=-1,
+    )
     np.testing.assert_allclose(J_theta, num, atol=1e-8)
-    num_s = np.stack([
-        (sk.joint_positions(skel, theta, root, s + eps * e)
-         - sk.joint_positions(skel, theta, root, s - eps * e)) / (2 * eps)
-        for e in np.eye(skel.n_groups)], axis=-1)
+    num_s = np.stack(
+        [
+            (
+                sk.joint_positions(skel, theta, root, s + eps * e)
+                - sk.joint_positions(skel, theta, root, s - eps * e)
+            )
+            / (2 * eps)
+            for e in np.eye(skel.n_groups)
+        ],
+        axis=-1,
+    )
     np.testing.assert_allclose(J_s, num_s, atol=1e-8)
 
 
@@ -81,20 +95,21 @@ def test_attached_point_jacobians(skel, rng):
     def pts(th, ss):
         return sk.points_world(skel, sk.forward(skel, th, root, ss), bone, q0, group, ss)
 
-    x, J_theta, J_s = sk.point_jacobians(skel, sk.forward(skel, theta, root, s), bone, q0,
-                                         group, s)
+    x, J_theta, J_s = sk.point_jacobians(skel, sk.forward(skel, theta, root, s), bone, q0, group, s)
     np.testing.assert_allclose(x, pts(theta, s))
     eps = 1e-6
     k = rng.integers(0, skel.n_dof)
     e = np.zeros(skel.n_dof)
     e[k] = eps
-    np.testing.assert_allclose(J_theta[..., k], (pts(theta + e, s) - pts(theta - e, s)) / (2 * eps),
-                               atol=1e-8)
+    np.testing.assert_allclose(
+        J_theta[..., k], (pts(theta + e, s) - pts(theta - e, s)) / (2 * eps), atol=1e-8
+    )
     for g in range(skel.n_groups):
         e = np.zeros(skel.n_groups)
         e[g] = eps
-        np.testing.assert_allclose(J_s[..., g], (pts(theta, s + e) - pts(theta, s - e)) / (2 * eps),
-                                   atol=1e-8)
+        np.testing.assert_allclose(
+            J_s[..., g], (pts(theta, s + e) - pts(theta, s - e)) / (2 * eps), atol=1e-8
+        )
 
 
 def test_bone_matrices_follow_bones(skel, rng):
@@ -103,8 +118,9 @@ def test_bone_matrices_follow_bones(skel, rng):
     x = sk.joint_positions(skel, theta, root, s)
     assert M.shape == (2, len(skel.bone_names), 4, 4)
     R = M[..., :3, :3]
-    np.testing.assert_allclose(R @ np.swapaxes(R, -1, -2), np.broadcast_to(np.eye(3), R.shape),
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        R @ np.swapaxes(R, -1, -2), np.broadcast_to(np.eye(3), R.shape), atol=1e-12
+    )
     for b, name in enumerate(skel.bone_names):
         head, tail = skel.joint_index(skel.bone_head[b]), skel.joint_index(skel.bone_tail[b])
         np.testing.assert_allclose(M[:, b, :3, 3], x[:, head], atol=1e-12)
@@ -128,8 +144,10 @@ def test_soft_limits(skel):
 def test_dict_round_trip(skel):
     back = sk.Skeleton.from_dict(skel.to_dict())
     theta = np.linspace(-1, 1, skel.n_dof)[None]
-    np.testing.assert_allclose(sk.joint_positions(back, theta, np.zeros(3), np.ones(11)),
-                               sk.joint_positions(skel, theta, np.zeros(3), np.ones(11)))
+    np.testing.assert_allclose(
+        sk.joint_positions(back, theta, np.zeros(3), np.ones(11)),
+        sk.joint_positions(skel, theta, np.zeros(3), np.ones(11)),
+    )
 
 
 def _moves_outward(skel, dof, val, joint):

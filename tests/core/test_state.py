@@ -21,9 +21,16 @@ def state(rng):
     q.rmse_m[:] = [0.001, 0.002, np.nan, 0.001]
     q.diverged[2] = True
     q.cameras[0] = {"l_shoulder": ["cam1", "cam2"]}
-    return FitState(skeleton=skel, s=s, metaballs=mb.make_metaballs(skel), fps=25.0,
-                    root_xyz=rng.normal(0, 1, (nf, 3)), theta=rng.normal(0, 0.3, (nf, skel.n_dof)),
-                    quality=q, source_scene="synthetic")
+    return FitState(
+        skeleton=skel,
+        s=s,
+        metaballs=mb.make_metaballs(skel),
+        fps=25.0,
+        root_xyz=rng.normal(0, 1, (nf, 3)),
+        theta=rng.normal(0, 0.3, (nf, skel.n_dof)),
+        quality=q,
+        source_scene="synthetic",
+    )
 
 
 def test_round_trip(state, tmp_path):

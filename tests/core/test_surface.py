@@ -25,8 +25,7 @@ def test_plane_is_measured_densely_and_precisely():
 
 
 def test_seeds_from_clicks_and_bad_clicks():
-    clicks = {"frame": 0, "joints": {"pelvis": {"a": [1, 2], "b": [3, 4]},
-                                     "head": {"a": [5, 6]}}}
+    clicks = {"frame": 0, "joints": {"pelvis": {"a": [1, 2], "b": [3, 4]}, "head": {"a": [5, 6]}}}
     s = seeds_from_clicks(clicks, ["a", "b"])
     assert s.shape == (1, 2, 2)
     with pytest.raises(InputError, match="two or more cameras"):
@@ -46,6 +45,5 @@ def test_depth_outliers_and_sigma_limit_of_the_surface():
     assert np.isin(smooth.xyz[:, 0], full.xyz[:, 0]).all()
     # a σ limit below the matches' precision rejects them (the seed too: nothing grows)
     sig = np.nanmax(np.where(np.arange(3) != full.ref, full.sigma_uv, np.nan), axis=1)
-    strict = measure_surface(images, cams, seeds, step=6,
-                             max_sigma_px=0.5 * float(np.min(sig)))
+    strict = measure_surface(images, cams, seeds, step=6, max_sigma_px=0.5 * float(np.min(sig)))
     assert len(strict) == 0

@@ -32,11 +32,13 @@ def test_growth_stops_at_the_jump_and_the_epipolar_seeds_cross_it():
     surf = measure_surface(images, cams, seeds, step=4)
     assert len(surf) > 200 and np.all(surf.xyz[:, 0] < 0.0)  # the front square only
     ref = surf.ref
-    found = epipolar_seeds(images, cams, ref, cloud_depth_range(cams, ref, surf.xyz),
-                           surf.uv[:, ref])
+    found = epipolar_seeds(
+        images, cams, ref, cloud_depth_range(cams, ref, surf.xyz), surf.uv[:, ref]
+    )
     assert len(found) >= 5
     # every seed is on the back square: back-projected at its depth, y = 0.3
     from core.intersect import triangulate
+
     xyz = triangulate(cams, found).xyz
     np.testing.assert_allclose(xyz[:, 1], 0.3, atol=0.02)  # depth steps of ~1 px
     assert np.all(xyz[:, 0] > 0.05)

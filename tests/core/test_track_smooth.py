@@ -34,12 +34,11 @@ def test_small_clouds_are_not_tested():
 def test_depth_deviation_is_signed_along_the_ray(rng):
     s = np.arange(-0.1, 0.1001, 0.01)
     x, z = np.meshgrid(s, s)
-    ref = np.stack([x.ravel(), np.zeros(x.size), z.ravel()], axis=1)   # plane y = 0
+    ref = np.stack([x.ravel(), np.zeros(x.size), z.ravel()], axis=1)  # plane y = 0
     view = np.array([0.0, -3.0, 0.0])
     q = ref[[50, 200]].copy()
     ray = (q - view) / np.linalg.norm(q - view, axis=1, keepdims=True)
-    q += ray * np.array([[0.02], [-0.015]])                            # 2 cm behind, 1.5 in front
+    q += ray * np.array([[0.02], [-0.015]])  # 2 cm behind, 1.5 in front
     dev = depth_deviation(np.vstack([q, [[np.nan] * 3]]), view, ref)
     assert np.allclose(dev[:2], [0.02, -0.015], atol=1e-3)
     assert np.isnan(dev[2])
-

@@ -16,8 +16,9 @@ def _gauss_image(centers, size=(96, 64), sigma=1.2, noise=2.0, rng=None):
 
 def test_subpixel_centroids(rng):
     truth = rng.uniform([10, 10], [86, 54], size=(40, 2, 2))
-    truth[:, 1, 0] = np.where(np.abs(truth[:, 1, 0] - truth[:, 0, 0]) < 12,
-                              (truth[:, 0, 0] + 30) % 80 + 8, truth[:, 1, 0])
+    truth[:, 1, 0] = np.where(
+        np.abs(truth[:, 1, 0] - truth[:, 0, 0]) < 12, (truth[:, 0, 0] + 30) % 80 + 8, truth[:, 1, 0]
+    )
     errs = []
     for pair in truth:
         found = detect_targets(_gauss_image(pair, rng=rng))
@@ -39,7 +40,7 @@ def test_missing_and_merged_targets_are_dropped_and_counted(rng):
 def test_labels_follow_continuity():
     a = np.array([[40.0, 10.0], [10.0, 40.0]])
     seq = [a, (a + [1.0, 1.0])[np.argsort((a + 1.0)[:, 0])], a + [2.0, 1.5]]
-    seq = [s[np.argsort(s[:, 0])] for s in seq]          # detector order: left to right
+    seq = [s[np.argsort(s[:, 0])] for s in seq]  # detector order: left to right
     uv, _ = label_sequence(seq)
     d = np.linalg.norm(np.diff(uv, axis=0), axis=2)
-    assert np.all(d < 3.0)                                # A stays A
+    assert np.all(d < 3.0)  # A stays A

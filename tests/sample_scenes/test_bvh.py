@@ -48,12 +48,15 @@ def test_tiny_bvh_forward_kinematics(tmp_path):
     np.testing.assert_allclose(angle, [0, 90, 45], atol=1e-9)
 
 
-@pytest.mark.parametrize("text, match", [
-    ("hello", "not a valid BVH"),
-    (TINY.replace("Frames: 2", "Frames: 3"), "expected 3 frames"),
-    (TINY.replace("Xrotation\n  JOINT", "Wrotation\n  JOINT"), "unknown channel"),
-    (TINY.split("MOTION")[0], "not a valid BVH"),
-])
+@pytest.mark.parametrize(
+    "text, match",
+    [
+        ("hello", "not a valid BVH"),
+        (TINY.replace("Frames: 2", "Frames: 3"), "expected 3 frames"),
+        (TINY.replace("Xrotation\n  JOINT", "Wrotation\n  JOINT"), "unknown channel"),
+        (TINY.split("MOTION")[0], "not a valid BVH"),
+    ],
+)
 def test_garbled_bvh_names_the_file(tmp_path, text, match):
     path = tmp_path / "bad.bvh"
     path.write_text(text)

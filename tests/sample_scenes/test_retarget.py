@@ -25,9 +25,12 @@ def character_rig():
     arm = dst.armatures[0]
     bones = list(arm.bones)
     names = [b.name for b in bones]
-    rig = Rig(names, np.array([names.index(b.parent.name) if b.parent else -1 for b in bones]),
-              np.array([np.array(b.matrix_local) for b in bones]),
-              np.array([np.array(b.tail_local) for b in bones]))
+    rig = Rig(
+        names,
+        np.array([names.index(b.parent.name) if b.parent else -1 for b in bones]),
+        np.array([np.array(b.matrix_local) for b in bones]),
+        np.array([np.array(b.tail_local) for b in bones]),
+    )
     bpy.data.armatures.remove(arm)
     return rig
 
@@ -66,12 +69,14 @@ def test_legs_neither_cross_nor_twist(character_rig, shared_data):
     # Not twisted: each knee hinges about the hip axis (thigh x shin ~ lateral) and the
     # toes point forward, where the knee is bent.
     for side in ("Left", "Right"):
-        hip, knee, ankle, toe = (_pos(rt, rig, f"{side}{n}")
-                                 for n in ("UpLeg", "Leg", "Foot", "ToeBase"))
+        hip, knee, ankle, toe = (
+            _pos(rt, rig, f"{side}{n}") for n in ("UpLeg", "Leg", "Foot", "ToeBase")
+        )
         thigh, shin = knee - hip, ankle - knee
         hinge = np.cross(thigh, shin)
-        sin = np.linalg.norm(hinge, axis=1) / (np.linalg.norm(thigh, axis=1)
-                                               * np.linalg.norm(shin, axis=1))
+        sin = np.linalg.norm(hinge, axis=1) / (
+            np.linalg.norm(thigh, axis=1) * np.linalg.norm(shin, axis=1)
+        )
         bent = sin > np.sin(np.radians(20))
         assert bent.sum() > 20
         cos = np.sum(hinge * lateral, axis=1) / np.linalg.norm(hinge, axis=1)
@@ -82,5 +87,6 @@ def test_legs_neither_cross_nor_twist(character_rig, shared_data):
         flat = ankle[:, 2] < ankle[:, 2].min() + 0.04
         assert flat.sum() > 20
         heading = np.sum(foot[flat, :2] * forward[flat, :2], axis=1) / np.linalg.norm(
-            foot[flat, :2], axis=1)
+            foot[flat, :2], axis=1
+        )
         assert heading.min() > np.cos(np.radians(45)), (side, heading.min())

@@ -19,8 +19,13 @@ pytestmark = pytest.mark.blender
 
 def _studio(*args, check=True):
     pytest.importorskip("bpy")
-    proc = subprocess.run([sys.executable, "-m", "sample_scenes.studio", *map(str, args)],
-                          cwd=REPO, capture_output=True, text=True, timeout=300)
+    proc = subprocess.run(
+        [sys.executable, "-m", "sample_scenes.studio", *map(str, args)],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     if check and proc.returncode != 0:
         raise AssertionError(proc.stderr[-3000:])
     return proc
@@ -33,8 +38,20 @@ def tiny(tmp_path_factory):
     if not SHARED_DATA.is_dir():
         pytest.skip(f"shared data not found at {SHARED_DATA}")
     out = tmp_path_factory.mktemp("studio") / "tiny"
-    _studio("--out", out, "--size", "64x48", "--frames", 3, "--start", 60,
-            "--wand-positions", 5, "--seed", 3)
+    _studio(
+        "--out",
+        out,
+        "--size",
+        "64x48",
+        "--frames",
+        3,
+        "--start",
+        60,
+        "--wand-positions",
+        5,
+        "--seed",
+        3,
+    )
     return load_scene(out)
 
 
@@ -91,8 +108,8 @@ def test_wand_targets_project_onto_blobs(tiny):
             img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE).astype(float)
             for uv in cam.project(xyz[i]):
                 u0, v0 = np.round(uv).astype(int)
-                win = img[v0 - 4:v0 + 5, u0 - 4:u0 + 5]
-                vv, uu = np.mgrid[v0 - 4:v0 + 5, u0 - 4:u0 + 5]
+                win = img[v0 - 4 : v0 + 5, u0 - 4 : u0 + 5]
+                vv, uu = np.mgrid[v0 - 4 : v0 + 5, u0 - 4 : u0 + 5]
                 centroid = np.array([(uu * win).sum(), (vv * win).sum()]) / win.sum()
                 assert np.linalg.norm(centroid - uv) < 0.5, (cam.name, i, centroid, uv)
 
@@ -111,9 +128,27 @@ def test_knees_follow_the_bvh(tiny, shared_data):
 @pytest.mark.slow
 def test_interlaced_noisy_scene(tmp_path, shared_data):
     out = tmp_path / "field"
-    _studio("--out", out, "--size", "64x48", "--frames", 2, "--interlace", "--noise", 2,
-            "--click-noise", 1.5, "--look", "skin", "--background", "textured",
-            "--rig", "orthogonal3", "--wand-positions", 2)
+    _studio(
+        "--out",
+        out,
+        "--size",
+        "64x48",
+        "--frames",
+        2,
+        "--interlace",
+        "--noise",
+        2,
+        "--click-noise",
+        1.5,
+        "--look",
+        "skin",
+        "--background",
+        "textured",
+        "--rig",
+        "orthogonal3",
+        "--wand-positions",
+        2,
+    )
     scene = load_scene(out)
     assert scene.field == "odd" and scene.image(0, 0).shape == (24, 64)
     cams = scene.calibration()
@@ -126,8 +161,9 @@ def test_interlaced_noisy_scene(tmp_path, shared_data):
         assert _inside(masks[c, 0], uv).mean() > 0.9
     clicks = scene.clicks()
     uv = np.array([clicks["joints"]["l_knee"][cam.name] for cam in cams])
-    true = np.array([cam.project(scene.truth["joints_xyz"][0, JOINTS.index("l_knee")])
-                     for cam in cams])
+    true = np.array(
+        [cam.project(scene.truth["joints_xyz"][0, JOINTS.index("l_knee")]) for cam in cams]
+    )
     err = np.linalg.norm(uv - true, axis=1)
     assert err.max() > 0.01 and err.max() < 8  # noisy clicks, within a few sigma
 
@@ -141,15 +177,16 @@ def test_bad_inputs_exit_2_naming_the_file(tmp_path, shared_data):
     assert proc.returncode == 2 and f"studio: error: {garbled}" in proc.stderr
     proc = _studio("--out", tmp_path / "o2", "--bvh", missing, check=False)
     assert proc.returncode == 2 and f"studio: error: {missing}: BVH file not found" in proc.stderr
-    proc = _studio("--out", tmp_path / "o3", "--character", tmp_path / "none.blend",
-                   check=False)
+    proc = _studio("--out", tmp_path / "o3", "--character", tmp_path / "none.blend", check=False)
     assert proc.returncode == 2 and "none.blend: character file not found" in proc.stderr
     # A character file holding a mesh but no armature.
     blend = tmp_path / "no_armature.blend"
-    code = ("import bpy; bpy.ops.wm.read_factory_settings(use_empty=True); "
-            "me = bpy.data.meshes.new('m'); o = bpy.data.objects.new('m', me); "
-            "bpy.context.scene.collection.objects.link(o); "
-            f"bpy.ops.wm.save_as_mainfile(filepath={str(blend)!r})")
+    code = (
+        "import bpy; bpy.ops.wm.read_factory_settings(use_empty=True); "
+        "me = bpy.data.meshes.new('m'); o = bpy.data.objects.new('m', me); "
+        "bpy.context.scene.collection.objects.link(o); "
+        f"bpy.ops.wm.save_as_mainfile(filepath={str(blend)!r})"
+    )
     subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, timeout=120)
     proc = _studio("--out", tmp_path / "o4", "--character", blend, check=False)
     assert proc.returncode == 2

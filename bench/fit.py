@@ -250,6 +250,15 @@ def run_one(
         pts_line = [ln for ln in p.stdout.splitlines() if ln.startswith("points per frame")]
     sc = load_scene(scene, check_images=False)
     ok = [f for f in range(state.n_frames) if not state.quality.diverged[f]]
+    track_path = tracks if tracks is not None else scene / "tracks.npz"
+    tracked = None
+    if observations == "tracks" and track_path.exists() and "vertices" in sc.truth:
+        from bench.tracking import tracked_point_errors
+
+        with np.load(track_path) as z:
+            tracked = tracked_point_errors(
+                {k: z[k] for k in z.files}, sc.truth["vertices"], sc.truth["faces"]
+            )
     surf = metrics.get("surface_mm")  # core.evaluate.surface_distance_mm
     return {
         "hidden": hidden_split(state, sc.truth),
@@ -264,6 +273,7 @@ def run_one(
         "s_per_frame": wall / max(state.n_frames, 1),
         "fit_line": fit_line[0] if fit_line else "",
         "pts": pts_line[0] if pts_line else "",
+        "tracked": tracked,
     }
 
 
@@ -548,6 +558,14 @@ def print_row(r: dict, scene: Path, render_wall: float | None, name: str | None 
         "    per segment RMSE deg: "
         + ", ".join(f"{k} {v:.1f}" for k, v in m["per_segment_rmse_deg"].items())
     )
+    t = r.get("tracked")
+    if t and t["n"]:
+        print(
+            f"    tracked points against the truth's material points (the fit's input): "
+            f"median {t['median_mm']:.1f} mm, 95th {t['p95_mm']:.1f} mm, "
+            f"{t['gross_pct']:.2f}% beyond 5 cm ({t['n']} point-frames); worst frame "
+            f"{t['worst_frame']} (mean {t['worst_frame_mean_mm']:.1f} mm)"
+        )
     h = r["hidden"]
     print(
         f"    limb joints (elbows, wrists, knees, ankles) where their part was observed: "

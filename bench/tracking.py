@@ -56,6 +56,48 @@ def material_truth(xyz, start, vertices, faces):
     return out
 
 
+def tracked_point_errors(tracks: dict, vertices, faces, gross_m: float = 0.05) -> dict:
+    """How far a tracker's output lies from the truth's material points.
+
+    Parameters
+    ----------
+    tracks : a ``tracks.npz`` as a dict: ``xyz`` (F, P, 3) metres (NaN where not
+        measured), ``start`` (P,) the trajectories' first frames, optional
+        ``measured`` (F, P) bool and ``removed`` (P,) bool (the filters' verdict)
+    vertices : (F, V, 3) the true mesh per frame, metres; faces : (T, 3)
+    gross_m : an error beyond this counts as gross (a point on another part)
+
+    Returns
+    -------
+    dict with ``n`` (point-frames compared: measured, not removed), ``median_mm``,
+    ``p95_mm``, ``gross_pct`` (share beyond ``gross_m``, %), ``worst_frame`` (of the
+    highest mean error) and that mean, ``worst_frame_mean_mm``
+    """
+    xyz = np.asarray(tracks["xyz"], float)
+    F, P = xyz.shape[:2]
+    use = np.all(np.isfinite(xyz), axis=-1)
+    if "measured" in tracks:
+        use &= np.asarray(tracks["measured"], bool)
+    if "removed" in tracks:
+        use &= ~np.asarray(tracks["removed"], bool)[None]
+    if not use.any():
+        return {"n": 0}
+    start = np.asarray(tracks["start"], int)
+    err = np.linalg.norm(xyz - material_truth(xyz, start, vertices, faces), axis=-1)
+    use &= np.isfinite(err)
+    e = err[use] * 1000.0
+    mean = [err[f, use[f]].mean() * 1000.0 if use[f].any() else 0.0 for f in range(F)]
+    worst = int(np.argmax(mean))
+    return {
+        "n": int(use.sum()),
+        "median_mm": float(np.median(e)),
+        "p95_mm": float(np.percentile(e, 95)),
+        "gross_pct": float(100.0 * np.mean(e > gross_m * 1000.0)),
+        "worst_frame": worst,
+        "worst_frame_mean_mm": float(mean[worst]),
+    }
+
+
 def truth_views(cameras, vertices, faces, xyz, start, tol_m=0.01, min_cos=0.2, per_face=6, seed=0):
     """Cameras that truly see each tracked material point: (F, P, C) bool.
 

@@ -96,3 +96,40 @@ def test_surface_distance_samples_the_mesh_by_area():
         assert (np.linalg.norm(v[:, :2] - cw[0, 0, :2], axis=1) < 0.5 * radius).mean() > 0.5
         d = surface_distance_mm(state, v[None], tri, [0])
         assert abs(d - want) < 0.3, (radius, d)
+
+
+def test_tracked_point_errors_follow_the_material_points():
+    """A sphere that moves and turns: points carried with it are 0 mm off; a trajectory
+    that jumps 8 cm is counted gross from that frame; removed, unmeasured and NaN
+    point-frames are not compared."""
+    from bench.tracking import tracked_point_errors
+
+    rng = np.random.default_rng(3)
+    v0, tri = _uv_sphere(np.zeros(3), 0.1, crowd=1.0)
+    F, P = 6, 40
+    verts, pts = [], []
+    p0 = v0[rng.choice(len(v0), P, replace=False)]
+    for f in range(F):
+        a = 0.2 * f
+        R = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1.0]])
+        move = np.array([0.05 * f, 0.0, 1.0])
+        verts.append(v0 @ R.T + move)
+        pts.append(p0 @ R.T + move)
+    xyz = np.array(pts)
+    xyz[3:, 0] += np.array([0.08, 0.0, 0.0])  # trajectory 0 slips onto another place
+    removed = np.zeros(P, bool)
+    removed[1] = True
+    xyz[:, 1] += 0.5  # a removed trajectory far off: not counted
+    measured = np.ones((F, P), bool)
+    measured[2, 2] = False
+    xyz[2, 2] = np.nan
+    tracks = {"xyz": xyz, "start": np.zeros(P, int), "measured": measured, "removed": removed}
+    t = tracked_point_errors(tracks, np.array(verts), tri)
+    assert t["n"] == F * (P - 1) - 1
+    assert t["median_mm"] < 1e-6
+    np.testing.assert_allclose(t["gross_pct"], 100 * 3 / t["n"])
+    assert t["worst_frame"] >= 3
+    np.testing.assert_allclose(t["worst_frame_mean_mm"], 80.0 / (P - 1), rtol=1e-6)
+    assert tracked_point_errors({**tracks, "removed": np.ones(P, bool)}, np.array(verts), tri) == {
+        "n": 0
+    }

@@ -153,7 +153,7 @@ def _iterate_round(
     weighted,
     rewindow,
 ):
-    """The iterations of one window round of :func:`core.lsm._match_part` (see there).
+    """The iterations of one window round of :func:`core.lsm_solve._match_part` (see there).
 
     ``todo`` (n_t,) the patches of the round, row k of the window arrays (``bu``,
     ``bv``, ``w_lo``, ``w_hi``) belonging to ``todo[k]``; ``img`` the sampled source

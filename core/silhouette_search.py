@@ -1,7 +1,7 @@
 """Limb search against the foreground masks: the silhouette counterpart of :mod:`core.fit_search`.
 
 With contours alone (bare skin: the tracker finds no points) a limb is seen only by
-its share of the *outer* occluding contour (:func:`core.fit_contours.outer_rim`).
+its share of the *outer* occluding contour (:func:`core.contour_pairs.outer_rim`).
 An arm swinging in front of the trunk has none — its parts are held as hidden — and
 when its hand comes out of the silhouette again it is often further from the model's
 rim than the contour pairing reaches (``max_dist_px``), so the hold keeps it where

@@ -1,0 +1,105 @@
+"""Settings of silhouette contours as an observation of the fit (:class:`ContourSettings`).
+
+One dataclass of options (re-exported by :mod:`core.fit_contours`), read by the contour
+observation type of the per-frame fit (:class:`core.fit_contours.ContourFrame`), its
+pairing with the model's rim (:func:`core.contour_pairs.match_frame`), the sequence fit
+(:mod:`core.fit`, :mod:`core.fit_depth`) and the scene's foreground contours
+(:func:`core.fit_contours.scene_contours`).  Units are given per field: image
+distances in pixels, lengths in metres, angles in degrees.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass
+class ContourSettings:
+    """Contour observations in the fit (units in brackets)."""
+
+    sigma_px: float = 3.0  # a-priori σ of one contour observation [px]
+    huber_px: float = 4.0  # knee of the Huber weights [px]
+    max_dist_px: float = 12.0  # largest contour ↔ rim pairing distance [px]
+    min_visibility: float = 0.2  # a part uses a camera with a visibility index ≥ this
+    select: bool = True  # per-part camera selection (False: all cameras fused)
+    #: with selection: also rank a part's visible cameras by its predicted contour motion
+    #: (the paper's observability); False: every camera with visibility >= min_visibility
+    rank_motion: bool = True
+    #: body parts that use no contours (names of core.skeleton bones), e.g. the head,
+    #: whose template metaballs do not follow a real head's outline (hair, face)
+    skip_parts: tuple = ()
+    min_matches: int = 40  # a contours-only frame with fewer pairs is diverged
+    max_rms_px: float = 6.0  # ... or with a larger RMS of its inlier pairs [px]
+    min_part_matches: int = 30  # a part with fewer pairs is hidden to the contours
+    #: with points: contours may un-hide a part the points miss.  Off since the tracker
+    #: seeds surface across depth jumps (``core track``, :mod:`core.surface_seed`): a
+    #: part that two cameras see then has points, and one the points miss is one whose
+    #: depth the contours of the line rig cannot fix — un-hidden, it swung away in
+    #: depth.  make demo's walk (line3, cues both) with those tracks: un-hiding 27.0 mm
+    #: (1 frame diverged, right wrist 148 mm) -> 13.0 mm (none, right wrist 57 mm).
+    #: Without the seeding un-hiding was the better choice (the old tracks: 18.1 vs
+    #: 25.7 mm; bench.looks' old tracks: 25.7 vs 44.5 mm).
+    unhide: bool = False
+    #: ... only when its pairs come from at least this many cameras (10 pairs each): one
+    #: view's occluding contours leave the part's depth free.  Truth-derived points +
+    #: contours on walk_ortho3 (the walker's right limbs seen by no two cameras): 1 ->
+    #: MPJPE 75.0 mm, 8 frames diverged; 2 -> 38.3 mm, none (texture alone 27.1 mm).
+    #: walk_line3, real tracks: 25.8 -> 25.1 mm, limb segments 43.8 -> 28.2 deg.
+    #: Frames with contours alone (no points) un-hide from one view as before.
+    unhide_views: int = 2
+    #: with contours alone: a part whose pairs come from one camera only keeps its
+    #: joints' depth along that camera's rays at the previous frame's, with this σ [m]
+    #: (:mod:`core.fit_depth`; None: off).  bench.looks' call, contours alone: skin
+    #: look 34.1 -> 27.9 mm, walk_ortho3 26.9 -> 18.9 mm (σ 1.5 cm: 29.6 / 32.5, 6 cm:
+    #: 26.6 / 22.6 mm).  Hiding such parts instead
+    #: (all their angles held): skin 27.8 mm, walk_ortho3 58.1 mm (both legs lost).
+    depth_sigma_m: float | None = 0.03
+    #: ... and so does a part whose views' rays to it are at most this many degrees
+    #: apart (held along their mean direction): views a few tens of degrees apart see
+    #: nearly the same outline (:func:`core.fit_depth.narrow_depth_holds`; 0: one view
+    #: only).  line3's outer cameras are 38° apart.  Contours alone, 0 -> 40: sweater
+    #: 33.2 -> 26.3 mm, skin 27.9 -> 25.6, jumps_line3 30.0 -> 25.0; pirouette_line3
+    #: with selection 176.1 -> 40.3 (fused 39.8 -> 61.2), dance_line3 fused 162.6 ->
+    #: 68.2 (selection 205.2 -> 207.7).  The orthogonal rig's views are 90° apart.
+    depth_spread_deg: float = 40.0
+    textured_scale: float = 1.0  # σ of the pairs of parts that texture points observe, × this
+    spacing_px: float = 2.0  # sampling of the image contours [px]
+    rim_samples: int = 32  # model rim samples per metaball
+    outer_px: float = 3.0  # only rim points with no model pixel this far out (0: all)
+    background_frames: int = 20  # frames (evenly spaced) in the background medians
+    rounds: int = 3  # re-pairing (re-weighting) rounds per pose solve, at least
+    #: σ of the silhouette-containment term [px] (0: off): points inside the metaballs of
+    #: the parts the texture points miss must project into every camera's foreground
+    #: (:meth:`core.fit_contours.ContourFrame.containment_block`,
+    #: :func:`core.fit_contours.containment_parts`; frames with points only).  Walk,
+    #: line3, real tracks, cues both: make demo's tracks MPJPE 29.2
+    #: -> 18.1 mm (right wrist 173 -> 63 mm), bench.looks' tracks 25.1 -> 25.7 mm;
+    #: walk_ortho3, truth-derived points: 38.3 -> 33.0 mm.  σ 2 px: 24.6 / 24.4 mm; every
+    #: part (containment_textured) σ 3 px: 21.0 / 22.3 / 32.8 mm, σ 2 px: 34.5 / 23.7 mm.
+    containment_px: float = 3.0
+    containment_tol_px: float = 2.0  # ... tolerated distance outside the foreground [px]
+    containment_textured: bool = False  # ... also for the parts the texture points observe
+    min_fg_frac: float = 0.002  # a foreground mask covering less of the image, ...
+    max_fg_frac: float = 0.5  # ... or more, gives no contours for that view
+    #: shaping the body from the clicked frame's silhouettes (contours alone, or too few
+    #: points there): the metaball centres of these parts leave their template places,
+    #: about them with σ ``shape_center_sigma_m`` [m] (None: centres held).  The template
+    #: sets trunk, head and feet metaballs on their bones' axes, where a real body's
+    #: flesh is not; held there, the silhouettes push the skeleton off in every frame.
+    #: The arms keep theirs: too thin for their silhouettes to place them apart from
+    #: the pose.
+    shape_center_sigma_m: float | None = 0.02
+    shape_center_parts: tuple = (
+        "pelvis",
+        "lowerback",
+        "spine",
+        "chest",
+        "neck",
+        "head",
+        "l_hip",
+        "l_knee",
+        "l_ankle",
+        "r_hip",
+        "r_knee",
+        "r_ankle",
+    )

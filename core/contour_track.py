@@ -18,7 +18,10 @@ see it and observe its motion, with an extended Kalman filter over the pose.  He
   frame is marked diverged, so the filter coasts through occlusions and recovers.
 
 The contours can come from image foreground masks (:mod:`core.background`) or any other
-segmentation.  The shape (scales ``s`` and metaball radii) is held fixed.
+segmentation.  The shape (scales ``s`` and metaball radii) is held fixed; it can be
+solved beforehand from one frame's silhouettes (:func:`core.contour_shape.fit_shape_to_contours`).
+The settings are :class:`core.contour_track_settings.ContourTrackSettings`; both are
+re-exported here.
 """
 
 from __future__ import annotations
@@ -30,45 +33,14 @@ import scipy.linalg
 
 from .camera import Camera
 from .contour_obs import containment_observations, contour_observations, silhouette_field
+from .contour_shape import fit_shape_to_contours  # noqa: F401  (re-exported)
+from .contour_track_settings import ContourTrackSettings
 from .contours import Contour
 from .ekf import EKF
 from .metaballs import Metaballs
 from .model_render import camera_rays
 from .progress import Progress
-from .skeleton import Skeleton, bone_frames, forward
-
-
-@dataclass
-class ContourTrackSettings:
-    """Parameters of contour tracking (units in brackets)."""
-
-    sigma_px: float = 1.0  # a-priori σ of one contour observation [px]
-    huber_px: float = 2.0  # Huber threshold on contour residuals [px]
-    iterations: int = 4  # relinearisations of the update per frame
-    select: bool = True  # per-part camera selection (False: all fused)
-    observability: bool = True  # ... ranked by predicted motion (False: visibility only)
-    max_dist_px: float = 12.0  # largest contour ↔ rim pairing distance [px]
-    min_matches: int = 40  # fewer contour matches: frame not updated
-    q_sigma_theta: float = 0.05  # initial σ of the clicked pose [rad]
-    q_sigma_root: float = 0.01  # [m]
-    rate_sigma_theta: float = 0.05  # initial σ of the rates [rad/frame]
-    rate_sigma_root: float = 0.02  # [m/frame]
-    accel_theta: float = 0.04  # process noise [rad/frame²]
-    accel_root: float = 0.01  # [m/frame²]
-    damping: float = 0.9  # rate decay per frame
-    containment: bool = True  # the body must project inside every foreground
-    sigma_in_px: float = 2.0  # σ of a containment observation [px]
-    huber_in_px: float = 6.0  # its Huber threshold [px]
-    tol_in_px: float = 2.0  # distance outside the foreground that is free [px]
-    diverge_outside: float = 0.15  # diverged: more model points this far outside ...
-    diverge_outside_px: float = 8.0  # ... the foreground [px], or
-    diverge_unexplained: float = 0.2  # more observed contour points this far from ...
-    diverge_unexplained_px: float = 8.0  # ... the model's silhouette [px]
-    recover: bool = True  # re-solve a diverged frame from a widened prior
-    recover_sigma_theta: float = 0.35  # prior σ of the suspect parts' angles then [rad]
-    recover_dist_px: float = 30.0  # contour pairing distance then [px]
-    search: bool = True  # limb search before the update (core.contour_search)
-    search_sigma_theta: float = 0.15  # prior σ of a re-posed limb's angles [rad]
+from .skeleton import Skeleton
 
 
 @dataclass
@@ -478,117 +450,6 @@ def track_contours(
         if progress is not None:
             progress.update(f + 1, len(contours), f"contour tracking: frame {f + 1}")
     return out
-
-
-def fit_shape_to_contours(
-    skel: Skeleton,
-    s: np.ndarray,
-    balls: Metaballs,
-    theta: np.ndarray,
-    root: np.ndarray,
-    cameras: list[Camera],
-    contours: list[list[Contour]],
-    cfg: ContourTrackSettings | None = None,
-    radius_prior_m: float = 0.02,
-    iterations: int = 6,
-    rays=None,
-    center_prior_m=None,
-    center_axes: tuple = (0, 1, 2),
-) -> tuple[Metaballs, np.ndarray, np.ndarray, float]:
-    """Metaball radii (and centres, and a pose refinement) from one frame's silhouettes.
-
-    Minimises the Huber-weighted contour residuals (σ = ``cfg.sigma_px``) plus priors:
-    the pose about ``theta``/``root`` with σ ``cfg.q_sigma_theta``/``cfg.q_sigma_root``
-    (e.g. the clicked pose) and every radius about its starting value with
-    σ ``radius_prior_m`` — radii along a camera's line of sight are seen by the other
-    cameras only, and the prior keeps unobserved ones where they are.
-
-    With ``center_prior_m`` (metres, one σ or (E,) per metaball; NaN or 0: held) the
-    metaball centres (``Metaballs.center0``, in their bones' frames) are free too, about
-    their starting values with that σ, along ``center_axes`` of the bone frame (z runs
-    along the bone; ``(0, 1)`` keeps each metaball's place along its bone, which hardly
-    changes the outline of a chain of them — measured worse on the studio's feet, whose
-    template metaballs are misplaced along the foot too).  The template puts
-    them on the bone axis, where this body's flesh is not (the head and the chest lie in
-    front of the neck and spine joints); held on the axis, the silhouettes push the
-    whole body forward in every later frame.  A centre moves its rendered ellipsoid's
-    rim rigidly, so its Jacobian is the root translation's through the bone's rotation
-    and scale.  It needs a pose held by the clicks (tight ``q_sigma_*``): a free pose
-    trades the centres against the joints.
-
-    Returns
-    -------
-    balls : Metaballs with the fitted radii (and centres)
-    theta : (n,), root : (3,) refined pose
-    rms_px : contour residual RMS at the end
-    """
-    cfg = cfg or ContourTrackSettings()
-    n, E = skel.n_dof, len(balls)
-    theta0 = np.asarray(theta, float).copy()
-    root0 = np.asarray(root, float).copy()
-    r0, c0 = balls.radii.copy(), balls.center0.copy()
-    th, rt, radii, cen = theta0.copy(), root0.copy(), r0.copy(), c0.copy()
-    sig_c = np.broadcast_to(
-        np.nan if center_prior_m is None else np.asarray(center_prior_m, float), (E,)
-    )
-    free = np.flatnonzero(np.isfinite(sig_c) & (sig_c > 0))  # metaballs with free centres
-    ax = np.asarray(center_axes, int)
-    k = len(ax)
-    nc = k * len(free)
-    slot = np.full(E, -1)
-    slot[free] = np.arange(len(free))
-    w_pose = np.concatenate([np.full(n, cfg.q_sigma_theta), np.full(3, cfg.q_sigma_root)]) ** -2
-    w_shape = np.concatenate([np.full(3 * E, radius_prior_m**-2), np.repeat(sig_c[free], k) ** -2])
-    scale = np.where(balls.group >= 0, np.asarray(s, float)[np.maximum(balls.group, 0)], 1.0)
-    rms = float("nan")
-    for _ in range(iterations):
-        cur = balls.with_parts(cen, radii)
-        obs = contour_observations(
-            skel,
-            th,
-            rt,
-            s,
-            cur,
-            cameras,
-            contours,
-            sigma_px=cfg.sigma_px,
-            max_dist_px=cfg.max_dist_px,
-            select=cfg.select,
-            rays=rays,
-        )
-        if len(obs) < cfg.min_matches:
-            break
-        M = len(obs)
-        J = np.zeros((M, n + 3 + 3 * E + nc))
-        J[:, :n], J[:, n : n + 3] = obs.J_theta, obs.J_root
-        e = obs.ellipsoid
-        cols = n + 3 + 3 * e[:, None] + np.arange(3)[None]
-        np.put_along_axis(J, cols, obs.J_radii, axis=1)
-        if nc and (on := slot[e] >= 0).any():
-            Rb, _ = bone_frames(skel, forward(skel, th[None], rt[None], s))
-            eo = e[on]
-            Jc = np.einsum("mj,mjk->mk", obs.J_root[on], Rb[0, balls.bone[eo]]) * scale[eo, None]
-            J[
-                np.flatnonzero(on)[:, None],
-                n + 3 + 3 * E + k * slot[eo][:, None] + np.arange(k)[None],
-            ] = Jc[:, ax]
-        r = obs.residual
-        a = np.abs(r)
-        w = np.where(a <= cfg.huber_px, 1.0, cfg.huber_px / np.maximum(a, 1e-12))
-        w = w / cfg.sigma_px**2
-        prior_w = np.concatenate([w_pose, w_shape])
-        x = np.concatenate([th, rt, radii.ravel(), cen[np.ix_(free, ax)].ravel()])
-        x0 = np.concatenate([theta0, root0, r0.ravel(), c0[np.ix_(free, ax)].ravel()])
-        A = (J.T * w) @ J + np.diag(prior_w)
-        g = (J.T * w) @ r + prior_w * (x - x0)
-        delta = -scipy.linalg.cho_solve(scipy.linalg.cho_factor(A), g)
-        th, rt = th + delta[:n], rt + delta[n : n + 3]
-        radii = np.maximum(radii + delta[n + 3 : n + 3 + 3 * E].reshape(E, 3), 0.01)
-        cen[np.ix_(free, ax)] += delta[n + 3 + 3 * E :].reshape(-1, k)
-        rms = float(np.sqrt(np.mean(r**2)))
-        if np.max(np.abs(delta)) < 1e-5:
-            break
-    return balls.copy().with_parts(cen, radii), th, rt, rms
 
 
 def refine_state_with_contours(

@@ -1,0 +1,135 @@
+"""Metaball shape (and a pose refinement) from one frame's silhouettes.
+
+:func:`fit_shape_to_contours` solves the metaball radii, optionally their centres in
+their bones' frames, and the pose of one frame to that frame's occluding contours in
+every camera (:func:`core.contour_obs.contour_observations`, Huber-weighted, σ in
+pixels), with priors about the start: the clicked pose and the template shape.  It is
+a Gauss–Newton solve of the same contour observations as the tracker
+(:mod:`core.contour_track`, which re-exports it), with the shape free.
+
+Frames: world Z up, metres; radii and centres metres (centres in their bones' frames);
+angles radians; image pixels as in :mod:`core.camera`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg
+
+from .camera import Camera
+from .contour_obs import contour_observations
+from .contour_track_settings import ContourTrackSettings
+from .contours import Contour
+from .metaballs import Metaballs
+from .skeleton import Skeleton, bone_frames, forward
+
+
+def fit_shape_to_contours(
+    skel: Skeleton,
+    s: np.ndarray,
+    balls: Metaballs,
+    theta: np.ndarray,
+    root: np.ndarray,
+    cameras: list[Camera],
+    contours: list[list[Contour]],
+    cfg: ContourTrackSettings | None = None,
+    radius_prior_m: float = 0.02,
+    iterations: int = 6,
+    rays=None,
+    center_prior_m=None,
+    center_axes: tuple = (0, 1, 2),
+) -> tuple[Metaballs, np.ndarray, np.ndarray, float]:
+    """Metaball radii (and centres, and a pose refinement) from one frame's silhouettes.
+
+    Minimises the Huber-weighted contour residuals (σ = ``cfg.sigma_px``) plus priors:
+    the pose about ``theta``/``root`` with σ ``cfg.q_sigma_theta``/``cfg.q_sigma_root``
+    (e.g. the clicked pose) and every radius about its starting value with
+    σ ``radius_prior_m`` — radii along a camera's line of sight are seen by the other
+    cameras only, and the prior keeps unobserved ones where they are.
+
+    With ``center_prior_m`` (metres, one σ or (E,) per metaball; NaN or 0: held) the
+    metaball centres (``Metaballs.center0``, in their bones' frames) are free too, about
+    their starting values with that σ, along ``center_axes`` of the bone frame (z runs
+    along the bone; ``(0, 1)`` keeps each metaball's place along its bone, which hardly
+    changes the outline of a chain of them — measured worse on the studio's feet, whose
+    template metaballs are misplaced along the foot too).  The template puts
+    them on the bone axis, where this body's flesh is not (the head and the chest lie in
+    front of the neck and spine joints); held on the axis, the silhouettes push the
+    whole body forward in every later frame.  A centre moves its rendered ellipsoid's
+    rim rigidly, so its Jacobian is the root translation's through the bone's rotation
+    and scale.  It needs a pose held by the clicks (tight ``q_sigma_*``): a free pose
+    trades the centres against the joints.
+
+    Returns
+    -------
+    balls : Metaballs with the fitted radii (and centres)
+    theta : (n,), root : (3,) refined pose
+    rms_px : contour residual RMS at the end
+    """
+    cfg = cfg or ContourTrackSettings()
+    n, E = skel.n_dof, len(balls)
+    theta0 = np.asarray(theta, float).copy()
+    root0 = np.asarray(root, float).copy()
+    r0, c0 = balls.radii.copy(), balls.center0.copy()
+    th, rt, radii, cen = theta0.copy(), root0.copy(), r0.copy(), c0.copy()
+    sig_c = np.broadcast_to(
+        np.nan if center_prior_m is None else np.asarray(center_prior_m, float), (E,)
+    )
+    free = np.flatnonzero(np.isfinite(sig_c) & (sig_c > 0))  # metaballs with free centres
+    ax = np.asarray(center_axes, int)
+    k = len(ax)
+    nc = k * len(free)
+    slot = np.full(E, -1)
+    slot[free] = np.arange(len(free))
+    w_pose = np.concatenate([np.full(n, cfg.q_sigma_theta), np.full(3, cfg.q_sigma_root)]) ** -2
+    w_shape = np.concatenate([np.full(3 * E, radius_prior_m**-2), np.repeat(sig_c[free], k) ** -2])
+    scale = np.where(balls.group >= 0, np.asarray(s, float)[np.maximum(balls.group, 0)], 1.0)
+    rms = float("nan")
+    for _ in range(iterations):
+        cur = balls.with_parts(cen, radii)
+        obs = contour_observations(
+            skel,
+            th,
+            rt,
+            s,
+            cur,
+            cameras,
+            contours,
+            sigma_px=cfg.sigma_px,
+            max_dist_px=cfg.max_dist_px,
+            select=cfg.select,
+            rays=rays,
+        )
+        if len(obs) < cfg.min_matches:
+            break
+        M = len(obs)
+        J = np.zeros((M, n + 3 + 3 * E + nc))
+        J[:, :n], J[:, n : n + 3] = obs.J_theta, obs.J_root
+        e = obs.ellipsoid
+        cols = n + 3 + 3 * e[:, None] + np.arange(3)[None]
+        np.put_along_axis(J, cols, obs.J_radii, axis=1)
+        if nc and (on := slot[e] >= 0).any():
+            Rb, _ = bone_frames(skel, forward(skel, th[None], rt[None], s))
+            eo = e[on]
+            Jc = np.einsum("mj,mjk->mk", obs.J_root[on], Rb[0, balls.bone[eo]]) * scale[eo, None]
+            J[
+                np.flatnonzero(on)[:, None],
+                n + 3 + 3 * E + k * slot[eo][:, None] + np.arange(k)[None],
+            ] = Jc[:, ax]
+        r = obs.residual
+        a = np.abs(r)
+        w = np.where(a <= cfg.huber_px, 1.0, cfg.huber_px / np.maximum(a, 1e-12))
+        w = w / cfg.sigma_px**2
+        prior_w = np.concatenate([w_pose, w_shape])
+        x = np.concatenate([th, rt, radii.ravel(), cen[np.ix_(free, ax)].ravel()])
+        x0 = np.concatenate([theta0, root0, r0.ravel(), c0[np.ix_(free, ax)].ravel()])
+        A = (J.T * w) @ J + np.diag(prior_w)
+        g = (J.T * w) @ r + prior_w * (x - x0)
+        delta = -scipy.linalg.cho_solve(scipy.linalg.cho_factor(A), g)
+        th, rt = th + delta[:n], rt + delta[n : n + 3]
+        radii = np.maximum(radii + delta[n + 3 : n + 3 + 3 * E].reshape(E, 3), 0.01)
+        cen[np.ix_(free, ax)] += delta[n + 3 + 3 * E :].reshape(-1, k)
+        rms = float(np.sqrt(np.mean(r**2)))
+        if np.max(np.abs(delta)) < 1e-5:
+            break
+    return balls.copy().with_parts(cen, radii), th, rt, rms

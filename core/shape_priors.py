@@ -8,7 +8,7 @@
   bone, and across a joint); :func:`smooth_rows` asks neighbours to change alike from
   the start shape.
 
-Unknowns are packed as in :class:`core.shape_fit.ShapeProblem`: radii (M, 3) first,
+Unknowns are packed as in :class:`core.shape_problem.ShapeProblem`: radii (M, 3) first,
 then the ``n_c`` centre coordinates (M, 3) in their bones' frames, metres.
 """
 

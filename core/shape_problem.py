@@ -1,0 +1,343 @@
+"""The least-squares problem of the whole-body shape fit: residuals and exact Jacobian.
+
+:class:`ShapeProblem` packs the unknowns ``x`` — radii (3M) then, when
+``free_centers``, centres (3M) in their bones' frames (metres before scaling) — and for
+weights frozen once per re-weighting round (:meth:`ShapeProblem.freeze`) returns the
+residuals and the Jacobian (:meth:`ShapeProblem.system`) of the observation types and
+priors that :mod:`core.shape_fit` describes: data points, seen model points, silhouette
+pairs, symmetry, smoothness and the prior towards the start shape.  Its helpers pick a
+point's strongest metaballs (:func:`nearest_members`), count the cameras that see a
+model surface point (:func:`seen_by`) and measure the model points' normal offsets
+from the data (:func:`model_offsets`).  All are re-exported by :mod:`core.shape_fit`.
+
+Arrays: ``xyz`` (N, 3) world metres; metaball frames ``Rw`` (M, 3, 3), ``cw`` (M, 3),
+radii (M, 3) metres; ``s`` (G,) bone scales.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .attractor import LN_T, attractor, attractor_jacobians, scatter
+from .camera import Camera
+from .metaballs import Metaballs, local_coords, sample_surface, world_frames
+from .model_render import render_parts
+from .shape_priors import chain_pairs, mirror_pairs, smooth_rows, symmetry_rows
+from .shape_settings import ShapeSettings
+from .skeleton import Skeleton, bone_frames
+
+
+def nearest_members(
+    xyz: np.ndarray, Rw: np.ndarray, cw: np.ndarray, radii: np.ndarray, k: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The ``k`` metaballs of strongest field at each point.
+
+    Parameters
+    ----------
+    xyz : (N, 3) world points; Rw (M, 3, 3), cw (M, 3), radii (M, 3) metaball frames
+
+    Returns
+    -------
+    idx : (N, K) int metaball indices, K = min(k, M); valid : (N, K) bool (all True)
+    """
+    y = local_coords(xyz, Rw, cw)
+    d = np.sum((y / radii[None]) ** 2, axis=-1)  # (N, M)
+    k = min(int(k), len(radii))
+    idx = (
+        np.argpartition(d, k - 1, axis=1)[:, :k]
+        if k < len(radii)
+        else np.broadcast_to(np.arange(len(radii)), d.shape).copy()
+    )
+    return idx, np.ones(idx.shape, bool)
+
+
+def seen_by(
+    cameras: list[Camera],
+    xyz: np.ndarray,
+    Rw: np.ndarray,
+    cw: np.ndarray,
+    visible: np.ndarray,
+    bone: np.ndarray,
+    depth_tol: float,
+) -> np.ndarray:
+    """How many cameras see each point of the model surface (N,) int.
+
+    A point is seen when it projects into the image and lies no farther than
+    ``depth_tol`` metres behind the model's own rendering there (the rendered
+    ellipsoids, semi-axes ``visible`` (M, 3), of :func:`core.model_render.render_parts`).
+    """
+    views = np.zeros(len(xyz), int)
+    for cam in cameras:
+        w, h = cam.size
+        ren = render_parts(cam, cw, Rw, visible, bone)
+        with np.errstate(all="ignore"):
+            uv = cam.project(xyz)
+        ok = np.all(np.isfinite(uv), axis=1)
+        iu = np.round(np.where(ok, uv[:, 0], -1)).astype(int)
+        iv = np.round(np.where(ok, uv[:, 1], -1)).astype(int)
+        ok &= (iu >= 0) & (iu < w) & (iv >= 0) & (iv < h)
+        depth = np.linalg.norm(xyz - cam.center, axis=1)
+        zb = ren.depth[np.clip(iv, 0, h - 1), np.clip(iu, 0, w - 1)]
+        views += ok & (depth <= zb + depth_tol)
+    return views
+
+
+class _Frame:
+    """One frame's data and model points, with the weights frozen for a round."""
+
+    def __init__(self, pose, xyz, sigma, theta=None, root=None, contours=None, parts=None):
+        self.pose, self.xyz, self.sigma = pose, xyz, sigma
+        self.theta, self.root, self.contours, self.parts = theta, root, contours, parts
+        self.idx = self.valid = self.w = None
+        self.knee = np.inf
+        self.xs = self.sidx = self.svalid = self.soff = self.sinv = None
+        self.soff_all = None
+        self.sil = None  # silhouette rows linearised at the round's start: (r0, J, x0, w)
+        self.sil_rms = np.nan
+
+
+def _cauchy(r: np.ndarray, c: float) -> np.ndarray:
+    """Square roots of the Cauchy IRLS weights ``1 / (1 + (r/c)²)``."""
+    return 1.0 / np.sqrt(1.0 + (r / c) ** 2)
+
+
+class ShapeProblem:
+    """Residuals and Jacobian of the shape fit (the unknowns packed as ``x``).
+
+    ``x`` = radii (3M) then, when ``free_centers``, centres (3M).  :meth:`freeze`
+    fixes the members, weights and model points at a given ``x``; :meth:`system`
+    returns the residual vector and its exact Jacobian for those frozen choices.
+    """
+
+    def __init__(
+        self,
+        skel: Skeleton,
+        balls: Metaballs,
+        s: np.ndarray,
+        poses: list,
+        points: list[np.ndarray],
+        sigma: list[np.ndarray],
+        cameras: list[Camera] | None,
+        cfg: ShapeSettings,
+        seed: int = 0,
+        silhouettes=None,
+    ):
+        self.skel, self.balls, self.s, self.cfg = skel, balls, np.asarray(s, float), cfg
+        self.cameras = cameras
+        self.anc = skel.ancestors()
+        self.M = len(balls)
+        self.n_c = 3 * self.M if cfg.free_centers else 0
+        self.radii0, self.centers0 = balls.radii.copy(), balls.center0.copy()
+        # silhouettes: (cameras, rays, [(theta (n,), root (3,), contours per camera,
+        # parts (B,) bool or None)] per frame)
+        self.sil_cameras, self.sil_rays, sil = silhouettes or (None, None, None)
+        sil = sil or [(None, None, None, None)] * len(poses)
+        self.frames = [
+            _Frame(p, x, sg, *c) for p, x, sg, c in zip(poses, points, sigma, sil, strict=True)
+        ]
+        self.sym = mirror_pairs(skel, balls, s) if cfg.sigma_symmetry > 0 else None
+        self.chain = chain_pairs(balls, skel) if cfg.sigma_smooth > 0 else None
+        self.seed = int(seed)
+
+    def pack(self, radii: np.ndarray, centers: np.ndarray) -> np.ndarray:
+        return np.concatenate([np.ravel(radii)] + ([np.ravel(centers)] if self.n_c else []))
+
+    def unpack(self, x: np.ndarray):
+        """``(radii (M, 3), centres (M, 3))`` of a packed vector."""
+        radii = x[: 3 * self.M].reshape(self.M, 3)
+        centers = x[3 * self.M :].reshape(self.M, 3) if self.n_c else self.centers0
+        return radii, centers
+
+    def geometry(self, fr: _Frame, radii, centers):
+        b = self.balls.with_parts(centers, radii)
+        Rw, cw = world_frames(self.skel, fr.pose, b, self.s)
+        return b, Rw[0], cw[0]
+
+    def freeze(self, x: np.ndarray) -> None:
+        """Per frame: members, Cauchy weights of the data points, and the seen model
+        points with their normal offsets to the data, at ``x``."""
+        cfg = self.cfg
+        radii, centers = self.unpack(x)
+        for k, fr in enumerate(self.frames):
+            b, Rw, cw = self.geometry(fr, radii, centers)
+            self._freeze_silhouette(fr, b, x)
+            if not len(fr.xyz):  # silhouettes only
+                fr.xs = fr.soff_all = None
+                continue
+            fr.idx, fr.valid = nearest_members(fr.xyz, Rw, cw, radii, cfg.k_members)
+            att = attractor(fr.xyz, fr.idx, fr.valid, Rw, cw, radii)
+            dist = np.where(np.isfinite(att.dist), att.dist, 1.0)
+            mad = 1.4826 * float(np.median(np.abs(dist - np.median(dist))))
+            fr.knee = max(cfg.robust_scale * float(np.median(fr.sigma)), 3.0 * mad)
+            fr.w = att.inv_g / fr.sigma * _cauchy(dist, fr.knee)
+            fr.xs = fr.soff_all = None
+            if self.cameras is None:
+                continue
+            xs, ok = sample_surface(
+                self.skel, fr.pose, b, self.s, per_ball=cfg.samples_per_ball, seed=self.seed + k
+            )  # same directions every round
+            if fr.parts is not None:  # no penalty on a part the frame did not measure
+                owner = np.repeat(np.arange(self.M), cfg.samples_per_ball)
+                ok &= np.asarray(fr.parts, bool)[b.bone[owner]]
+            xs = xs[ok]
+            seen = seen_by(self.cameras, xs, Rw, cw, b.visible, b.bone, cfg.depth_tol)
+            xs = xs[seen >= cfg.min_views]
+            if not len(xs):
+                continue
+            sidx, svalid = nearest_members(xs, Rw, cw, radii, cfg.k_members)
+            satt = attractor(xs, sidx, svalid, Rw, cw, radii)
+            off = model_offsets(xs, -satt.grad, fr.xyz, cfg.neighbours, cfg.max_offset)
+            fr.soff_all = off
+            bulge = off > cfg.model_gate
+            if not bulge.any():
+                continue
+            fr.xs, fr.sidx, fr.svalid = xs[bulge], sidx[bulge], svalid[bulge]
+            fr.soff = off[bulge] - cfg.model_gate
+            fr.sinv = satt.inv_g[bulge]
+
+    def _freeze_silhouette(self, fr: _Frame, b: Metaballs, x: np.ndarray) -> None:
+        """Pair the blended surface's rim with the frame's image contours and linearise.
+
+        The whole-body surface ``Σ f = 0.5`` is rendered as the ellipsoids that follow it
+        (:func:`core.metaballs.render_radii`, their ratio to the radii held for the
+        round); its occluding contour is paired with the observed one in every camera
+        (:func:`core.contour_obs.contour_observations`, all cameras fused) and the
+        residuals (pixels, along the image normal) are linearised in the radii and the
+        centres: ``r(x) ≈ r0 + J (x − x0)``, Huber-weighted at ``r0``.
+        """
+        from .contour_obs import contour_observations
+        from .metaballs import render_radii
+
+        cfg = self.cfg
+        fr.sil, fr.sil_rms = None, np.nan
+        if fr.contours is None or self.sil_cameras is None or cfg.sigma_silhouette_px <= 0:
+            return
+        vis = render_radii(self.skel, fr.pose, b, self.s)
+        bv = b.copy()
+        bv.visible_scale = vis / b.radii
+        obs = contour_observations(
+            self.skel,
+            fr.theta,
+            fr.root,
+            self.s,
+            bv,
+            self.sil_cameras,
+            fr.contours,
+            sigma_px=cfg.sigma_silhouette_px,
+            max_dist_px=cfg.max_dist_silhouette_px,
+            select=False,
+            rays=self.sil_rays,
+        )
+        keep = (
+            np.ones(len(obs), bool) if fr.parts is None else np.asarray(fr.parts, bool)[obs.part]
+        )  # parts a measurement placed, only
+        if not keep.any():
+            return
+        M = self.M
+        e = obs.ellipsoid[keep]
+        J = np.zeros((len(e), 3 * M + self.n_c))
+        np.put_along_axis(J, 3 * e[:, None] + np.arange(3)[None], obs.J_radii[keep], axis=1)
+        if self.n_c:  # a centre moves its ellipsoid's rim rigidly: the root's Jacobian
+            Rb, _ = bone_frames(self.skel, fr.pose)
+            scale = np.where(b.group >= 0, self.s[np.maximum(b.group, 0)], 1.0)
+            Jc = np.einsum("mj,mjk->mk", obs.J_root[keep], Rb[0, b.bone[e]]) * scale[e, None]
+            np.put_along_axis(J, 3 * M + 3 * e[:, None] + np.arange(3)[None], Jc, axis=1)
+        r0 = np.asarray(obs.residual, float)[keep]
+        a = np.abs(r0)
+        k = cfg.huber_silhouette_px
+        w = np.sqrt(np.where(a <= k, 1.0, k / np.maximum(a, 1e-12))) / cfg.sigma_silhouette_px
+        fr.sil = (r0, J, x.copy(), w)
+        fr.sil_rms = float(np.sqrt(np.mean(r0**2)))
+
+    def _rows(self, fr, b, Rw, cw, radii, x, idx, valid, w, off=None):
+        att = attractor(x, idx, valid, Rw, cw, radii)
+        jac = attractor_jacobians(
+            self.skel, fr.pose, b, self.s, x, idx, att, radii, self.anc, shape=True
+        )
+        e = att.L - LN_T
+        scale = w if off is None else w * off[1]
+        r = e * scale if off is None else (e * off[1] + off[0]) * w
+        J = [scatter(jac[3], idx, valid, self.M) * scale[:, None]]
+        if self.n_c:
+            J.append(scatter(jac[4], idx, valid, self.M) * scale[:, None])
+        return r, np.concatenate(J, axis=1)
+
+    def system(self, x: np.ndarray):
+        """Residuals (m,) and Jacobian (m, len(x)) at ``x`` (weights as frozen)."""
+        cfg, M, n_c = self.cfg, self.M, self.n_c
+        radii, centers = self.unpack(x)
+        res, jac = [], []
+        for fr in self.frames:
+            b, Rw, cw = self.geometry(fr, radii, centers)
+            if len(fr.xyz):
+                r, J = self._rows(fr, b, Rw, cw, radii, fr.xyz, fr.idx, fr.valid, fr.w)
+                res.append(r)
+                jac.append(J)
+            if fr.xs is not None:
+                r, J = self._rows(
+                    fr,
+                    b,
+                    Rw,
+                    cw,
+                    radii,
+                    fr.xs,
+                    fr.sidx,
+                    fr.svalid,
+                    np.full(len(fr.xs), 1.0 / cfg.sigma_model),
+                    off=(fr.soff, fr.sinv),
+                )
+                res.append(r)
+                jac.append(J)
+            if fr.sil is not None:
+                r0, J, x0, w = fr.sil
+                res.append((r0 + J @ (x - x0)) * w)
+                jac.append(J * w[:, None])
+        w = 1.0 / cfg.sigma_radius
+        res.append((radii - self.radii0).ravel() * w)
+        jac.append(np.hstack([np.eye(3 * M) * w, np.zeros((3 * M, n_c))]))
+        if n_c:
+            w = 1.0 / cfg.sigma_center
+            res.append((centers - self.centers0).ravel() * w)
+            jac.append(np.hstack([np.zeros((n_c, 3 * M)), np.eye(n_c) * w]))
+        if self.sym is not None:
+            r, J = symmetry_rows(self.sym, M, n_c, 1.0 / cfg.sigma_symmetry, radii, centers)
+            res.append(r)
+            jac.append(J)
+        if self.chain is not None and len(self.chain):
+            r, J = smooth_rows(
+                self.chain,
+                M,
+                n_c,
+                1.0 / cfg.sigma_smooth,
+                radii,
+                centers,
+                self.radii0,
+                self.centers0,
+            )
+            res.append(r)
+            jac.append(J)
+        return np.concatenate(res), np.concatenate(jac, axis=0)
+
+
+def model_offsets(
+    xs: np.ndarray, outward: np.ndarray, data: np.ndarray, k: int, cap: float
+) -> np.ndarray:
+    """Signed offsets (S,) of model surface points from the data along their normals.
+
+    Parameters
+    ----------
+    xs : (S, 3) model surface points; outward : (S, 3) outward directions (any length)
+    data : (N, 3) observed points; k : nearest data points whose median is taken
+    cap : offsets are clipped to ``[-cap, cap]`` metres
+
+    Returns
+    -------
+    (S,) metres, positive where the model surface lies outside the data.
+    """
+    n = outward / np.maximum(np.linalg.norm(outward, axis=1, keepdims=True), 1e-12)
+    k = max(1, min(int(k), len(data)))
+    _, nb = cKDTree(data).query(xs, k=k)
+    nb = np.asarray(nb).reshape(len(xs), k)
+    off = np.median(np.einsum("nki,ni->nk", xs[:, None, :] - data[nb], n), axis=1)
+    return np.clip(off, -cap, cap)

@@ -1,0 +1,49 @@
+"""Weights and solver settings of the whole-body shape fit (:class:`ShapeSettings`).
+
+The options of :func:`core.shape_fit.fit_shape` (which re-exports this class) and of its
+least-squares problem (:class:`core.shape_problem.ShapeProblem`): the σ of every
+observation type and prior, the model-point penalty, the re-weighting rounds and the
+bounds of the radii.  Lengths in metres, image distances in pixels.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass
+class ShapeSettings:
+    """Weights and solver settings of :func:`core.shape_fit.fit_shape` (lengths in metres)."""
+
+    sigma_point: float = 0.003  # σ of a data point's distance (when none is given)
+    sigma_model: float = 0.004  # σ of a seen model point's distance to the data
+    sigma_radius: float = 0.03  # prior towards the start radii
+    sigma_center: float = 0.02  # prior towards the start centres
+    sigma_symmetry: float = 0.003  # left/right symmetry of radii and centres (0: off)
+    sigma_smooth: float = 0.01  # neighbours along a bone: radii and displacements (0: off)
+    free_centers: bool = True
+    model_points: bool = True  # the penalty against bulging (needs cameras)
+    k_members: int = 8  # metaballs in a point's field
+    samples_per_ball: int = 40  # model points drawn per metaball and frame
+    min_views: int = 2  # cameras that must see a model point
+    depth_tol: float = 0.02  # z-buffer tolerance of the model points
+    neighbours: int = 5  # data points whose median normal offset a model point uses
+    max_offset: float = 0.05  # cap of a model point's offset
+    model_gate: float = 0.01  # offsets below this are no bulge (curvature, point spacing)
+    robust_scale: float = 3.0  # Cauchy knee of the data points, in σ
+    rounds: int = 10
+    max_nfev: int = 15
+    tol: float = 1e-4
+    round_tol: float = 2e-4  # converged when no radius or centre moved more than this
+    cost_tol: float = 0.01  # ... or the cost changed by less than this share in a round
+    min_radius: float = 0.005
+    #: every radius stays within [start / ratio, start · ratio] (0: only ``min_radius``):
+    #: overlapping metaballs can trade widths along nearly flat directions of the cost,
+    #: and left free some collapse into needles while a neighbour swells
+    radius_ratio: float = 2.0
+    min_points: int = 20  # a frame with fewer data points is left out (flagged)
+    #: σ of a silhouette contour pair of the blended surface [px] (0: off; needs the
+    #: frames' contours, :func:`core.shape_fit.fit_shape` ``contours``)
+    sigma_silhouette_px: float = 1.0
+    huber_silhouette_px: float = 3.0  # Huber knee of those pairs [px]
+    max_dist_silhouette_px: float = 12.0  # largest rim ↔ contour pairing distance [px]

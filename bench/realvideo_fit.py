@@ -28,7 +28,7 @@ cam02 are 50° apart) gives the texture-only fit its points, with cam03 held out
    * **texture only** — LSM surface points (Wallis pre-filter, half resolution,
      :func:`core.surface.measure_surface` seeded by NCC along epipolar lines from
      points between the clicked joints, in the fitting camera closest in angle to
-     another; tracked by :func:`core.tracking.track`) fitted by
+     another; tracked by :func:`core.tracking.track`; :mod:`bench.realvideo_texture`) fitted by
      :func:`core.fit.fit_sequence`; frames without enough points are marked diverged
      and hold the prediction;
    * **contours only** — metaball radii from frame 0's silhouettes
@@ -52,7 +52,7 @@ cam02 are 50° apart) gives the texture-only fit its points, with cam03 held out
    triangulated from the cam02–cam04 clicks project a median 44 px (full resolution),
    mostly up and left, from where they were clicked in cam01).  Overlays of a few
    frames (outlines over the held-out image) and the four cameras' masks go to
-   ``--out/<config>/``.
+   ``--out/<config>/`` (:mod:`bench.realvideo_draw`).
 
 Run: ``python -m bench.realvideo_fit [--frames 100] [--configs ...]`` (one
 configuration of 100 frames takes about 5 minutes on 2 free cores; tracking is cached
@@ -62,22 +62,23 @@ in ``--out``).
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from dataclasses import replace
 from pathlib import Path
 
-import cv2
 import numpy as np
 
-from bench.realvideo import epipolar_seeds, scale_camera
+from bench.realvideo import scale_camera
+from bench.realvideo_draw import draw_check, draw_masks
 from bench.realvideo_inputs import (
+    FPS,
     keep_in_region,
     load_clicks,
     person_region,
     read_empty_scene,
     read_video,
 )
+from bench.realvideo_texture import frame_points, reference_camera, texture_tracks
 from core.background import fit_background, with_reference
 from core.camera import Camera
 from core.contour_track import ContourTrackSettings
@@ -90,103 +91,14 @@ DATA = REPO.parent / "shared" / "data" / "video" / "pose2sim_single"
 CLICKS = Path(__file__).resolve().parent / "data" / "pose2sim_clicks.json"
 FIT_CAMS = ("cam02", "cam03", "cam04")
 CHECK_CAM = "cam01"
-FPS = 60.0
 #: Contour tracking settings (quarter-resolution pixels): per-part cameras chosen by the
 #: visibility index (≥ 0.2) alone — adding the motion ranking lost the arms within 5
 #: frames on this take (``--compare-selection`` prints it) — relinearised 8 times per
 #: frame, contour ↔ rim pairs up to 20 px apart (fast arm swings at 60 fps).
 CONTOUR_CFG = ContourTrackSettings(select=True, observability=False, iterations=8, max_dist_px=20.0)
-#: Seeds for the LSM surface in the reference camera, as (joint a, joint b, weight of b):
-#: points between clicked joints on the back, the buttocks/thighs and the upper arms.
-SEED_PAIRS = (
-    ("neck", "pelvis", 0.3),
-    ("neck", "pelvis", 0.55),
-    ("l_shoulder", "r_hip", 0.5),
-    ("r_shoulder", "l_hip", 0.5),
-    ("l_hip", "l_knee", 0.4),
-    ("r_hip", "r_knee", 0.4),
-    ("l_shoulder", "l_elbow", 0.4),
-    ("r_shoulder", "r_elbow", 0.4),
-    ("l_knee", "l_ankle", 0.35),
-    ("r_knee", "r_ankle", 0.35),
-)
 
 
 # -- fits ---------------------------------------------------------------------------------
-def texture_tracks(
-    grey: dict,
-    cams: list[Camera],
-    clicks: dict,
-    n_frames: int,
-    scale: float,
-    cache: Path,
-    ref: int = 1,
-):
-    """LSM surface points at frame 0 tracked through ``n_frames`` (cached in ``cache``).
-
-    Returns ``(xyz (F, P, 3) metres, sigma_xyz (F, P, 3) metres, info dict)``.
-    """
-    names = [c.name for c in cams]
-    key = f"{','.join(names)}|{n_frames}|{scale}|{ref}"
-    if cache.is_file():
-        with np.load(cache, allow_pickle=False) as z:
-            if str(z["key"]) == key:
-                return z["xyz"], z["sigma_xyz"], json.loads(str(z["info"]))
-    from core.lsm import ImageStack
-    from core.surface import measure_surface
-    from core.tracking import track
-
-    t0 = time.perf_counter()
-    j = clicks["joints"]
-    ref_name = names[ref]
-    uv_ref = np.array(
-        [
-            (1 - w) * j[a][ref_name] + w * j[b][ref_name]
-            for a, b, w in SEED_PAIRS
-            if ref_name in j.get(a, {}) and ref_name in j.get(b, {})
-        ]
-    )
-    uv_ref = (uv_ref + 0.5) * scale - 0.5
-    st0 = ImageStack([grey[n][0] for n in names])
-    seeds = epipolar_seeds(st0, cams, ref, uv_ref)
-    if len(seeds) == 0:
-        raise InputError("no LSM seed matched along the epipolar lines")
-    surf = measure_surface(st0, cams, seeds, ref=ref, step=2)
-    t1 = time.perf_counter()
-    tr = track(
-        lambda i: [grey[n][i] for n in names], cams, surf, n_frames, FPS, step=2, regen_every=5
-    )
-    t2 = time.perf_counter()
-    alive = tr.alive
-    info = {
-        "seeds": int(len(seeds)),
-        "seed_candidates": int(len(uv_ref)),
-        "surface_points": int(len(surf)),
-        "surface_s": t1 - t0,
-        "tracking_s": t2 - t1,
-        "alive_per_frame_median": float(np.median(alive.sum(axis=1))),
-        "frame0_through": int(alive[:, : len(surf)].all(axis=0).sum()),
-        "trajectories": int(tr.xyz.shape[1]),
-    }
-    cache.parent.mkdir(parents=True, exist_ok=True)
-    np.savez_compressed(cache, xyz=tr.xyz, sigma_xyz=tr.sigma_xyz, key=key, info=json.dumps(info))
-    return tr.xyz, tr.sigma_xyz, info
-
-
-def frame_points(xyz: np.ndarray, sigma_xyz: np.ndarray):
-    """Per-frame :class:`core.fit.FramePoints` from tracks (trajectory index as id)."""
-    from core.fit import FramePoints
-
-    sig = np.sqrt(np.mean(sigma_xyz**2, axis=2))
-    sig = np.where(np.isfinite(sig) & (sig > 0), sig, 0.005)
-    ids = np.arange(xyz.shape[1])
-    out = []
-    for f in range(len(xyz)):
-        ok = np.all(np.isfinite(xyz[f]), axis=1)
-        out.append(FramePoints(xyz=xyz[f, ok], sigma=sig[f, ok], ids=ids[ok]))
-    return out
-
-
 def fused_fit(
     state_tex, theta_con: np.ndarray, root_con: np.ndarray, cams: list[Camera], contours: list, cfg
 ):
@@ -205,64 +117,6 @@ def fused_fit(
     return out, div
 
 
-# -- drawing ------------------------------------------------------------------------------
-def _outline(img: np.ndarray, mask: np.ndarray, colour, thick: int = 1) -> None:
-    cs, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    cv2.drawContours(img, cs, -1, colour, thick, cv2.LINE_AA)
-
-
-def draw_check(
-    rgb: np.ndarray, person: np.ndarray, bodies: dict, path: Path, zoom: int = 2
-) -> None:
-    """The held-out image with the person's mask (green, tinted) and each fitted body's
-    outline (colours per label), written as PNG."""
-    img = rgb.copy()
-    img[person] = (0.6 * img[person] + 0.4 * np.array([0, 255, 0])).astype(np.uint8)
-    img = cv2.resize(img, None, fx=zoom, fy=zoom, interpolation=cv2.INTER_LINEAR)
-
-    def big(m):
-        return cv2.resize(
-            m.astype(np.uint8), None, fx=zoom, fy=zoom, interpolation=cv2.INTER_NEAREST
-        )
-
-    _outline(img, big(person), (0, 200, 0), 1)
-    y = 18
-    for label, (mask, colour) in bodies.items():
-        _outline(img, big(mask), colour, 2)
-        cv2.putText(img, label, (8, y), cv2.FONT_HERSHEY_SIMPLEX, 0.55, colour, 2, cv2.LINE_AA)
-        y += 22
-    path.parent.mkdir(parents=True, exist_ok=True)
-    cv2.imwrite(str(path), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
-
-
-def draw_masks(rgb: dict, masks: dict, frames: list[int], path: Path) -> None:
-    """Grid: one row per camera, one column per frame, the person's mask tinted red."""
-    rows = []
-    for name in rgb:
-        tiles = []
-        for f in frames:
-            img = rgb[name][f].copy()
-            m = masks[name][f]
-            img[m] = (0.5 * img[m] + 0.5 * np.array([255, 0, 0])).astype(np.uint8)
-            _outline(img, m, (255, 255, 0), 1)
-            cv2.putText(
-                img,
-                f"{name} f{f}",
-                (6, 16),
-                cv2.FONT_HERSHEY_SIMPLEX,
-                0.45,
-                (255, 255, 255),
-                1,
-                cv2.LINE_AA,
-            )
-            tiles.append(img)
-        rows.append(np.hstack(tiles))
-    w = min(r.shape[1] for r in rows)
-    grid = np.vstack([r[:, :w] for r in rows])
-    path.parent.mkdir(parents=True, exist_ok=True)
-    cv2.imwrite(str(path), cv2.cvtColor(grid, cv2.COLOR_RGB2BGR))
-
-
 def _stats(x: np.ndarray) -> str:
     x = x[np.isfinite(x)]
     if not len(x):
@@ -271,18 +125,6 @@ def _stats(x: np.ndarray) -> str:
 
 
 # -- main ---------------------------------------------------------------------------------
-def reference_camera(cams: list[Camera]) -> int:
-    """The reference camera for LSM: one of the two fitting cameras whose optical axes
-    are closest in angle (LSM needs similar views; the other cameras join by NCC)."""
-    best, ref = -2.0, 0
-    for i in range(len(cams)):
-        for j in range(i + 1, len(cams)):
-            c = float(cams[i].R[2] @ cams[j].R[2])
-            if c > best:
-                best, ref = c, i
-    return ref
-
-
 def run_config(
     names: list[str], check: str, allc: dict, clicks: dict, video: dict, fg: dict, a, nf: int
 ) -> dict:

@@ -1,9 +1,9 @@
 """Inputs of the real-video fit benchmark (:mod:`bench.realvideo_fit`).
 
-Clicks (``clicks.json`` layout), the videos decoded once (Wallis-filtered grey and RGB),
-the empty-scene calibration photos registered to the video frames, and the person's
-region in a camera's foreground masks.  Image coordinates: pixels, (0, 0) the centre of
-the top-left pixel; world Z up, metres.
+Clicks (``clicks.json`` layout), the videos' frame rate, the videos decoded once
+(Wallis-filtered grey and RGB), the empty-scene calibration photos registered to the
+video frames, and the person's region in a camera's foreground masks.  Image
+coordinates: pixels, (0, 0) the centre of the top-left pixel; world Z up, metres.
 """
 
 from __future__ import annotations
@@ -17,6 +17,9 @@ import numpy as np
 from bench.realvideo import wallis
 from core.camera import Camera
 from core.errors import InputError
+
+#: Frame rate of the pose2sim_single videos, frames per second.
+FPS = 60.0
 
 
 # -- input ----------------------------------------------------------------------------------

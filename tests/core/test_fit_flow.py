@@ -216,7 +216,7 @@ def test_sequence_without_points_follows_the_texture_where_the_outline_misleads(
     from core.fit_init import initialise
     from core.landmarks import CLICK_JOINTS, METRIC_JOINTS
 
-    from .test_fit_contours import _cams, _silhouettes
+    from ._contourscene import _cams, _silhouettes
 
     skel, s, balls, theta0, root0 = _body()
     nf = 5

@@ -101,7 +101,10 @@ are held along those rays at the previous frame's depth (σ
 ``ContourSettings.depth_sigma_m``, :mod:`core.fit_depth`: such views leave that
 direction free); the cameras each part used are recorded in the quality.
 
-Frames before the clicked frame are processed backwards from it the same way.
+Frames before the clicked frame are processed backwards from it the same way.  The fit
+of one frame (steps 2–4: segmentation, prior, hidden parts, recovery, quality; with
+contours the silhouette retries) is :class:`core.fit_frame.FrameFitter`, which also
+holds the current shape and the per-frame results.
 :func:`core.fit_scene.fit_scene` runs what a scene needs (calibration from the wand when
 ``calibration.toml`` is missing, the initialisation from ``clicks.json``, the
 observations, the fit) and returns a :class:`core.state.FitState`.
@@ -113,28 +116,17 @@ import time
 
 import numpy as np
 
-from .fit_assess import assess_frame
 from .fit_bridge import unobserved
-from .fit_contours import containment_parts
 from .fit_coupling import fill_unobserved
-from .fit_depth import frame_depth_holds
+from .fit_frame import FrameFitter
 from .fit_init import Initialisation
 from .fit_predict import PosePredictor
-from .fit_search import explain_cost, keeps_points, recentred_starts, search_limbs
-from .fit_trajectory import TrajectoryAnchors
 from .fit_types import FramePoints, SequenceResult, SequenceSettings, frame_observations
-from .fit_whole_shape import has_outline, whole_body_shape, written_shape
+from .fit_whole_shape import whole_body_shape, written_shape
 from .fitting import FitSettings, fit
-from .free_space import FrameProbes
 from .metaballs import deflate
 from .progress import Progress
-from .segment import carry_labels, no_labels, segment_points
-from .silhouette_search import (
-    recentre_root,
-    search_limbs_silhouette,
-    silhouette_disagreement,
-)
-from .skeleton import anchor_sigma, joint_positions, stiff_sigma
+from .segment import segment_points
 from .state import FitState, Quality
 
 
@@ -180,389 +172,13 @@ def fit_sequence(
         raise ValueError(f"unknown shape option {cfg.shape!r}")
     if contours is not None and len(contours) < nf:
         raise ValueError(f"{len(contours)} contour frames for {nf} frames")
-    skel, balls = init.skeleton, init.metaballs.copy()
+    fx = FrameFitter(frames, init, cfg, contours, flow, cameras)  # per frame: fit, results
+    skel = init.skeleton
     template = init.metaballs.copy()  # the shape solves' bounds (FitSettings.radius_ratio)
     n = skel.n_dof
     f0 = min(max(init.frame, 0), nf - 1)
-    s, radii = init.s.copy(), balls.radii.copy()
-    theta = np.zeros((nf, n))
-    root = np.zeros((nf, 3))
-    q_sig = np.full((nf, n), np.nan)
-    rmse = np.full(nf, np.nan)
-    conv = np.zeros(nf, bool)
-    div = np.zeros(nf, bool)
-    n_pts = np.zeros(nf, int)
-    inl = np.zeros(nf)
-    unexpl = np.full(nf, np.nan)
-    retried = np.zeros(nf, bool)
-    hid = np.zeros((nf, n), bool)
-    c_n = np.zeros(nf, int)
-    c_rms = np.full(nf, np.nan)
-    cams_used: list[dict] = [{} for _ in range(nf)]
-    msgs: list[str] = []
     ci = init.clicks
     click_obs = (np.array([skel.joint_index(j) for j in ci.names]), ci.xyz, cfg.sigma_click)
-    pose_cfg = FitSettings(**{**cfg.fit.__dict__, "max_nfev": cfg.max_nfev})
-    labels = no_labels()
-    stiff = stiff_sigma(skel)
-    anchor = anchor_sigma(skel)
-
-    dof_bone = skel.dof_bones()
-    anchors = TrajectoryAnchors()  # the trajectories of the last fitted frame
-
-    def cframe(f):
-        return None if contours is None else contours[f]
-
-    frame_probes = FrameProbes(frames, cameras, cfg.free_space)
-
-    def hidden_dofs(xyz, q, max_dist, cf=None):
-        """(n,) bool: DOFs of parts with fewer than ``min_part_points`` points within
-        ``max_dist`` of them at pose q (counted without the ambiguity margin: a limb
-        beside the trunk is seen even where its points are not used) and, with contours
-        ``cf``, fewer than its ``min_part_matches`` contour pairs there."""
-        if len(xyz):
-            part, _ = segment_points(xyz, skel, balls, q[:n], q[n:], s, radii, max_dist, 0.0)
-            cnt = np.bincount(part[part >= 0], minlength=len(skel.bone_names))
-        else:
-            cnt = np.zeros(len(skel.bone_names), int)
-        hidden = cnt[dof_bone] < cfg.min_part_points
-        if cf is not None:
-            # parts that the points observe: their contour pairs weigh less (σ × scale)
-            cf.part_scale = np.where(cnt >= cfg.min_part_points, cf.cfg.textured_scale, 1.0)
-            cf.containment_parts = containment_parts(
-                cnt, len(xyz) >= cfg.min_points, cfg.min_part_points, cf.cfg
-            )
-            cf.freeze(skel, balls.copy(radii=radii), q[:n], q[n:], s)
-            if len(xyz) < cfg.min_points or cf.cfg.unhide:
-                # beside points, one view's contours do not un-hide a part (its depth)
-                views = cf.cfg.unhide_views if len(xyz) >= cfg.min_points else 1
-                hidden &= (
-                    cf.part_counts(len(skel.bone_names), views)[dof_bone] < cf.cfg.min_part_matches
-                )
-        return hidden
-
-    def prior(hidden, th_pred, sig_pred, th_hold):
-        """Target and σ of the prior on the angles: the prediction, σ capped for stiff
-        DOFs; the DOFs of parts with too few points (hidden) follow the (damped)
-        prediction, or are held at ``th_hold`` (the previous frame, when given), with σ
-        ``sigma_hidden``; fused with a prior towards the initial posture (anchored DOFs,
-        and hidden parts, which drift back to the clicked posture instead of
-        wandering)."""
-        sig = np.minimum(sig_pred, stiff)
-        target = th_pred if th_hold is None else np.where(hidden, th_hold, th_pred)
-        sig = np.where(hidden, np.minimum(sig, cfg.sigma_hidden), sig)
-        sig_a = np.where(hidden, np.minimum(anchor, cfg.sigma_hidden_anchor), anchor)
-        w1, w2 = 1.0 / sig**2, 1.0 / sig_a**2
-        return (w1 * target + w2 * init.theta) / (w1 + w2), 1.0 / np.sqrt(w1 + w2)
-
-    def search_start(f, cands):
-        """Of the candidate poses (k, n+3), the one whose body explains frame f's points
-        best (:func:`core.fit_search.explain_cost`)."""
-        cands = np.atleast_2d(cands)
-        if len(cands) == 1 or not len(frames[f].xyz):
-            return cands[0].copy()
-        cost = explain_cost(
-            frames[f].xyz,
-            skel,
-            balls,
-            s,
-            radii,
-            cands[:, :n],
-            cands[:, n:],
-            cfg.search_tau,
-            probes=frame_probes(f),
-        )
-        return cands[int(np.argmin(cost))].copy()
-
-    def one_frame(f, q_pred, sig_pred, joints=None, q_hold=None, anneal=False):
-        """Pose-only fit of frame f from ``q_pred`` (n+3,), which is also the prior's
-        target; returns ``(q, FitResult, ok, part or message, labels)``.
-
-        Plain: segment, fit, segment again, fit (``cfg.segment_max_dist`` and the
-        robust scale of ``cfg.fit``).  ``anneal``: the stages of ``cfg.anneal`` —
-        wide segmentation and a soft robust knee first, narrowing — and, after the
-        first stage has brought the trunk near its points, every limb placed by
-        :func:`core.fit_search.search_limbs` (its new angles become the prior's
-        target)."""
-        pts = frames[f]
-        cf = cframe(f)
-        lab = labels
-        stages = (
-            cfg.anneal
-            if anneal
-            else ((cfg.segment_max_dist, cfg.fit.robust_scale),) * (2 if cfg.resegment else 1)
-        )
-        if cf is not None and len(pts.xyz) < cfg.min_points:  # contours alone: no
-            stages = stages[:1]  # segmentation to redo (they re-pair every round)
-        q, target_q = q_pred.copy(), q_pred.copy()
-        r = part = None
-        traj = (
-            anchors.observations(pts.xyz, pts.sigma, pts.ids, cfg.traj_slip_m, cfg.traj_robust)
-            if cfg.trajectories
-            else None
-        )
-        for k, (max_dist, knee) in enumerate(stages):
-            if anneal and k == 1 and cfg.search:
-                q[:n] = search_limbs(
-                    pts.xyz,
-                    skel,
-                    balls,
-                    s,
-                    radii,
-                    q[:n],
-                    q[n:],
-                    tau=cfg.search_tau,
-                    probes=frame_probes(f),
-                ).theta
-                target_q = q.copy()
-            if len(pts.xyz):
-                part, _ = segment_points(
-                    pts.xyz, skel, balls, q[:n], q[n:], s, radii, max_dist, cfg.segment_margin
-                )
-                part, lab = carry_labels(part, pts.ids, lab)
-            else:
-                part = np.zeros(0, int)
-            if (part >= 0).sum() < cfg.min_points and cf is None:
-                if r is None:
-                    return (
-                        None,
-                        None,
-                        False,
-                        f"frame {f}: only {(part >= 0).sum()} usable points",
-                        lab,
-                    )
-                break
-            hidden = hidden_dofs(pts.xyz, q, max_dist, cf)
-            target, sig = prior(
-                hidden, target_q[:n], sig_pred, None if q_hold is None else q_hold[:n]
-            )
-            o = frame_observations(pts, part, target, sig, n, joints)
-            o.contours = cf
-            if cf is not None and len(pts.xyz) < cfg.min_points:
-                q_ref = target_q if q_hold is None else q_hold  # the previous frame
-                o.depth = frame_depth_holds(skel, cf, hidden, q_ref[:n], q_ref[n:], s)
-            o.trajectory = traj
-            if flow is not None and (
-                len(pts.xyz) < cfg.min_points or not flow.cfg.without_points_only
-            ):
-                o.flow = flow.observations(f)
-            stage_cfg = (
-                pose_cfg
-                if knee == pose_cfg.robust_scale
-                else FitSettings(**{**pose_cfg.__dict__, "robust_scale": knee})
-            )
-            if cf is not None and stage_cfg.irls_rounds < cf.cfg.rounds:
-                stage_cfg = FitSettings(**{**stage_cfg.__dict__, "irls_rounds": cf.cfg.rounds})
-            r = fit(skel, balls, o, q[:n], q[n:], s, radii, solve="pose", settings=stage_cfg)
-            q = np.concatenate([r.theta, r.root_xyz])
-        return q, r, True, part, lab
-
-    def assess(f, res):
-        """Quality of a fitted frame, without side effects: ``(ok, reasons, stats)``."""
-        return assess_frame(
-            res, skel, balls, radii, s, frames[f].xyz, cframe(f), lambda: frame_probes(f), cfg
-        )
-
-    def record(f, res, ok, why, stats):
-        """Write the quality of frame f (and the message of a diverged one); commit the
-        segmentation labels of an accepted fit."""
-        nonlocal labels
-        if stats is not None:
-            n_pts[f], inl[f], rmse[f], q_sig[f] = (
-                stats["n"],
-                stats["inl"],
-                stats["rmse"],
-                stats["sig"],
-            )
-            unexpl[f] = stats["unexplained"]
-            if stats["contour"] is not None:
-                c_n[f], c_rms[f] = stats["contour"]["n"], stats["contour"]["rms_px"]
-        if ok:
-            conv[f] = stats["conv"]
-            labels = res[4]
-            if cframe(f) is not None:
-                cams_used[f] = cframe(f).cameras_used(skel)
-        else:
-            msgs.append(
-                f"frame {f}: {why}: marked diverged"
-                if stats is not None
-                else f"{why}: marked diverged"
-            )
-
-    def recentre_retry(f, res, ok, why, st, q_pred, sig_pred, joints, q_hold):
-        """Contours alone, a frame that failed: the root moved to centre the body on
-        the foreground (:func:`core.silhouette_search.recentre_root`, from the fit or
-        the prediction) and the frame refitted from there; the first refit accepted
-        wins.  Returns ``(res, ok, why, stats)``."""
-        cf = cframe(f)
-        body = balls.copy(radii=radii)
-        starts = [q_pred]
-        if res[0] is not None and np.all(np.isfinite(res[0])):
-            starts.insert(0, res[0])
-        for q0 in starts:
-            q1 = q0.copy()
-            q1[n:] = recentre_root(skel, body, q0[:n], q0[n:], s, cf.cameras, cf.grids())
-            res2 = one_frame(f, q1, sig_pred, joints, q_hold)
-            ok2, why2, st2 = assess(f, res2)
-            if ok2:
-                retried[f] = True
-                return res2, ok2, why2, st2
-        return res, ok, why, st
-
-    def silhouette_retry(f, res, st, sig_pred, joints, q_hold):
-        """Every limb placed where it best explains the frame's foreground
-        (:func:`search_limbs_silhouette`; with points, a move vetoed by ``keeps_points``)
-        and the frame refitted from there, the moved DOFs' hold and prior following the
-        search; the refit is kept when it is accepted and the body's projection disagrees
-        with the foreground at fewer pixels.  Returns ``(res, ok, why, stats)``."""
-        cf = cframe(f)
-        q = res[0]
-        body = balls.copy(radii=radii)
-        xyz = frames[f].xyz
-        veto = (
-            keeps_points(xyz, skel, balls, s, radii, q[n:], cfg.search_tau, frame_probes(f))
-            if len(xyz) >= cfg.min_points
-            else None
-        )
-        sr = search_limbs_silhouette(
-            skel, body, s, q[:n], q[n:], cf.cameras, cf.masks(), allowed=veto
-        )
-        if not sr.moved:
-            return res, True, "", st
-        q1 = q.copy()
-        q1[:n] = sr.theta
-        hold = None
-        if q_hold is not None:
-            hold = q_hold.copy()
-            moved = sr.theta != q[:n]
-            hold[:n][moved] = sr.theta[moved]
-        res2 = one_frame(f, q1, sig_pred, joints, hold)
-        ok2, why2, st2 = assess(f, res2)
-        if ok2 and (
-            silhouette_disagreement(skel, body, res2[0][:n], res2[0][n:], s, cf.cameras, cf.grids())
-            < silhouette_disagreement(skel, body, q[:n], q[n:], s, cf.cameras, cf.grids())
-        ):
-            retried[f] = True
-            return res2, ok2, why2, st2
-        return res, True, "", st
-
-    def fit_frame(f, q_pred, sig_pred, alternatives=(), joints=None, q_hold=None):
-        """Fit frame f: the plain fit from the prediction, then
-
-        * when it is accepted, the limb search (:func:`core.fit_search.search_limbs`)
-          from its pose: a limb that a better place explains more points at is moved
-          there and the frame refitted from it (a limb lost while hidden, or one that
-          moved faster than the prediction);
-        * when it fails or leaves more than ``cfg.retry_unexplained`` of the points far
-          from the body, an annealed fit (:func:`one_frame` ``anneal``) from the best
-          of the prediction and the alternatives;
-
-        the accepted fit of lowest explain cost wins.  Returns ``(ok, q)`` with q the
-        fitted pose, or the prediction when no fit is accepted."""
-        res = one_frame(f, q_pred, sig_pred, joints, q_hold)
-        ok, why, st = assess(f, res)
-        search = cfg.search and len(frames[f].xyz) >= cfg.min_points  # needs points
-        if search and ok and st["unexplained"] <= cfg.retry_unexplained:
-            sr = search_limbs(
-                frames[f].xyz,
-                skel,
-                balls,
-                s,
-                radii,
-                res[0][:n],
-                res[0][n:],
-                tau=cfg.search_tau,
-                min_gain=cfg.search_min_gain,
-                probes=frame_probes(f),
-            )
-            if sr.moved:
-                q1 = res[0].copy()
-                q1[:n] = sr.theta
-                res2 = one_frame(f, q1, sig_pred, joints, q_hold)
-                ok2, why2, st2 = assess(f, res2)
-                if ok2 and st2["cost"] < st["cost"]:
-                    res, ok, why, st = res2, ok2, why2, st2
-                    retried[f] = True
-        elif search:
-            # also the prediction moved onto the points: after frames that failed, the
-            # person may have walked on while the prediction stayed behind
-            cands = np.stack([q_pred, *alternatives])
-            if cfg.recentre and last_fitted >= 0:
-                cands = np.concatenate(
-                    [
-                        cands,
-                        recentred_starts(
-                            frames[f].xyz, q_pred, frames[last_fitted].xyz, root[last_fitted], up
-                        ),
-                    ]
-                )
-            q0 = search_start(f, cands)
-            res2 = one_frame(f, q0, sig_pred, joints, q_hold, anneal=True)
-            ok2, why2, st2 = assess(f, res2)
-            if ok2 and (not ok or st2["cost"] < st["cost"]):
-                res, ok, why, st = res2, ok2, why2, st2
-                retried[f] = True
-        if (
-            search
-            and ok
-            and cfg.silhouette_search
-            and cfg.silhouette_search_points
-            and has_outline(cframe(f))
-        ):
-            res, ok, why, st = silhouette_retry(f, res, st, sig_pred, joints, q_hold)
-        elif not search and cfg.silhouette_search and cframe(f) is not None:
-            if not ok:
-                res, ok, why, st = recentre_retry(
-                    f, res, ok, why, st, q_pred, sig_pred, joints, q_hold
-                )
-            if ok:
-                res, ok, why, st = silhouette_retry(f, res, st, sig_pred, joints, q_hold)
-        record(f, res, ok, why, st)
-        if ok:
-            hid[f] = hidden_dofs(frames[f].xyz, res[0], cfg.segment_max_dist, cframe(f))
-        return ok, (res[0] if ok else q_pred)
-
-    last_fitted = -1  # the last frame stored as fitted with points (recentred_starts)
-    up = np.subtract(
-        *joint_positions(skel, init.theta, init.root_xyz, init.s)[
-            [skel.joint_index("neck"), skel.joint_index("pelvis")]
-        ]
-    )  # the body upright
-
-    def store(f, q, ok):
-        nonlocal last_fitted
-        theta[f], root[f] = q[:n], q[n:]
-        div[f] = not ok
-        if ok and len(frames[f].xyz) >= cfg.min_points:
-            last_fitted = f
-
-    def keep_trajectories(f):
-        """Keep frame f's trajectories in their parts' frames (none after a diverged
-        frame) for the next frame's rigid-motion observations."""
-        pts = frames[f]
-        if flow is not None:
-            near = [g for g in (f - 1, f + 1) if 0 <= g < nf]
-            if div[f] or (
-                flow.cfg.without_points_only
-                and all(len(frames[g].xyz) >= cfg.min_points for g in near)
-            ):
-                flow.clear()  # (no neighbour will use the flow)
-            else:
-                cf = cframe(f)
-                flow.set(
-                    skel,
-                    balls.copy(radii=radii),
-                    theta[f],
-                    root[f],
-                    s,
-                    f,
-                    None if cf is None else cf.masks(),
-                )
-        if not cfg.trajectories or div[f] or pts.ids is None:
-            anchors.clear()
-            return
-        part = carry_labels(np.full(len(pts.xyz), -1), pts.ids, labels)[0]
-        anchors.set(skel, theta[f], root[f], s, pts.xyz, pts.sigma, pts.ids, part)
 
     # 1) shape: at the clicked frame the clicks fix the pose; later shape frames are
     #    pose-fitted with the current shape, then the shape is re-solved over all of
@@ -580,14 +196,14 @@ def fit_sequence(
     shape_first = cfg.shape == "fit" and cfg.shape_fit_track
     n_shape = max(cfg.shape_frames, 1, cfg.shape_fit_frames if shape_first else 1)
     shape_range = list(range(f0, min(nf, f0 + n_shape)))
-    store(f0, np.concatenate([init.theta, init.root_xyz]), True)
+    fx.store(f0, np.concatenate([init.theta, init.root_xyz]), True)
     shaped = []
     for k, f in enumerate(shape_range):
         if k:
-            ok, q = fit_frame(
-                f, np.concatenate([theta[f - 1], root[f - 1]]), np.full(n, cfg.sigma_pred_max)
+            ok, q = fx.fit_frame(
+                f, np.concatenate([fx.theta[f - 1], fx.root[f - 1]]), np.full(n, cfg.sigma_pred_max)
             )
-            store(f, q, ok)
+            fx.store(f, q, ok)
             if not ok:
                 continue
         for rnd in range(2):  # segment, solve the shape, segment again with it
@@ -596,11 +212,11 @@ def fit_sequence(
                 part, _d = segment_points(
                     frames[g].xyz,
                     skel,
-                    balls,
-                    theta[g],
-                    root[g],
-                    s,
-                    radii,
+                    fx.balls,
+                    fx.theta[g],
+                    fx.root[g],
+                    fx.s,
+                    fx.radii,
                     cfg.segment_max_dist,
                     cfg.segment_margin,
                 )
@@ -611,23 +227,23 @@ def fit_sequence(
                 break
             rs = fit(
                 skel,
-                balls,
+                fx.balls,
                 obs_s,
-                theta[keep],
-                root[keep],
-                s,
-                radii,
+                fx.theta[keep],
+                fx.root[keep],
+                fx.s,
+                fx.radii,
                 solve="shape",
                 settings=shape_cfg,
                 shape_ref=template,
             )
-            s, radii = rs[0].s.copy(), rs[0].radii.copy()
-            balls.center0 = rs[0].centers.copy()
+            fx.s, fx.radii = rs[0].s.copy(), rs[0].radii.copy()
+            fx.balls.center0 = rs[0].centers.copy()
             shaped = keep
         if progress is not None:
             progress.update(k + 1, nf + len(shape_range), f"shape: frame {f}")
     if not shaped:
-        msgs.append(
+        fx.msgs.append(
             "no usable points in the shape frames: the template shape is kept"
             if contours is None
             else "no usable points in the shape frames: the "
@@ -636,142 +252,142 @@ def fit_sequence(
 
     def refit_shape_frames():
         for f in shape_range:  # the poses with the final shape
-            if div[f]:
+            if fx.div[f]:
                 continue
-            ok, q = fit_frame(
+            ok, q = fx.fit_frame(
                 f,
-                np.concatenate([theta[f], root[f]]),
+                np.concatenate([fx.theta[f], fx.root[f]]),
                 np.full(n, cfg.sigma_pred_max),
                 joints=click_obs if f == f0 else None,
             )
             if ok:
-                store(f, q, True)
+                fx.store(f, q, True)
             elif f != f0:
-                store(f, np.concatenate([theta[f], root[f]]), False)
+                fx.store(f, np.concatenate([fx.theta[f], fx.root[f]]), False)
 
     refit_shape_frames()
     shape_rec = None
     fitted_balls = None
     start = init.metaballs  # the whole-body shape fit's start and prior
     if cfg.shape == "fit" and cfg.shape_fit_deflate:
-        start = deflate(skel, init.metaballs, s)
+        start = deflate(skel, init.metaballs, fx.s)
     if shape_first:
         fitted_balls, _, shape_rec = whole_body_shape(
             skel,
             start,
-            s,
-            theta,
-            root,
+            fx.s,
+            fx.theta,
+            fx.root,
             frames,
-            [f for f in shape_range if not div[f]],
+            [f for f in shape_range if not fx.div[f]],
             cameras,
             cfg.shape_fit,
-            msgs,
+            fx.msgs,
         )
-        balls, radii = fitted_balls, fitted_balls.radii.copy()
+        fx.balls, fx.radii = fitted_balls, fitted_balls.radii.copy()
         refit_shape_frames()
     # 2) motion forwards and backwards from the clicked frame ----------------------
     done = len(shape_range)
     for direction, order in ((1, range(shape_range[-1] + 1, nf)), (-1, range(f0 - 1, -1, -1))):
         seq = shape_range if direction == 1 else [f0]
-        pred = PosePredictor(np.concatenate([theta[seq[0]], root[seq[0]]]), cfg, n)
+        pred = PosePredictor(np.concatenate([fx.theta[seq[0]], fx.root[seq[0]]]), cfg, n)
         for f in seq[1:]:
-            q = np.concatenate([theta[f], root[f]])
+            q = np.concatenate([fx.theta[f], fx.root[f]])
             pred.predict()
-            if not div[f]:
+            if not fx.div[f]:
                 pred.accept(q, None)
             else:
                 pred.skip()
         if len(order):
-            keep_trajectories(order[0] - direction)
+            fx.keep_trajectories(order[0] - direction)
         for f in order:
             q_pred, sig_pred = pred.predict()
-            q_prev = np.concatenate([theta[f - direction], root[f - direction]])
-            if cframe(f) is not None:  # predicted rates rank the cameras (observability)
-                cframe(f).theta_rate = q_pred[:n] - q_prev[:n]
-            ok, q = fit_frame(
+            q_prev = np.concatenate([fx.theta[f - direction], fx.root[f - direction]])
+            if fx.cframe(f) is not None:  # predicted rates rank the cameras (observability)
+                fx.cframe(f).theta_rate = q_pred[:n] - q_prev[:n]
+            ok, q = fx.fit_frame(
                 f, q_pred, sig_pred, [q_prev], q_hold=q_prev if cfg.hold_hidden else None
             )
             if ok:
-                sig = np.concatenate([q_sig[f], np.full(3, 0.005)])
+                sig = np.concatenate([fx.q_sig[f], np.full(3, 0.005)])
                 sig = np.where(np.isfinite(sig), sig, 0.05)
-                sig[:n][hid[f]] = cfg.sigma_hidden_meas  # a hidden part's angles: weak
-                q_sig[f] = np.where(hid[f], pred.accept(q, sig), q_sig[f])
-                store(f, q, True)
+                sig[:n][fx.hid[f]] = cfg.sigma_hidden_meas  # a hidden part's angles: weak
+                fx.q_sig[f] = np.where(fx.hid[f], pred.accept(q, sig), fx.q_sig[f])
+                fx.store(f, q, True)
             else:
                 pred.skip()
-                store(f, q_pred, False)
-            keep_trajectories(f)
+                fx.store(f, q_pred, False)
+            fx.keep_trajectories(f)
             done += 1
             if progress is not None:
                 progress.update(done, nf + len(shape_range), f"frame {f}")
-    unobs = unobserved(hid, skel.dof_parent)
-    theta[:], fill_msgs = fill_unobserved(
+    unobs = unobserved(fx.hid, skel.dof_parent)
+    fx.theta[:], fill_msgs = fill_unobserved(
         skel,
-        theta,
-        root,
-        s,
+        fx.theta,
+        fx.root,
+        fx.s,
         unobs,
-        div,
+        fx.div,
         cfg.couple_hidden,
         cfg.bridge_hidden,
         cfg.couple_r2,
-        hid,
+        fx.hid,
         (f0,),
         cfg.mirror_hidden,
         cfg.mirror_r2,
     )
-    msgs += fill_msgs
+    fx.msgs += fill_msgs
     if cfg.shape == "fit" and not shape_first:  # at the fitted poses, for the state only
         fitted_balls, shape_rec = written_shape(
             skel,
             start,
-            s,
-            theta,
-            root,
+            fx.s,
+            fx.theta,
+            fx.root,
             frames,
             contours,
-            ~div & conv,
-            n_pts,
+            ~fx.div & fx.conv,
+            fx.n_pts,
             unobs,
             f0,
             cfg,
             cameras,
-            msgs,
+            fx.msgs,
             progress,
         )
-    balls_out = balls.copy(radii=radii) if fitted_balls is None else fitted_balls.copy()
+    balls_out = fx.balls.copy(radii=fx.radii) if fitted_balls is None else fitted_balls.copy()
     q = Quality(
-        rmse_m=rmse,
-        theta_sigma=q_sig,
-        converged=conv & ~div,
-        diverged=div,
-        cameras=cams_used,
+        rmse_m=fx.rmse,
+        theta_sigma=fx.q_sig,
+        converged=fx.conv & ~fx.div,
+        diverged=fx.div,
+        cameras=fx.cams_used,
         unobserved=unobs,
     )
     state = FitState(
         skeleton=skel,
-        s=s,
+        s=fx.s,
         metaballs=balls_out,
-        root_xyz=root,
-        theta=theta,
+        root_xyz=fx.root,
+        theta=fx.theta,
         quality=q,
         fps=fps,
         source_scene=source_scene,
         metaball_model=metaball_model,
     )
-    if retried.any():
-        msgs.append(f"{int(retried.sum())} frames refitted after the limb search")
+    if fx.retried.any():
+        fx.msgs.append(f"{int(fx.retried.sum())} frames refitted after the limb search")
     return SequenceResult(
         state=state,
-        n_points=n_pts,
-        inlier_share=inl,
-        unexplained=unexpl,
-        retried=retried,
-        messages=msgs,
+        n_points=fx.n_pts,
+        inlier_share=fx.inl,
+        unexplained=fx.unexpl,
+        retried=fx.retried,
+        messages=fx.msgs,
         seconds=time.perf_counter() - t_start,
         shape=shape_rec,
-        contour_matches=c_n,
-        contour_rms_px=c_rms,
-        hidden=hid,
+        contour_matches=fx.c_n,
+        contour_rms_px=fx.c_rms,
+        hidden=fx.hid,
     )

@@ -24,6 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from .fit_assess import assess_frame
+from .fit_chain import chain_prior
 from .fit_contours import containment_parts
 from .fit_depth import frame_depth_holds
 from .fit_init import Initialisation
@@ -104,6 +105,11 @@ class FrameFitter:
         self.labels = no_labels()
         self.stiff = stiff_sigma(skel)
         self.anchor = anchor_sigma(skel)
+        self.chain = (
+            None
+            if cfg.sigma_trunk_chain is None
+            else chain_prior(skel, init.theta, cfg.sigma_trunk_chain)
+        )
         self.dof_bone = skel.dof_bones()
         self.anchors = TrajectoryAnchors()  # the trajectories of the last fitted frame
         self.frame_probes = FrameProbes(frames, cameras, cfg.free_space)
@@ -265,6 +271,7 @@ class FrameFitter:
             )
             o = frame_observations(pts, part, target, sig, self.n, joints)
             o.contours = cf
+            o.linear_prior = self.chain
             if cf is not None and len(pts.xyz) < self.cfg.min_points:
                 q_ref = target_q if q_hold is None else q_hold  # the previous frame
                 o.depth = frame_depth_holds(

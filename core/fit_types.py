@@ -82,6 +82,9 @@ class SequenceSettings:
     #: explains ≥ ``mirror_r2`` of their sagittal variance (:mod:`core.fit_mirror`)
     mirror_hidden: bool = True
     mirror_r2: float = 0.8
+    #: σ (rad) of the difference between neighbouring spine links' changes from the
+    #: clicked posture (:mod:`core.fit_chain`); None: no such prior
+    sigma_trunk_chain: float | None = None
     sigma_click: float = 0.003  # σ of a forward-intersected click, metres
     segment_max_dist: float = 0.04
     segment_margin: float = 0.015  # ambiguous points between non-adjacent parts dropped

@@ -87,6 +87,9 @@ class Observations:
       previous frame in one camera, held fixed in their bones' frames (pixels)
     depth : optional :class:`core.fit_depth.DepthHolds` — joints held along one camera's
       rays where only that view's contours see their part (metres)
+    linear_prior : optional ``(A, b)``, A (P, n) and b (P,), already weighted: the prior
+      residuals ``A θ − b`` (e.g. :func:`core.fit_chain.chain_prior`, neighbouring
+      spine links bending and twisting alike)
     """
 
     xyz: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
@@ -101,6 +104,7 @@ class Observations:
     trajectory: object | None = None
     flow: object | None = None
     depth: object | None = None
+    linear_prior: tuple | None = None
 
 
 @dataclass
@@ -306,6 +310,10 @@ class _Problem:
                 w = 1.0 / np.broadcast_to(np.asarray(o.sigma_pred, float), (skel.n_dof,))
                 z = zeros(skel.n_dof)
                 parts.append(("prior", (theta[f] - o.theta_pred) * w, np.diag(w), *z[1:]))
+            if o.linear_prior is not None:
+                A, b = o.linear_prior
+                z = zeros(len(b))
+                parts.append(("chain", A @ theta[f] - b, A, *z[1:]))
             if cfg.use_limits:
                 r, d = limit_residuals(skel, theta[f][None], cfg.sigma_limits)
                 z = zeros(skel.n_dof)

@@ -83,7 +83,8 @@ class SequenceSettings:
     mirror_hidden: bool = True
     mirror_r2: float = 0.8
     #: σ (rad) of the difference between neighbouring spine links' changes from the
-    #: clicked posture (:mod:`core.fit_chain`); None: no such prior
+    #: clicked posture (:mod:`core.fit_chain`); None: no such prior (0.1 narrows the
+    #: walk's spread over click sets but loses the dance)
     sigma_trunk_chain: float | None = None
     sigma_click: float = 0.003  # σ of a forward-intersected click, metres
     segment_max_dist: float = 0.04

@@ -61,6 +61,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .attractor import LN_T, attractor, attractor_jacobians, gather, member_table, scatter
+from .lm_solver import levenberg_marquardt
 from .metaballs import Metaballs, world_frames
 from .skeleton import Skeleton, forward, joint_jacobians, limit_residuals
 
@@ -416,7 +417,7 @@ def _solve(prob: _Problem, theta, root, s, radii, centers, free: str, max_nfev: 
     for _ in range(max(cfg.irls_rounds, 1)):  # weights frozen per round (IRLS)
         prob.freeze(*unpack(x))
         cache.clear()
-        sol = _levenberg_marquardt(system, x, lo, max_nfev, cfg.tol, hi=hi)
+        sol = levenberg_marquardt(system, x, lo, max_nfev, cfg.tol, hi=hi)
         nfev += sol.nfev
         moved = float(np.abs(sol.x - x).max(initial=0.0))
         x = sol.x
@@ -544,59 +545,3 @@ def _report(prob: _Problem, theta, root, s, radii, centers, sol) -> list[FitResu
             )
         )
     return out
-
-
-@dataclass
-class _LMResult:
-    x: np.ndarray
-    cost: float
-    nfev: int
-    status: int  # 1 converged, 0 iteration limit, -1 no progress possible
-    message: str
-
-
-def _levenberg_marquardt(
-    system,
-    x0: np.ndarray,
-    lo: np.ndarray,
-    max_nfev: int,
-    tol: float,
-    max_step: float = 0.2,
-    hi: np.ndarray | None = None,
-) -> _LMResult:
-    """Levenberg–Marquardt on the normal equations (Marquardt's diagonal scaling),
-    with bounds (``lo``, optional ``hi``) by projection.  ``system(x) -> (r, J)``."""
-    hi = np.full(len(x0), np.inf) if hi is None else hi
-    x = x0.copy()
-    r, J = system(x)
-    cost = float(r @ r)
-    mu, nfev = 1e-3, 1
-    while nfev < max_nfev:
-        A = J.T @ J
-        g = J.T @ r
-        d = np.diag(A).copy()
-        d = np.maximum(d, 1e-12 * max(d.max(initial=0.0), 1e-30))
-        try:
-            step = np.linalg.solve(A + mu * np.diag(d), -g)
-        except np.linalg.LinAlgError:
-            mu *= 10.0
-            continue
-        big = np.abs(step).max(initial=0.0)
-        if big > max_step:  # a trust region in parameter units (radians, metres)
-            step *= max_step / big
-        xn = np.clip(x + step, lo, hi)
-        rn, Jn = system(xn)
-        nfev += 1
-        cn = float(rn @ rn)
-        if np.isfinite(cn) and cn < cost:
-            small = (cost - cn) <= tol * cost  # no longer a significant decrease
-            small = small or float(np.abs(step).max(initial=0.0)) < 1e-10
-            x, r, J, cost = xn, rn, Jn, cn
-            mu = max(mu / 5.0, 1e-15)
-            if small or cost < 1e-28:
-                return _LMResult(x, cost, nfev, 1, "converged")
-        else:
-            mu *= 5.0
-            if mu > 1e12:  # no step decreases the cost: a (robust-cost) minimum
-                return _LMResult(x, cost, nfev, 1, "converged (no further decrease)")
-    return _LMResult(x, cost, nfev, 0, "iteration limit")

@@ -43,7 +43,7 @@ settings in :mod:`core.shape_settings` (:class:`ShapeSettings`); both re-exporte
 
 Unknowns: radii (M, 3) and, when ``free_centers``, the centres (M, 3) in their bones'
 frames (metres before scaling).  Levenberg–Marquardt on the normal equations
-(:func:`core.fitting._levenberg_marquardt`) inside re-weighting rounds: each round
+(:func:`core.lm_solver.levenberg_marquardt`) inside re-weighting rounds: each round
 re-selects the members, re-samples the model points (same directions every round)
 and re-tests them, and freezes the weights, so the Jacobian within a round is exact.
 
@@ -59,7 +59,7 @@ import numpy as np
 
 from .attractor import attractor
 from .camera import Camera
-from .fitting import _levenberg_marquardt
+from .lm_solver import levenberg_marquardt
 from .metaballs import Metaballs
 from .shape_priors import mirror_pairs  # noqa: F401  (re-exported)
 from .shape_problem import (
@@ -235,7 +235,7 @@ def fit_shape(
         if progress is not None:
             progress(k, cfg.rounds)
         prob.freeze(x)
-        sol = _levenberg_marquardt(prob.system, x, lo, cfg.max_nfev, cfg.tol, max_step=0.02, hi=hi)
+        sol = levenberg_marquardt(prob.system, x, lo, cfg.max_nfev, cfg.tol, max_step=0.02, hi=hi)
         moved = float(np.abs(sol.x - x).max(initial=0.0))
 
         change = abs(cost - sol.cost) / max(sol.cost, 1e-300) if np.isfinite(cost) else np.inf

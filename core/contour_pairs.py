@@ -127,6 +127,8 @@ def match_frame(
     else:
         sel = select_cameras(np.where(np.isfinite(vis), 1.0, np.nan))
     sel.use[:, [not contours[c] for c in range(len(cameras))]] = False  # nothing to pair
+    if cfg.select and cfg.wide_view_deg is not None:
+        _add_wide_views(sel, cameras, centers, balls.bone, contours, cfg)
     if cfg.skip_parts:
         sel.use[[skel.bone_index(b) for b in cfg.skip_parts]] = False
     out = []
@@ -260,3 +262,29 @@ def contour_block(
         d_cen = -np.einsum("kj,kji->ki", nJ, Rb[0, bone]) * scale[:, None]
         np.put_along_axis(J_c, cols, d_cen, axis=1)
     return r, J_t, J_r, J_s, J_rad, J_c
+
+
+def _add_wide_views(sel, cameras, centers, bone, contours, cfg) -> None:
+    """Give a part whose selected views all look at it from nearly one direction (rays
+    within ``cfg.depth_spread_deg``) the visible camera most across them, when that one
+    is at least ``cfg.wide_view_deg`` away: the ranking keeps the views that see a limb
+    swing, and drops the one that sees where it lies across them (in place)."""
+    eyes = np.array([cam.center for cam in cameras])
+    visible = np.nan_to_num(sel.visibility, nan=0.0) >= cfg.min_visibility
+    for p in np.flatnonzero(sel.use.any(axis=1)):
+        mine = bone == p
+        if not mine.any():
+            continue
+        ray = centers[mine].mean(axis=0) - eyes
+        ray /= np.linalg.norm(ray, axis=1, keepdims=True)
+        used = np.flatnonzero(sel.use[p])
+        spread = np.degrees(np.arccos(np.clip(ray[used] @ ray[used].T, -1.0, 1.0))).max()
+        if spread > cfg.depth_spread_deg:
+            continue
+        free = [c for c in np.flatnonzero(visible[p] & ~sel.use[p]) if contours[c]]
+        if not free:
+            continue
+        across = [np.degrees(np.arccos(np.clip(ray[used] @ ray[c], -1.0, 1.0))).min() for c in free]
+        k = int(np.argmax(across))
+        if across[k] >= cfg.wide_view_deg:
+            sel.use[p, free[k]] = True

@@ -9,8 +9,9 @@ attractor points' re-weighting (IRLS):
 * at the start of every re-weighting round (:meth:`ContourFrame.freeze`) the body at the
   current state is rendered into every camera, its visible rim paired with the image
   contours for the parts that selected that camera (visibility ≥ 0.2, observability
-  ranking; the public functions of :mod:`core.model_render`, :mod:`core.model_contours`,
-  :mod:`core.camera_selection`, :mod:`core.contour_match`, as in
+  ranking, and a view across the kept ones where those all look from one side,
+  ``ContourSettings.wide_view_deg``; the public functions of :mod:`core.model_render`,
+  :mod:`core.model_contours`, :mod:`core.camera_selection`, :mod:`core.contour_match`, as in
   :func:`core.contour_obs.contour_observations`), and the Huber weights are fixed;
 * within the round each pair ``i`` is one observation equation (pixels)
 

@@ -156,6 +156,60 @@ def test_selection_by_visibility_alone_ignores_the_predicted_motion(body):
     assert np.any(by_motion.observability > 0)
 
 
+def test_wide_view_joins_a_part_whose_ranked_views_look_alike(body):
+    """wide_view_deg: the motion ranking keeps the views that see a limb swing; a part
+    left with views within depth_spread_deg of each other also gets the visible camera
+    most across them (here the cameras are 45°, 90° and 135° apart)."""
+    skel, balls, s, theta, root, cams, observed = body
+    rate = np.zeros(skel.n_dof)
+    rate[skel.dof_index("l_shoulder_x")] = 0.2
+    rate[skel.dof_index("r_elbow_x")] = 0.2
+    paper = ContourSettings(wide_view_deg=None)  # the paper's selection alone
+    ranked = match_frame(skel, balls, theta, root, s, cams, observed, paper, theta_rate=rate)[1]
+    wide = match_frame(
+        skel,
+        balls,
+        theta,
+        root,
+        s,
+        cams,
+        observed,
+        ContourSettings(wide_view_deg=40.0),
+        theta_rate=rate,
+    )[1]
+    visible = np.nan_to_num(ranked.visibility, nan=0.0) >= 0.2
+    assert np.all(ranked.use <= wide.use) and np.all(wide.use <= visible)
+    added = wide.use & ~ranked.use
+    assert added.any()
+    assert np.all(added.sum(axis=1) <= 1)  # one camera at most, and only to a part ...
+    single = ranked.use.sum(axis=1) == 1  # ... whose views were alike (one, here)
+    assert np.all(added.any(axis=1) <= single)
+    eyes = np.array([c.center for c in cams])
+    pose = sk.forward(skel, theta[None], root[None], s)
+    centres = mb.world_frames(skel, pose, balls, s)[1][0]  # (M, 3) metaball centres
+    for p in np.flatnonzero(added.any(axis=1)):
+        ray = centres[balls.bone == p].mean(axis=0) - eyes
+        ray /= np.linalg.norm(ray, axis=1, keepdims=True)
+        a, b = np.flatnonzero(ranked.use[p])[0], np.flatnonzero(added[p])[0]
+        others = [c for c in np.flatnonzero(visible[p]) if c not in (a, b)]
+        gap = np.degrees(np.arccos(ray[a] @ ray[b]))
+        assert gap >= 40.0  # the camera most across the kept one
+        assert all(gap >= np.degrees(np.arccos(ray[a] @ ray[c])) for c in others)
+    # no camera far enough across: the paper's selection alone
+    far = match_frame(
+        skel,
+        balls,
+        theta,
+        root,
+        s,
+        cams,
+        observed,
+        ContourSettings(wide_view_deg=150.0),
+        theta_rate=rate,
+    )[1]
+    np.testing.assert_array_equal(far.use, ranked.use)
+
+
 def test_one_view_does_not_unhide_a_part_beside_points(body):
     """part_counts(min_views=2): a part's contour pairs count only when two or more
     cameras give it 10 or more pairs each (one view's contours leave its depth free)."""

@@ -265,10 +265,12 @@ def contour_block(
 
 
 def _add_wide_views(sel, cameras, centers, bone, contours, cfg) -> None:
-    """Give a part whose selected views all look at it from nearly one direction (rays
-    within ``cfg.depth_spread_deg``) the visible camera most across them, when that one
-    is at least ``cfg.wide_view_deg`` away: the ranking keeps the views that see a limb
-    swing, and drops the one that sees where it lies across them (in place)."""
+    """Give a part whose selected views all look at it along nearly one line (rays within
+    ``cfg.depth_spread_deg``) one more visible camera at least ``cfg.wide_view_deg``
+    across them — of those, the one that sees most of the part's predicted motion (then
+    the most across): the ranking keeps the views that see a limb swing, and drops the
+    one that sees where it lies across them (in place).  Angles are between lines: a
+    camera facing another across the part sees the same outline."""
     eyes = np.array([cam.center for cam in cameras])
     visible = np.nan_to_num(sel.visibility, nan=0.0) >= cfg.min_visibility
     for p in np.flatnonzero(sel.use.any(axis=1)):
@@ -278,13 +280,19 @@ def _add_wide_views(sel, cameras, centers, bone, contours, cfg) -> None:
         ray = centers[mine].mean(axis=0) - eyes
         ray /= np.linalg.norm(ray, axis=1, keepdims=True)
         used = np.flatnonzero(sel.use[p])
-        spread = np.degrees(np.arccos(np.clip(ray[used] @ ray[used].T, -1.0, 1.0))).max()
+        spread = np.degrees(np.arccos(np.clip(np.abs(ray[used] @ ray[used].T), 0.0, 1.0))).max()
         if spread > cfg.depth_spread_deg:
             continue
         free = [c for c in np.flatnonzero(visible[p] & ~sel.use[p]) if contours[c]]
         if not free:
             continue
-        across = [np.degrees(np.arccos(np.clip(ray[used] @ ray[c], -1.0, 1.0))).min() for c in free]
-        k = int(np.argmax(across))
-        if across[k] >= cfg.wide_view_deg:
-            sel.use[p, free[k]] = True
+        across = [
+            np.degrees(np.arccos(np.clip(np.abs(ray[used] @ ray[c]), 0.0, 1.0))).min() for c in free
+        ]
+        wide = [
+            (sel.observability[p, c], a, c)
+            for a, c in zip(across, free, strict=True)
+            if a >= cfg.wide_view_deg
+        ]
+        if wide:  # the best ranked of them (then the most across)
+            sel.use[p, max(wide)[2]] = True

@@ -63,14 +63,15 @@ class ContourSettings:
     #: 68.2 (selection 205.2 -> 207.7).  The orthogonal rig's views are 90° apart.
     depth_spread_deg: float = 40.0
     #: with selection: a part whose selected views lie within ``depth_spread_deg`` of
-    #: each other also uses the visible camera most across them, when it is at least
-    #: this many degrees away (None: the paper's selection alone).  The motion ranking
-    #: keeps the views that see a limb swing and drops the one that sees where it lies
-    #: across them.  walk_ortho3 (cues both, bench.fit_spread, 6 runs): MPJPE median
-    #: 14.8 -> 14.5 mm, range 13.2-17.0 -> 13.8-15.3, run 0 15.7 -> 14.9 (limb segments
-    #: median 24.4 -> 25.8 deg); dance_ortho3, one run: 60.4 mm / 9 diverged -> 61.0 / 10.
-    #: line3's views are at most 38 deg apart: nothing is added there (make demo's fit
-    #: byte-identical).
+    #: each other (as lines of sight) also uses one visible camera at least this many
+    #: degrees across them, the best ranked by the part's predicted motion (None: the
+    #: paper's selection alone).  The ranking keeps the views that see a limb swing and
+    #: can drop the one that sees where it lies across them.  walk_ortho3 (cues both,
+    #: bench.fit_spread, 6 runs): MPJPE median 14.8 -> 14.2 mm, range 13.2-17.0 ->
+    #: 13.3-15.5, run 0 15.7 -> 14.2 (limb segments median 24.4 -> 23.7 deg);
+    #: dance_ortho3, one run: 60.4 mm over 41 frames (9 diverged) -> 64.6 over all 50.
+    #: line3's views lie within 38 deg of each other: nothing is added there (make
+    #: demo's fit byte-identical).
     wide_view_deg: float | None = 60.0
     textured_scale: float = 1.0  # σ of the pairs of parts that texture points observe, × this
     spacing_px: float = 2.0  # sampling of the image contours [px]

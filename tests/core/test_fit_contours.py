@@ -132,24 +132,18 @@ def test_skipped_parts_get_no_contour_pairs(body):
     assert len(skip) >= 0.9 * others.sum()  # the other parts keep their pairs
 
 
-def test_selection_by_visibility_alone_ignores_the_predicted_motion(body):
+def _selection(body, rate, cfg):
+    """The cameras each part of the fixture's body selects with settings ``cfg``."""
     skel, balls, s, theta, root, cams, observed = body
+    return match_frame(skel, balls, theta, root, s, cams, observed, cfg, theta_rate=rate)[1]
+
+
+def test_selection_by_visibility_alone_ignores_the_predicted_motion(body):
+    skel = body[0]
     rate = np.zeros(skel.n_dof)
     rate[skel.dof_index("l_hip_x")] = 0.2
-    _, by_motion = match_frame(
-        skel, balls, theta, root, s, cams, observed, ContourSettings(), theta_rate=rate
-    )
-    _, by_vis = match_frame(
-        skel,
-        balls,
-        theta,
-        root,
-        s,
-        cams,
-        observed,
-        ContourSettings(rank_motion=False),
-        theta_rate=rate,
-    )
+    by_motion = _selection(body, rate, ContourSettings())
+    by_vis = _selection(body, rate, ContourSettings(rank_motion=False))
     visible = np.nan_to_num(by_vis.visibility, nan=0.0) >= 0.2
     np.testing.assert_array_equal(by_vis.use, visible)
     assert np.all(by_motion.use <= by_vis.use)
@@ -165,19 +159,8 @@ def test_wide_view_joins_a_part_whose_ranked_views_look_alike(body):
     rate = np.zeros(skel.n_dof)
     rate[skel.dof_index("l_shoulder_x")] = 0.2
     rate[skel.dof_index("r_elbow_x")] = 0.2
-    paper = ContourSettings(wide_view_deg=None)  # the paper's selection alone
-    ranked = match_frame(skel, balls, theta, root, s, cams, observed, paper, theta_rate=rate)[1]
-    wide = match_frame(
-        skel,
-        balls,
-        theta,
-        root,
-        s,
-        cams,
-        observed,
-        ContourSettings(wide_view_deg=40.0),
-        theta_rate=rate,
-    )[1]
+    ranked = _selection(body, rate, ContourSettings(wide_view_deg=None))  # the paper's
+    wide = _selection(body, rate, ContourSettings(wide_view_deg=40.0))
     visible = np.nan_to_num(ranked.visibility, nan=0.0) >= 0.2
     assert np.all(ranked.use <= wide.use) and np.all(wide.use <= visible)
     added = wide.use & ~ranked.use
@@ -206,17 +189,7 @@ def test_wide_view_joins_a_part_whose_ranked_views_look_alike(body):
         else:
             assert not added[p].any()
     # no camera far enough across: the paper's selection alone
-    far = match_frame(
-        skel,
-        balls,
-        theta,
-        root,
-        s,
-        cams,
-        observed,
-        ContourSettings(wide_view_deg=150.0),
-        theta_rate=rate,
-    )[1]
+    far = _selection(body, rate, ContourSettings(wide_view_deg=150.0))
     np.testing.assert_array_equal(far.use, ranked.use)
 
 

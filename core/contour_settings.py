@@ -73,6 +73,14 @@ class ContourSettings:
     #: line3's views lie within 38 deg of each other: nothing is added there (make
     #: demo's fit byte-identical).
     wide_view_deg: float | None = 60.0
+    #: ... where a view counts, and a camera is added, only if it shows at least this
+    #: many of the part's rim points on the body's outline (an arm in front of the trunk
+    #: has none there; 0: every view counts).  4, against 0: walk_ortho3, 6 runs, 12.8 /
+    #: 13.8 / 15.4 / 14.8 / 14.7 / 13.2 mm, median 14.3 (14.2 / 14.0 / 14.2 / 15.5 / 15.1
+    #: / 13.3, median 14.2; run 0's left wrist in frames 27-33 114 -> 10 mm), limb
+    #: segments median 24.6 deg (23.7); dance_ortho3 46.8 mm over 41 frames, 9 diverged
+    #: (64.6 over 50, none) -- no clearer than the spread: off
+    wide_view_outline: int = 0
     textured_scale: float = 1.0  # σ of the pairs of parts that texture points observe, × this
     spacing_px: float = 2.0  # sampling of the image contours [px]
     rim_samples: int = 32  # model rim samples per metaball

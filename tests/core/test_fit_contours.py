@@ -10,6 +10,8 @@ import pytest
 
 from core import metaballs as mb
 from core import skeleton as sk
+from core.camera_selection import Selection
+from core.contour_pairs import _add_wide_views
 from core.fit_contours import (
     ContourFrame,
     ContourSettings,
@@ -17,6 +19,7 @@ from core.fit_contours import (
     match_frame,
 )
 from core.fitting import FitSettings, Observations, fit
+from tests.core._bodyscene import look_at
 from tests.core._contourscene import _cams, _pose, _silhouettes
 
 
@@ -160,7 +163,7 @@ def test_wide_view_joins_a_part_whose_ranked_views_look_alike(body):
     rate[skel.dof_index("l_shoulder_x")] = 0.2
     rate[skel.dof_index("r_elbow_x")] = 0.2
     ranked = _selection(body, rate, ContourSettings(wide_view_deg=None))  # the paper's
-    wide = _selection(body, rate, ContourSettings(wide_view_deg=40.0))
+    wide = _selection(body, rate, ContourSettings(wide_view_deg=40.0, wide_view_outline=0))
     visible = np.nan_to_num(ranked.visibility, nan=0.0) >= 0.2
     assert np.all(ranked.use <= wide.use) and np.all(wide.use <= visible)
     added = wide.use & ~ranked.use
@@ -189,8 +192,32 @@ def test_wide_view_joins_a_part_whose_ranked_views_look_alike(body):
         else:
             assert not added[p].any()
     # no camera far enough across: the paper's selection alone
-    far = _selection(body, rate, ContourSettings(wide_view_deg=150.0))
+    far = _selection(body, rate, ContourSettings(wide_view_deg=150.0, wide_view_outline=0))
     np.testing.assert_array_equal(far.use, ranked.use)
+
+
+def test_wide_view_counts_only_views_that_show_the_parts_outline():
+    """A kept view in which the part shows no outline (an arm in front of the trunk) does
+    not count: two kept views 90° apart, one of them without outline, leave the part
+    one-sided, and the camera across that shows its outline joins; one without outline
+    does not."""
+    cams = [
+        look_at(f"c{i}", e, (0.0, 0.0, 1.0), f=700.0)
+        for i, e in enumerate(((4.0, 0.0, 1.0), (0.0, -4.0, 1.0), (0.0, 0.01, 5.0)))
+    ]  # lines of sight along x, y and z
+    centres, bone = np.array([[0.0, 0.0, 1.0]]), np.array([0])
+    cfg = ContourSettings(wide_view_deg=60.0, wide_view_outline=4)
+
+    def added(outline):
+        use = np.array([[True, True, False]])
+        sel = Selection(use, np.ones((1, 3)), np.array([[5.0, 3.0, 1.0]]), np.zeros((1, 3), int))
+        _add_wide_views(sel, cams, centres, bone, [[1], [1], [1]], cfg, np.array([outline]))
+        return sel.use[0, 2]
+
+    assert not added([20, 20, 20])  # two views 90° apart: not one-sided
+    assert added([0, 20, 20])  # the first shows no outline: one-sided, the third joins
+    assert not added([0, 20, 2])  # ... unless the third shows none either
+    assert not added([0, 0, 20])  # neither kept view shows it: judged on both, 90° apart
 
 
 def test_one_view_does_not_unhide_a_part_beside_points(body):

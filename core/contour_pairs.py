@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .camera import Camera, camera_project_jacobians
-from .camera_selection import Selection, select_cameras
+from .camera_selection import Selection, add_wide_views, select_cameras
 from .contour_match import match_contours
 from .contour_settings import ContourSettings
 from .contours import Contour
@@ -128,8 +128,23 @@ def match_frame(
         sel = select_cameras(np.where(np.isfinite(vis), 1.0, np.nan))
     sel.use[:, [not contours[c] for c in range(len(cameras))]] = False  # nothing to pair
     if cfg.select and cfg.wide_view_deg is not None:
-        outline = np.stack([np.bincount(r.part, minlength=n_parts) for r in rims], axis=1)
-        _add_wide_views(sel, cameras, centers, balls.bone, contours, cfg, outline)
+        part_xyz = np.full((n_parts, 3), np.nan)
+        for p in np.unique(balls.bone):
+            part_xyz[p] = centers[balls.bone == p].mean(axis=0)
+        outline = None
+        if cfg.wide_view_outline > 0:
+            outline = np.stack([np.bincount(r.part, minlength=n_parts) for r in rims], axis=1)
+        add_wide_views(
+            sel,
+            np.array([cam.center for cam in cameras]),
+            part_xyz,
+            cfg.depth_spread_deg,
+            cfg.wide_view_deg,
+            cfg.min_visibility,
+            pairable=np.array([bool(c) for c in contours]),
+            outline=outline,
+            min_outline=cfg.wide_view_outline,
+        )
     if cfg.skip_parts:
         sel.use[[skel.bone_index(b) for b in cfg.skip_parts]] = False
     out = []
@@ -263,47 +278,3 @@ def contour_block(
         d_cen = -np.einsum("kj,kji->ki", nJ, Rb[0, bone]) * scale[:, None]
         np.put_along_axis(J_c, cols, d_cen, axis=1)
     return r, J_t, J_r, J_s, J_rad, J_c
-
-
-def _add_wide_views(sel, cameras, centers, bone, contours, cfg, outline=None) -> None:
-    """Give a part whose selected views all look at it along nearly one line (rays within
-    ``cfg.depth_spread_deg``) one more visible camera at least ``cfg.wide_view_deg``
-    across them — of those, the one that sees most of the part's predicted motion (then
-    the most across): the ranking keeps the views that see a limb swing, and drops the
-    one that sees where it lies across them (in place).  Angles are between lines: a
-    camera facing another across the part sees the same outline.
-
-    ``outline`` (P, C): the part's rim points on the body's outline in each camera.  With
-    it, a selected view counts only where it shows at least ``cfg.wide_view_outline`` of
-    them (an arm seen inside the trunk's outline has no occluding contour to pair), and
-    only such a camera is added."""
-    eyes = np.array([cam.center for cam in cameras])
-    visible = np.nan_to_num(sel.visibility, nan=0.0) >= cfg.min_visibility
-    for p in np.flatnonzero(sel.use.any(axis=1)):
-        mine = bone == p
-        if not mine.any():
-            continue
-        ray = centers[mine].mean(axis=0) - eyes
-        ray /= np.linalg.norm(ray, axis=1, keepdims=True)
-        used = np.flatnonzero(sel.use[p])
-        if outline is not None:  # the views that show the part's outline, if any
-            shown = used[outline[p, used] >= cfg.wide_view_outline]
-            used = shown if len(shown) else used
-        spread = np.degrees(np.arccos(np.clip(np.abs(ray[used] @ ray[used].T), 0.0, 1.0))).max()
-        if spread > cfg.depth_spread_deg:
-            continue
-        free = [c for c in np.flatnonzero(visible[p] & ~sel.use[p]) if contours[c]]
-        if outline is not None:
-            free = [c for c in free if outline[p, c] >= cfg.wide_view_outline]
-        if not free:
-            continue
-        across = [
-            np.degrees(np.arccos(np.clip(np.abs(ray[used] @ ray[c]), 0.0, 1.0))).min() for c in free
-        ]
-        wide = [
-            (sel.observability[p, c], a, c)
-            for a, c in zip(across, free, strict=True)
-            if a >= cfg.wide_view_deg
-        ]
-        if wide:  # the best ranked of them (then the most across)
-            sel.use[p, max(wide)[2]] = True

@@ -10,8 +10,7 @@ import pytest
 
 from core import metaballs as mb
 from core import skeleton as sk
-from core.camera_selection import Selection
-from core.contour_pairs import _add_wide_views
+from core.camera_selection import Selection, add_wide_views
 from core.fit_contours import (
     ContourFrame,
     ContourSettings,
@@ -19,7 +18,6 @@ from core.fit_contours import (
     match_frame,
 )
 from core.fitting import FitSettings, Observations, fit
-from tests.core._bodyscene import look_at
 from tests.core._contourscene import _cams, _pose, _silhouettes
 
 
@@ -201,17 +199,12 @@ def test_wide_view_counts_only_views_that_show_the_parts_outline():
     not count: two kept views 90° apart, one of them without outline, leave the part
     one-sided, and the camera across that shows its outline joins; one without outline
     does not."""
-    cams = [
-        look_at(f"c{i}", e, (0.0, 0.0, 1.0), f=700.0)
-        for i, e in enumerate(((4.0, 0.0, 1.0), (0.0, -4.0, 1.0), (0.0, 0.01, 5.0)))
-    ]  # lines of sight along x, y and z
-    centres, bone = np.array([[0.0, 0.0, 1.0]]), np.array([0])
-    cfg = ContourSettings(wide_view_deg=60.0, wide_view_outline=4)
+    eyes = np.array([[4.0, 0.0, 1.0], [0.0, -4.0, 1.0], [0.0, 0.0, 5.0]])  # along x, y, z
 
     def added(outline):
         use = np.array([[True, True, False]])
         sel = Selection(use, np.ones((1, 3)), np.array([[5.0, 3.0, 1.0]]), np.zeros((1, 3), int))
-        _add_wide_views(sel, cams, centres, bone, [[1], [1], [1]], cfg, np.array([outline]))
+        add_wide_views(sel, eyes, np.array([[0.0, 0.0, 1.0]]), 40.0, 60.0, 0.2, None, [outline], 4)
         return sel.use[0, 2]
 
     assert not added([20, 20, 20])  # two views 90° apart: not one-sided

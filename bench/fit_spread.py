@@ -38,6 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
+from core.landmarks import OPTIONAL_CLICK_JOINTS
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -47,12 +49,15 @@ def perturbed_clicks(clicks: dict, noise_px: float, seed: int) -> dict:
     if seed == 0 or noise_px <= 0:
         return clicks
     rng = np.random.default_rng(seed)
+    # the optional joints (toes) are drawn last, so that clicking them leaves the moves
+    # of the others as they were: runs with and without them are paired
+    order = sorted(clicks["joints"], key=lambda j: (j in OPTIONAL_CLICK_JOINTS, j))
     joints = {
         j: {
             c: np.asarray(uv, float) + rng.normal(0.0, noise_px, 2)
-            for c, uv in sorted(per_cam.items())
+            for c, uv in sorted(clicks["joints"][j].items())
         }
-        for j, per_cam in sorted(clicks["joints"].items())
+        for j in order
     }
     return {**clicks, "joints": joints}
 

@@ -1,12 +1,18 @@
 """Initialisation of the body model from key-joint clicks (paper 1, section 4.1).
 
 The user marks a few key joints (:data:`core.landmarks.CLICK_JOINTS`) in one frame of
-the cameras (``clicks.json``).  Each joint is forward-intersected
-(:func:`core.intersect.triangulate`).  A gross click error shows as a large
-reprojection residual: when a joint seen in three or more cameras has an RMS above
-``gross_px``, the camera whose removal leaves the smallest residual is dropped (and
-reported) if that leaves the joint consistent; a joint that stays inconsistent is
-dropped, and if it is required the clicks are refused (InputError).
+the cameras (``clicks.json``), and may mark the toes too
+(:data:`core.landmarks.OPTIONAL_CLICK_JOINTS`): nothing else fixes a foot's turn about
+the shin, and the surface measured round a foot hardly does either (make demo's right
+foot, whose inner side the cameras see, stays 17° turned out through the take; with
+the toes clicked, 3°).  The studio's scenes click no toes (``docs/design.md``).
+
+Each joint is forward-intersected (:func:`core.intersect.triangulate`).  A gross click
+error shows as a large reprojection residual: when a joint seen in three or more
+cameras has an RMS above ``gross_px``, the camera whose removal leaves the smallest
+residual is dropped (and reported) if that leaves the joint consistent; a joint that
+stays inconsistent is dropped, and if it is required the clicks are refused
+(InputError).
 
 The skeleton is personalised from the 3-D joints: the hip joints' rest offsets are
 measured in the pelvis frame built from the clicked pelvis, hips and neck (the
@@ -15,8 +21,8 @@ posture (θ, root) and the bone scales ``s`` are solved by weighted least square
 the joint positions (:func:`core.fitting.fit`) with a weak prior towards the upright
 rest pose and soft joint limits.  The start faces the direction given by the
 left-right line of the hips and shoulders, so that the solver starts in the right
-basin.  Scale groups without a clicked joint (head, hand, foot) take the median of
-the observed scales.
+basin.  Scale groups that no required joint fixes (head, hand, foot — clicked toes
+too leave the foot's at it) take the median of the observed scales.
 """
 
 from __future__ import annotations

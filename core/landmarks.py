@@ -54,6 +54,10 @@ METRIC_JOINTS = (
 #: Key joints a user clicks to initialise a fit (a subset of ``JOINTS``).
 CLICK_JOINTS = METRIC_JOINTS + ("pelvis",)
 
+#: Joints a user may click as well: the toes give each foot's direction, which no other
+#: click fixes (the shin's own twist comes from the knee's bend).
+OPTIONAL_CLICK_JOINTS = ("l_toe", "r_toe")
+
 #: Segments whose orientation is scored: name -> (proximal joint, distal joint).
 SEGMENTS = {
     "l_upper_arm": ("l_shoulder", "l_elbow"),

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from bench.fit_spread import fit_once, parse_settings, perturbed_clicks, summary
+from core.landmarks import CLICK_JOINTS
 
 SCENE = "sample_scenes/walk_line3"
 
@@ -45,6 +46,21 @@ def test_clicks_move_by_the_noise_and_repeat_per_seed():
     assert all(
         np.array_equal(before[j][k], c["joints"][j][k]) for j in c["joints"] for k in c["joints"][j]
     )
+
+
+def test_clicking_the_toes_too_leaves_the_other_joints_moves_as_they_were():
+    """Runs with and without the optional joints are paired: theirs are drawn last."""
+    rng = np.random.default_rng(3)
+    c = {"frame": 0, "joints": {j: {"cam01": rng.uniform(0, 500, 2)} for j in CLICK_JOINTS}}
+    with_toes = {
+        **c,
+        "joints": {**c["joints"], "l_toe": {"cam01": np.zeros(2)}, "r_toe": {"cam01": np.ones(2)}},
+    }
+    a, b = perturbed_clicks(c, 0.5, 4), perturbed_clicks(with_toes, 0.5, 4)
+    for j in c["joints"]:
+        for k in c["joints"][j]:
+            np.testing.assert_array_equal(a["joints"][j][k], b["joints"][j][k])
+    assert not np.array_equal(b["joints"]["l_toe"]["cam01"], np.zeros(2))
 
 
 def test_the_fit_initialises_from_the_perturbed_clicks(monkeypatch):

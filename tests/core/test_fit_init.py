@@ -6,7 +6,7 @@ import pytest
 from core import skeleton as sk
 from core.errors import InputError
 from core.fit_init import REQUIRED_JOINTS, initialise, triangulate_clicks
-from core.landmarks import CLICK_JOINTS
+from core.landmarks import CLICK_JOINTS, OPTIONAL_CLICK_JOINTS
 from tests.core._bodyscene import cameras, clicks_of
 
 
@@ -33,6 +33,32 @@ def test_clicked_joints_set_posture_and_scales(subject):
     g = ini.skeleton.group_names.index("thigh")
     assert abs(ini.s[g] - s[g]) < 0.02
     assert ini.clicks.dropped == []
+
+
+def test_clicked_toes_set_the_feet_direction(subject):
+    """No other click fixes a foot's turn about the shin: without the toes the posture
+    keeps the template's foot; with them each foot points where the subject's does."""
+    skel, theta, root, s = subject
+    theta = theta.copy()
+    theta[skel.dof_index("r_ankle_z")] += 0.3  # the right foot turned 17° about the shin
+    cams = cameras()
+    x_true = sk.joint_positions(skel, theta, root, s)
+
+    def foot_errors_deg(joints):
+        ini = initialise(clicks_of(skel, theta, root, s, cams, joints), cams)
+        x_fit = sk.joint_positions(ini.skeleton, ini.theta, ini.root_xyz, ini.s)
+        out = []
+        for side in ("l_", "r_"):
+            a, t = skel.joint_index(side + "ankle"), skel.joint_index(side + "toe")
+            u, v = x_true[t] - x_true[a], x_fit[t] - x_fit[a]
+            cos = u @ v / np.linalg.norm(u) / np.linalg.norm(v)
+            out.append(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+        return np.array(out)
+
+    without = foot_errors_deg(CLICK_JOINTS)
+    with_toes = foot_errors_deg(CLICK_JOINTS + OPTIONAL_CLICK_JOINTS)
+    assert without[1] > 10.0
+    assert np.all(with_toes < 2.0), with_toes
 
 
 def test_a_gross_click_error_is_dropped_and_reported(subject):

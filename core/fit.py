@@ -216,7 +216,7 @@ def fit_sequence(
                     fx.theta[g],
                     fx.root[g],
                     fx.s,
-                    fx.radii,
+                    fx.segment_radii,
                     cfg.segment_max_dist,
                     cfg.segment_margin,
                 )

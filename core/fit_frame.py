@@ -120,6 +120,17 @@ class FrameFitter:
             ]
         )  # the body upright
 
+    @property
+    def segment_radii(self) -> np.ndarray:
+        """(M, 3) radii that label the points (:func:`core.segment.segment_points`): the
+        initial shape's (``cfg.segment_initial_radii``), else the fitted ones.
+
+        The per-part shape solve lets a part's metaballs grow over a neighbour whose
+        points it was given; labelling with the grown shape then hands it all of them
+        (the head takes the whole neck), and the pose bends to put them on it.
+        """
+        return self.balls.radii if self.cfg.segment_initial_radii else self.radii
+
     def cframe(self, f):
         """Frame f's :class:`core.fit_contours.ContourFrame`, or None."""
         return None if self.contours is None else self.contours[f]
@@ -137,7 +148,7 @@ class FrameFitter:
                 q[: self.n],
                 q[self.n :],
                 self.s,
-                self.radii,
+                self.segment_radii,
                 max_dist,
                 0.0,
             )
@@ -248,7 +259,7 @@ class FrameFitter:
                     q[: self.n],
                     q[self.n :],
                     self.s,
-                    self.radii,
+                    self.segment_radii,
                     max_dist,
                     self.cfg.segment_margin,
                 )

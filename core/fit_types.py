@@ -89,6 +89,11 @@ class SequenceSettings:
     sigma_click: float = 0.003  # σ of a forward-intersected click, metres
     segment_max_dist: float = 0.04
     segment_margin: float = 0.015  # ambiguous points between non-adjacent parts dropped
+    #: label the points with the initial shape's radii (the clicked posture's body, as
+    #: the paper segments) at the fitted centres, not with the per-part shape solve's:
+    #: a part grown over its neighbour would otherwise take the neighbour's points
+    #: (make demo's walk, 4 runs with moved clicks: the head 4–16 → 4–10 mm)
+    segment_initial_radii: bool = True
     min_points: int = 40
     max_rmse_m: float = 0.025
     min_inliers: float = 0.5

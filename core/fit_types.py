@@ -90,10 +90,12 @@ class SequenceSettings:
     segment_max_dist: float = 0.04
     segment_margin: float = 0.015  # ambiguous points between non-adjacent parts dropped
     #: label the points with the initial shape's radii (the clicked posture's body, as
-    #: the paper segments) at the fitted centres, not with the per-part shape solve's:
-    #: a part grown over its neighbour would otherwise take the neighbour's points
-    #: (make demo's walk, 4 runs with moved clicks: the head 4–16 → 4–10 mm)
-    segment_initial_radii: bool = True
+    #: the paper segments) at the fitted centres, not with the per-part shape solve's,
+    #: which can grow a part over its neighbour and hand it the neighbour's points.
+    #: make demo's walk over 4 click sets: MPJPE median 16.5 → 14.7 mm, the head 4–16 →
+    #: 4–10 mm; but dance_line3 76.0 → 173.1 mm over its accepted frames (its legs) —
+    #: off by default (docs/design.md)
+    segment_initial_radii: bool = False
     min_points: int = 40
     max_rmse_m: float = 0.025
     min_inliers: float = 0.5

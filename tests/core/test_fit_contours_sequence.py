@@ -241,53 +241,41 @@ def test_tracking_inside_fit_reports_bad_clicks_in_one_line(tmp_path, capsys):
 
 
 @pytest.mark.slow
-@pytest.mark.slow
 def test_a_leg_the_tracker_lost_is_found_by_the_silhouettes_in_frames_with_points():
     """A fast kick: from frame 1 the left leg is raised and carries no tracked point (the
     tracker lost it), while the rest of the body keeps its points.  The point fit holds
     the leg hanging where it was; the silhouette limb search in frames with points
-    (``silhouette_search_points``) puts it where the silhouettes show it.
-
-    Whether one frame's search lands depends on which points were sampled (a few
-    percent of a radius in the segmentation flips it, with or without the search), so
-    the test draws the points four times and counts the kicked frames found over all
-    of them (8 frames: 5 with the search, 2 without, measured)."""
+    (``silhouette_search_points``) puts it where the silhouettes show it."""
     nf = 3
     skel, s, balls, theta = _motion(nf)
     theta[1:, skel.dof_index("l_hip_x")] -= 1.0  # a kick forward
     root = np.array([[0.0, 0.0, 1.0]] * nf)
     cams = _cams()
     cons = [_silhouettes(skel, balls, theta[f], root[f], s, cams) for f in range(nf)]
-    contours = contour_frames(cams, cons, ContourSettings(sigma_px=1.0, huber_px=2.0))
     leg = np.isin(balls.bone, [skel.bone_index(b) for b in ("l_hip", "l_knee", "l_ankle")])
+    frames = []
+    for f in range(nf):
+        pose = sk.forward(skel, theta[f][None], root[f][None], s)
+        xyz, ok = mb.sample_surface(skel, pose, balls, s, per_ball=30, seed=f)
+        keep = ok & (~np.repeat(leg, 30) if f else ok)
+        frames.append(FramePoints(xyz[keep], np.full(keep.sum(), 0.002)))
     init = initialise(
         clicks_of(skel, theta[0], root[0], s, cams, CLICK_JOINTS), cams, model="simplified"
     )
     init.metaballs = balls.copy()
     ankle = skel.joint_index("l_ankle")
     truth = sk.joint_positions(skel, theta, root, s)[:, ankle]
-    err = {True: [], False: []}
-    for draw in range(4):
-        frames = []
-        for f in range(nf):
-            pose = sk.forward(skel, theta[f][None], root[f][None], s)
-            xyz, ok = mb.sample_surface(skel, pose, balls, s, per_ball=30, seed=f + draw)
-            keep = ok & (~np.repeat(leg, 30) if f else ok)
-            frames.append(FramePoints(xyz[keep], np.full(keep.sum(), 0.002)))
-        for search in (True, False):
-            res = fit_sequence(
-                frames,
-                init,
-                SequenceSettings(
-                    max_nfev=15, shape_frames=1, shape="template", silhouette_search_points=search
-                ),
-                contours=contours,
-            )
-            assert not res.state.quality.diverged.any()
-            err[search] += list(
-                np.linalg.norm(res.state.joints_xyz()[1:, ankle] - truth[1:], axis=-1)
-            )
-    on, off = np.array(err[True]), np.array(err[False])
-    assert np.all(on <= off + 0.01), err  # the search never loses a leg found without it
-    assert np.sum(on < 0.05) >= 4, err  # of the 8 kicked frames
-    assert np.sum((on < 0.05) & (off > 0.2)) >= 2, err  # found only with the search
+    err = {}
+    for search in (True, False):
+        res = fit_sequence(
+            frames,
+            init,
+            SequenceSettings(
+                max_nfev=15, shape_frames=1, shape="template", silhouette_search_points=search
+            ),
+            contours=contour_frames(cams, cons, ContourSettings(sigma_px=1.0, huber_px=2.0)),
+        )
+        assert not res.state.quality.diverged.any()
+        err[search] = np.linalg.norm(res.state.joints_xyz()[1:, ankle] - truth[1:], axis=-1)
+    assert err[False].max() > 0.2, err  # lost in a frame without it
+    assert err[True].max() < 0.05, err

@@ -93,9 +93,9 @@ class SequenceSettings:
     #: the paper segments) at the fitted centres, not with the per-part shape solve's,
     #: which can grow a part over its neighbour and hand it the neighbour's points.
     #: make demo's walk over 4 click sets: MPJPE median 16.5 → 14.7 mm, the head 4–16 →
-    #: 4–10 mm; dance_line3's run 0 76.0 → 173.1 mm, its median over 4 click sets 135.1
-    #: → 108.7 mm but 44 → 64 frames diverged — off until checked further (design.md)
-    segment_initial_radii: bool = False
+    #: 4–10 mm; dance_line3's median over 4 click sets 135.1 → 108.7 mm (44 → 64 of 200
+    #: frames diverged); jumps_line3 15.0 → 15.3, walk_ortho3 14.2 → 14.2 (design.md)
+    segment_initial_radii: bool = True
     min_points: int = 40
     max_rmse_m: float = 0.025
     min_inliers: float = 0.5

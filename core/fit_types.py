@@ -92,9 +92,11 @@ class SequenceSettings:
     #: label the points with the initial shape's radii (the clicked posture's body, as
     #: the paper segments) at the fitted centres, not with the per-part shape solve's,
     #: which can grow a part over its neighbour and hand it the neighbour's points.
-    #: make demo's walk over 4 click sets: MPJPE median 16.5 → 14.7 mm, the head 4–16 →
-    #: 4–10 mm; dance_line3's median over 4 click sets 135.1 → 108.7 mm (44 → 64 of 200
-    #: frames diverged); jumps_line3 15.0 → 15.3, walk_ortho3 14.2 → 14.2 (design.md)
+    #: make demo's walk over 4 click sets: MPJPE median 16.5 → 14.7 mm (13.7 with the
+    #: silhouette search's veto slack, :func:`core.fit_search.keeps_points`), the head
+    #: 4–16 → 4–10 mm; jumps_line3 15.0 → 15.3, walk_ortho3 14.2 → 14.2; dance_line3's
+    #: median 135.1 → 108.7 mm (141.6 with the slack; 44 → 64 → 89 of 200 frames
+    #: diverged) — the dance reshuffles its draws with any change (design.md)
     segment_initial_radii: bool = True
     min_points: int = 40
     max_rmse_m: float = 0.025

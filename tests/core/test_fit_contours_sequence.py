@@ -254,7 +254,6 @@ def test_a_leg_the_tracker_lost_is_found_by_the_silhouettes_in_frames_with_point
     root = np.array([[0.0, 0.0, 1.0]] * nf)
     cams = _cams()
     cons = [_silhouettes(skel, balls, theta[f], root[f], s, cams) for f in range(nf)]
-    contours = contour_frames(cams, cons, ContourSettings(sigma_px=1.0, huber_px=2.0))
     leg = np.isin(balls.bone, [skel.bone_index(b) for b in ("l_hip", "l_knee", "l_ankle")])
     init = initialise(
         clicks_of(skel, theta[0], root[0], s, cams, CLICK_JOINTS), cams, model="simplified"
@@ -276,7 +275,7 @@ def test_a_leg_the_tracker_lost_is_found_by_the_silhouettes_in_frames_with_point
             SequenceSettings(
                 max_nfev=15, shape_frames=1, shape="template", silhouette_search_points=search
             ),
-            contours=contours,
+            contours=contour_frames(cams, cons, ContourSettings(sigma_px=1.0, huber_px=2.0)),
         )
         assert not res.state.quality.diverged.any()
         return np.linalg.norm(res.state.joints_xyz()[1:, ankle] - truth[1:], axis=-1)

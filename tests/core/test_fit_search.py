@@ -166,3 +166,26 @@ def test_recentred_starts_carry_the_root_with_the_points_and_one_explains_them(b
     best = cands[int(np.argmin(cost)), skel.n_dof :]
     assert np.linalg.norm(best - root1) < 0.08 and cost.min() < 0.2 * stale, (best, stale)
     assert recentred_starts(np.zeros((0, 3)), q, ref, root0, up).shape == (0, skel.n_dof + 3)
+
+
+def test_the_veto_keeps_a_limb_on_its_points_within_a_slack(body, rng):
+    """``keeps_points``: a leg carrying points may not be moved off them, but a move
+    that leaves the points' cost higher only by crumbs (less than ``slack``, a tenth of
+    one point one σ off) is allowed; with no slack the crumbs veto it."""
+    from core.fit_search import keeps_points
+
+    skel, s, balls = body
+    root = np.array([0.0, 0.0, 1.0])
+    theta = np.zeros(skel.n_dof)
+    x = _outer(skel, balls, theta, root, s, rng)
+    hip = skel.dof_index("l_hip_x")
+    kicked, nudged = theta.copy(), theta.copy()
+    kicked[hip], nudged[hip] = -1.0, -0.0005
+    poses, roots = np.stack([theta, kicked, nudged]), np.stack([root] * 3)
+    c = explain_cost(x, skel, balls, s, balls.radii, poses, roots)
+    assert c[1] - c[0] > 100.0  # the leg taken off its points
+    assert 0.0 < c[2] - c[0] < 0.1  # crumbs
+    allowed = keeps_points(x, skel, balls, s, balls.radii, root)
+    assert not allowed(theta, kicked)
+    assert allowed(theta, nudged)
+    assert not keeps_points(x, skel, balls, s, balls.radii, root, slack=0.0)(theta, nudged)

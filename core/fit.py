@@ -336,6 +336,7 @@ def fit_sequence(
         (f0,),
         cfg.mirror_hidden,
         cfg.mirror_r2,
+        cfg.mirror_keep_seen,
     )
     fx.msgs += fill_msgs
     if cfg.shape == "fit" and not shape_first:  # at the fitted poses, for the state only

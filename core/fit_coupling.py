@@ -43,6 +43,7 @@ import numpy as np
 
 from .fit_bridge import bridge_hidden, hidden_runs
 from .fit_mirror import mirror_hidden
+from .fit_reattach import reattach_seen
 from .skeleton import Skeleton, bone_frames, forward, joint_positions
 
 #: a limb's DOF-name prefixes (after ``l_``/``r_``)
@@ -258,6 +259,7 @@ def fill_unobserved(
     anchors: tuple = (),
     mirror: bool = True,
     mirror_r2: float = 0.8,
+    keep_seen: bool = True,
 ) -> tuple[np.ndarray, list[str]]:
     """The sequence fit's last step: unobserved angles coupled, hidden arms mirrored, the
     rest bridged.
@@ -273,6 +275,8 @@ def fill_unobserved(
     anchors : frames whose pose is known however little was seen (the clicked frame)
     mirror, mirror_r2 : run :func:`core.fit_mirror.mirror_hidden` with this gate on
         what the coupling left
+    keep_seen : after mirroring, re-pose the seen parts below a mirrored one so they
+        stay where their points put them (:func:`core.fit_reattach.reattach_seen`)
 
     Returns
     -------
@@ -295,6 +299,7 @@ def fill_unobserved(
             if c.frames
         ]
     if mirror:
+        held = theta
         theta, mirrored, mreport = mirror_hidden(
             skel, theta, s, hid, diverged, anchors, r2_min=mirror_r2
         )
@@ -305,6 +310,13 @@ def fill_unobserved(
             for m in mreport
             if m.mirrored
         ]
+        if keep_seen and mirrored.any():
+            theta, moved = reattach_seen(skel, held, theta, root_xyz, s, mirrored, hid, diverged)
+            if moved.any():
+                msgs.append(
+                    f"{int(moved.any(axis=1).sum())} frames: the seen parts below a "
+                    "mirrored one re-posed onto the places their points gave them"
+                )
     if bridge:
         theta, bridged = bridge_hidden(theta, left, diverged)
         if bridged.any():

@@ -82,6 +82,9 @@ class SequenceSettings:
     #: explains ≥ ``mirror_r2`` of their sagittal variance (:mod:`core.fit_mirror`)
     mirror_hidden: bool = True
     mirror_r2: float = 0.8
+    #: a seen forearm or hand below a mirrored upper arm keeps the place its points gave
+    #: it (:mod:`core.fit_reattach`): jumps_line3 run 0 15.14 → 14.72 mm
+    mirror_keep_seen: bool = True
     #: σ (rad) of the difference between neighbouring spine links' changes from the
     #: clicked posture (:mod:`core.fit_chain`); None: no such prior (0.1 narrows the
     #: walk's spread over click sets but loses the dance)

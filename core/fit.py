@@ -337,6 +337,7 @@ def fit_sequence(
         cfg.mirror_hidden,
         cfg.mirror_r2,
         cfg.mirror_keep_seen,
+        cfg.smooth_held_frames,
     )
     fx.msgs += fill_msgs
     if cfg.shape == "fit" and not shape_first:  # at the fitted poses, for the state only

@@ -44,6 +44,7 @@ import numpy as np
 from .fit_bridge import bridge_hidden, hidden_runs
 from .fit_mirror import mirror_hidden
 from .fit_reattach import reattach_seen
+from .fit_smooth import smooth_held
 from .skeleton import Skeleton, bone_frames, forward, joint_positions
 
 #: a limb's DOF-name prefixes (after ``l_``/``r_``)
@@ -260,9 +261,10 @@ def fill_unobserved(
     mirror: bool = True,
     mirror_r2: float = 0.8,
     keep_seen: bool = True,
+    smooth_width: int = 7,
 ) -> tuple[np.ndarray, list[str]]:
     """The sequence fit's last step: unobserved angles coupled, hidden arms mirrored, the
-    rest bridged.
+    rest bridged, what is left smoothed over time.
 
     Parameters
     ----------
@@ -277,6 +279,8 @@ def fill_unobserved(
         what the coupling left
     keep_seen : after mirroring, re-pose the seen parts below a mirrored one so they
         stay where their points put them (:func:`core.fit_reattach.reattach_seen`)
+    smooth_width : frames of the running median over the unobserved angles that none of
+        these replaced (:func:`core.fit_smooth.smooth_held`; 1: none)
 
     Returns
     -------
@@ -319,9 +323,16 @@ def fill_unobserved(
                 )
     if bridge:
         theta, bridged = bridge_hidden(theta, left, diverged)
+        left = left & ~bridged
         if bridged.any():
             msgs.append(
                 f"{int(bridged.any(axis=1).sum())} frames with angles interpolated "
                 "across an unobserved stretch"
             )
+    theta, smoothed = smooth_held(theta, left, diverged, smooth_width)
+    if smoothed.any():
+        msgs.append(
+            f"{int(smoothed.any(axis=1).sum())} frames with held angles smoothed over "
+            f"{smooth_width} frames"
+        )
     return theta, msgs

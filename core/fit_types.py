@@ -85,6 +85,10 @@ class SequenceSettings:
     #: a seen forearm or hand below a mirrored upper arm keeps the place its points gave
     #: it (:mod:`core.fit_reattach`): jumps_line3 run 0 15.14 → 14.72 mm
     mirror_keep_seen: bool = True
+    #: last, the unobserved angles nothing replaced (a stretch running to the first or
+    #: last frame) take their running median over this many frames: no observation
+    #: decides them and they flicker (:mod:`core.fit_smooth`; 1: off)
+    smooth_held_frames: int = 7
     #: σ (rad) of the difference between neighbouring spine links' changes from the
     #: clicked posture (:mod:`core.fit_chain`); None: no such prior (0.1 narrows the
     #: walk's spread over click sets but loses the dance)

@@ -4,9 +4,9 @@ The sequence fit's last step (:func:`core.fit_coupling.fill_unobserved`) couples
 mirrors or bridges the angles of unobserved parts where it can.  What it leaves —
 a stretch that runs to the first or last frame, a limb neither coupled nor mirrored
 — keeps the values of the sequential pass: the damped prediction pulled, frame by
-frame, by whatever weak terms reach a hidden part (the silhouette containment, contour
-pairs of an outline it shares with the part in front of it).  No observation decides
-those values, and they flicker: on jumps_line3 the right leg, behind the left in all
+frame, by the weak terms that reach a part without points (the prior, the contours,
+the silhouette containment; which of them moves it was not traced).  No observation
+decides those values, and they flicker: on jumps_line3 the right leg, behind the left in all
 three cameras from frame 3, swings its hip's abduction between −2° and −9° from one
 frame to the next (frames 27–33), its ankle 25 ↔ 97 mm from the truth.
 

@@ -29,22 +29,10 @@ import numpy as np
 from .skeleton import Skeleton, joint_jacobians
 
 
-def descendant_dofs(dof_parent: np.ndarray) -> np.ndarray:
-    """(n, n) bool: ``out[k, j]`` when DOF j lies below DOF k in the chain (j ≠ k).
-
-    Parameters
-    ----------
-    dof_parent : (n,) int, each DOF's parent DOF (-1 for none), parents first
-    """
-    dof_parent = np.asarray(dof_parent, int)
-    n = len(dof_parent)
-    out = np.zeros((n, n), bool)
-    for j in range(n):  # parents first: a DOF's ancestors are its parent's and the parent
-        p = int(dof_parent[j])
-        if p >= 0:
-            out[:, j] = out[:, p]
-            out[p, j] = True
-    return out
+def descendant_dofs(skel: Skeleton) -> np.ndarray:
+    """(n, n) bool: ``out[k, j]`` when DOF j lies below DOF k in the chain (j ≠ k); the
+    transpose of :meth:`Skeleton.ancestors` without the diagonal."""
+    return skel.ancestors().T & ~np.eye(skel.n_dof, dtype=bool)
 
 
 def reattach_seen(
@@ -86,7 +74,7 @@ def reattach_seen(
     hidden = np.asarray(hidden, bool)
     nf = len(theta)
     div = np.zeros(nf, bool) if diverged is None else np.asarray(diverged, bool)
-    below = descendant_dofs(skel.dof_parent)
+    below = descendant_dofs(skel)
     moved = np.zeros(theta.shape, bool)
     lo, hi = np.asarray(skel.dof_lo, float), np.asarray(skel.dof_hi, float)
     for f in np.flatnonzero(replaced.any(axis=1) & ~div):

@@ -14,7 +14,7 @@ SEEN = range(30, 36)
 
 def test_descendants_follow_the_chain():
     skel = sk.make_skeleton()
-    below = descendant_dofs(skel.dof_parent)
+    below = descendant_dofs(skel)
     k = skel.dof_index("r_shoulder_x")
     names = {skel.dof_names[j] for j in np.flatnonzero(below[k])}
     assert {"r_shoulder_y", "r_elbow_x", "r_wrist_y"} <= names

@@ -89,3 +89,29 @@ def test_missing_or_contradictory_clicks_are_refused(subject):
     clicks["joints"]["neck"] = {"cam01": clicks["joints"]["neck"]["cam01"]}
     with pytest.raises(InputError, match="fewer than two cameras"):
         triangulate_clicks(clicks, cams)
+
+
+def test_click_covariance_is_per_pixel_and_long_in_depth(subject, rng):
+    """Clicks moved by N(0, 1 px): their forward intersections' errors follow ``cov``
+    (mean squared Mahalanobis distance ≈ 3, the χ² mean for three coordinates); with
+    the cameras in a line it is longest along their viewing direction, and the fit's
+    messages say how well the clicks place the joints across and in depth."""
+    skel, theta, root, s = subject
+    cams = cameras()
+    exact = clicks_of(skel, theta, root, s, cams, CLICK_JOINTS)
+    cp0 = triangulate_clicks(exact, cams)
+    d2 = []
+    for _ in range(150):
+        moved = {
+            j: {c: np.asarray(uv) + rng.normal(0, 1.0, 2) for c, uv in views.items()}
+            for j, views in exact["joints"].items()
+        }
+        cp = triangulate_clicks({"frame": 0, "joints": moved}, cams)
+        e = cp.xyz - cp0.xyz
+        d2.append(np.einsum("ki,kij,kj->k", e, np.linalg.inv(cp0.cov), e))
+    assert 2.8 < np.mean(d2) < 3.2
+    w, v = np.linalg.eigh(cp0.cov)
+    assert np.all(np.abs(v[:, 1, 2]) > 0.9)  # longest along Y, the cameras' direction
+    across, depth = cp0.precision_mm()
+    assert 2.0 < across < 6.0 and depth > 2.5 * across
+    assert any(f"±{depth:.1f} mm" in m for m in cp0.messages())

@@ -6,6 +6,7 @@ import tempfile
 from pathlib import Path
 
 import bpy
+import numpy as np
 from bpy.props import StringProperty
 
 from . import _core, pipeline
@@ -61,7 +62,16 @@ class SOMACAP_OT_place_clicks(bpy.types.Operator):
             out = pipeline.place_clicks(bpy.path.abspath(_settings(context).scene_dir))
         except _core.errors.InputError as exc:
             return _fail(self, exc)
-        self.report({"INFO"}, f"Placed {len(out)} key joints")
+        if not out:
+            self.report({"WARNING"}, "No key joint could be placed from the clicks")
+            return {"FINISHED"}
+        sig = np.median([list(e["somacap_sigma_mm"]) for e in out.values()], axis=0)
+        self.report(
+            {"INFO"},
+            f"Placed {len(out)} key joints, drawn as their 3σ ellipsoids for 1 px clicks: "
+            f"±{sig[1]:.1f} mm across, ±{sig[2]:.1f} mm along the long axis (median); "
+            "check a joint's depth along it in a side view",
+        )
         return {"FINISHED"}
 
 

@@ -96,9 +96,14 @@ def place_clicks(scene_dir):
     """Empties at the forward intersection of the scene's clicked key joints.
 
     Returns ``{joint: empty}``; the empties are named ``click_<joint>`` and can be
-    moved in the viewport (read back with :func:`clicked_positions`).
+    moved in the viewport (read back with :func:`clicked_positions`).  Each is drawn as
+    the 3σ ellipsoid of its intersection for clicks off by 1 px (at least 1 cm across):
+    with cameras in a line it is long along their view, the depth the clicks fix worst
+    and the fit keeps in every frame — the direction to check and drag it in a side
+    view.  ``empty["somacap_sigma_mm"]`` holds its σ, smallest first, mm per pixel.
     """
     import bpy
+    from mathutils import Matrix
 
     sc = _core.scene.load_scene(scene_dir, check_images=False)
     cams = sc.calibration()
@@ -109,17 +114,24 @@ def place_clicks(scene_dir):
         for c, cam in enumerate(cams):
             if cam.name in clicks["joints"][j]:
                 uv[i, c] = clicks["joints"][j][cam.name]
-    xyz = _core.intersect.triangulate(cams, uv).xyz
+    res = _core.intersect.triangulate(cams, uv, sigma_px=1.0)
     coll = bpy.data.collections.new("Somacap clicks")
     bpy.context.scene.collection.children.link(coll)
     out = {}
-    for j, p in zip(joints, xyz, strict=True):
-        if not np.all(np.isfinite(p)):
+    for j, p, cov in zip(joints, res.xyz, res.cov, strict=True):
+        if not (np.all(np.isfinite(p)) and np.all(np.isfinite(cov))):
             continue
         e = bpy.data.objects.new(f"click_{j}", None)
         e.empty_display_type = "SPHERE"
-        e.empty_display_size = 0.03
+        e.empty_display_size = 1.0
+        var, axes = np.linalg.eigh(cov)
+        axes[:, 0] *= np.sign(np.linalg.det(axes))  # a rotation
+        sigma = np.sqrt(np.clip(var, 0.0, None))
+        e.rotation_mode = "QUATERNION"
+        e.rotation_quaternion = Matrix(axes.tolist()).to_quaternion()
+        e.scale = np.maximum(3.0 * sigma, 0.01).tolist()
         e.location = p.tolist()
+        e["somacap_sigma_mm"] = (sigma * 1000.0).tolist()
         e["somacap_joint"] = j
         coll.objects.link(e)
         out[j] = e

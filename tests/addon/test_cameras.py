@@ -106,5 +106,45 @@ def test_clicked_joints_placed_at_their_intersection(empty_blend):
     for joint, xyz in got.items():
         err = np.linalg.norm(xyz - truth["joints_xyz"][frame, names.index(joint)])
         assert err < 0.03, (joint, err)  # clicks carry a few pixels of noise
+    # drawn as the 3σ ellipsoid of 1 px clicks: on line3 long along the cameras' view
+    from core.intersect import triangulate
+
+    cams = sc.calibration()
+    uv = np.array([[sc.clicks()["joints"]["l_knee"][c.name] for c in cams]])
+    cov = triangulate(cams, uv, sigma_px=1.0).cov[0]
+    w, v = np.linalg.eigh(cov)
+    e = empties["l_knee"]
+    M = np.array(e.matrix_world)[:3, :3]
+    long_axis = M[:, 2] / np.linalg.norm(M[:, 2])
+    assert abs(long_axis @ v[:, 2]) > 0.999
+    assert np.allclose(np.linalg.norm(M, axis=0), np.maximum(3 * np.sqrt(w), 0.01))
+    sig = np.array(e["somacap_sigma_mm"])
+    assert sig[2] > 2.5 * sig[1] and sig[1] > 1.0
     empties["l_knee"].location.x += 0.1  # the user drags an empty
     assert pipeline.clicked_positions()["l_knee"][0] == pytest.approx(got["l_knee"][0] + 0.1)
+
+
+@pytest.mark.blender
+def test_place_key_joints_operator_reports_the_clicks_precision(empty_blend, capfd):
+    """The panel's button places the empties and says how well the clicks fix them."""
+    import addon
+    from tests.conftest import DEFAULT_SCENE
+
+    if not (DEFAULT_SCENE / "clicks.json").is_file():
+        pytest.skip("default scene without clicks")
+    addon.register()
+    try:
+        bpy = empty_blend
+        bpy.context.scene.somacap.scene_dir = str(DEFAULT_SCENE)
+        assert bpy.ops.somacap.place_clicks() == {"FINISHED"}
+        placed = [o for o in bpy.data.objects if o.name.startswith("click_")]
+        assert len(placed) >= 15
+    finally:
+        addon.unregister()
+    import re
+
+    text = capfd.readouterr()
+    m = re.search(r"±([\d.]+) mm across, ±([\d.]+) mm along the long axis", text.out + text.err)
+    assert m, text.out[-400:]
+    across, depth = float(m.group(1)), float(m.group(2))
+    assert 1.0 < across < 10.0 and depth > 2.5 * across  # line3: depth seen worst

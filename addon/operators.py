@@ -125,10 +125,14 @@ class SOMACAP_OT_fit(bpy.types.Operator):
         s = _settings(context)
         scene_dir, state_path = bpy.path.abspath(s.scene_dir), bpy.path.abspath(s.state_path)
         cues = s.fit_cues
-        self._cached = not state_path and (Path(scene_dir) / "fit.json").is_file()
+        moved = {} if state_path else pipeline.moved_clicks(scene_dir)
+        self._moved = sorted(moved)
+        self._cached = not state_path and not moved and (Path(scene_dir) / "fit.json").is_file()
 
         def job(progress):
-            return pipeline.state_for_scene(scene_dir, state_path or None, progress, cues=cues)
+            return pipeline.state_for_scene(
+                scene_dir, state_path or None, progress, cues=cues, clicks_xyz=moved
+            )
 
         return job
 
@@ -176,6 +180,12 @@ class SOMACAP_OT_fit(bpy.types.Operator):
                 return _fail(self, job.error)
             return _fail(self, f"fit failed: {job.error!r}")
         s.status = "Done"
+        if getattr(self, "_moved", None):
+            self.report(
+                {"INFO"},
+                f"Fitted with the key joints you moved: {', '.join(self._moved)} "
+                "(clicks.json unchanged)",
+            )
         if getattr(self, "_cached", False):
             self.report(
                 {"WARNING"},

@@ -38,38 +38,63 @@ def check_cues(cues: str) -> str:
     return cues
 
 
-def run_fit(scene_dir, out_json, progress=None, cues: str = "texture") -> Path:
+def run_fit(scene_dir, out_json, progress=None, cues: str = "texture", clicks_xyz=None) -> Path:
     """Run core's whole pipeline on a scene folder and write ``fit.json``
     (:func:`core.fit_scene.fit_scene`; cancellable through ``progress``).
 
     ``cues`` chooses the observations of the fit (:data:`FIT_CUES`): ``"texture"``,
-    ``"contours"`` or ``"both"``.
+    ``"contours"`` or ``"both"``.  ``clicks_xyz`` (``{joint: (3,) world metres}``, e.g.
+    :func:`moved_clicks`) replaces those joints' clicks for this fit only: each is
+    clicked where it projects in the cameras that clicked it (``clicks.json`` is left
+    as it is).
     """
     scene_dir, out_json = Path(scene_dir), Path(out_json)
     check_cues(cues)
-    state = _core.load("fit_scene").fit_scene(
-        _core.scene.load_scene(scene_dir), progress=progress, cues=cues
-    )
+    sc = _core.scene.load_scene(scene_dir)
+    if clicks_xyz:
+        moved = clicks_at(sc.clicks(), sc.calibration(), clicks_xyz)
+        sc.clicks = lambda: moved
+    state = _core.load("fit_scene").fit_scene(sc, progress=progress, cues=cues)
     _core.state.write_state(out_json, state)
     return out_json
 
 
 def state_for_scene(
-    scene_dir, fit_path=None, progress=None, cues: str = "texture", refit: bool = False
+    scene_dir,
+    fit_path=None,
+    progress=None,
+    cues: str = "texture",
+    refit: bool = False,
+    clicks_xyz=None,
 ):
     """The fitted state of a scene: ``fit_path``, else ``SCENE/fit.json``, else fit now.
 
     A fit uses ``cues`` (:data:`FIT_CUES`); ``refit=True`` fits even when
-    ``SCENE/fit.json`` exists (which is then neither used nor overwritten).
+    ``SCENE/fit.json`` exists (which is then neither used nor overwritten), and so do
+    joints dragged in the viewport (``clicks_xyz``, :func:`run_fit`).
     """
     scene_dir = Path(scene_dir)
     check_cues(cues)
     if fit_path:
         return read_state(fit_path)
-    if not refit and (scene_dir / "fit.json").is_file():
+    if not refit and not clicks_xyz and (scene_dir / "fit.json").is_file():
         return read_state(scene_dir / "fit.json")
     with tempfile.TemporaryDirectory() as tmp:
-        return read_state(run_fit(scene_dir, Path(tmp) / "fit.json", progress, cues=cues))
+        out = Path(tmp) / "fit.json"
+        return read_state(run_fit(scene_dir, out, progress, cues=cues, clicks_xyz=clicks_xyz))
+
+
+def clicks_at(clicks: dict, cams, xyz: dict) -> dict:
+    """A copy of ``clicks`` (``Scene.clicks()``) with the joints of ``xyz`` (``{joint:
+    (3,) world metres}``) clicked where they project, in the cameras that clicked them;
+    their forward intersection is then that point."""
+    by_name = {c.name: c for c in cams}
+    joints = {j: dict(v) for j, v in clicks["joints"].items()}
+    for j, x in xyz.items():
+        if j in joints:
+            p = np.asarray(x, float)[None]
+            joints[j] = {c: by_name[c].project(p)[0] for c in joints[j] if c in by_name}
+    return {**clicks, "joints": joints}
 
 
 def create_scene_cameras(scene_dir, calibration=None):
@@ -132,6 +157,8 @@ def place_clicks(scene_dir):
         e.scale = np.maximum(3.0 * sigma, 0.01).tolist()
         e.location = p.tolist()
         e["somacap_sigma_mm"] = (sigma * 1000.0).tolist()
+        e["somacap_scene"] = str(Path(scene_dir).resolve())
+        e["somacap_placed"] = p.tolist()
         e["somacap_joint"] = j
         coll.objects.link(e)
         out[j] = e
@@ -148,6 +175,24 @@ def clicked_positions() -> dict:
         for o in bpy.data.objects
         if "somacap_joint" in o
     }
+
+
+def moved_clicks(scene_dir, tol_m: float = 1e-4) -> dict:
+    """``{joint: xyz (3,)}`` of the scene's click empties (:func:`place_clicks`) that
+    the user has moved more than ``tol_m`` from where they were placed; the fit takes
+    them in place of those joints' clicks (:func:`run_fit`)."""
+    import bpy
+
+    bpy.context.view_layer.update()
+    scene = str(Path(scene_dir).resolve())
+    out = {}
+    for o in bpy.data.objects:
+        if o.get("somacap_scene") != scene or "somacap_placed" not in o:
+            continue
+        x = np.array(o.matrix_world.translation)
+        if np.linalg.norm(x - np.array(o["somacap_placed"])) > tol_m:
+            out[o["somacap_joint"]] = x
+    return out
 
 
 def build_take(state, take: str):

@@ -148,3 +148,43 @@ def test_place_key_joints_operator_reports_the_clicks_precision(empty_blend, cap
     assert m, text.out[-400:]
     across, depth = float(m.group(1)), float(m.group(2))
     assert 1.0 < across < 10.0 and depth > 2.5 * across  # line3: depth seen worst
+
+
+@pytest.mark.blender
+def test_a_dragged_key_joint_is_what_the_fit_starts_from(empty_blend, tmp_path, monkeypatch):
+    """The user drags the left knee's empty 2 cm along its long axis: the next fit takes
+    the knee there (its clicks re-projected from the dragged point, in memory), the other
+    joints where they were clicked; clicks.json is not touched."""
+    from addon import pipeline
+    from core import fit_scene
+    from core.fit_init import triangulate_clicks
+    from tests.addon.state_fixtures import synthetic_state
+    from tests.conftest import DEFAULT_SCENE
+
+    if not (DEFAULT_SCENE / "clicks.json").is_file():
+        pytest.skip("default scene without clicks")
+    before = (DEFAULT_SCENE / "clicks.json").read_bytes()
+    empties = pipeline.place_clicks(DEFAULT_SCENE)
+    assert pipeline.moved_clicks(DEFAULT_SCENE) == {}
+    e = empties["l_knee"]
+    M = np.array(e.matrix_world)[:3, :3]
+    target = np.array(e.location) + 0.02 * M[:, 2] / np.linalg.norm(M[:, 2])
+    e.location = target.tolist()
+    moved = pipeline.moved_clicks(DEFAULT_SCENE)
+    assert list(moved) == ["l_knee"] and np.allclose(moved["l_knee"], target)
+
+    seen = {}
+
+    def fake_fit_scene(sc, progress=None, **kwargs):
+        seen["clicks"] = sc.clicks()
+        seen["cams"] = sc.calibration()
+        return synthetic_state(3, seed=2)
+
+    monkeypatch.setattr(fit_scene, "fit_scene", fake_fit_scene)
+    st = pipeline.state_for_scene(DEFAULT_SCENE, clicks_xyz=moved)
+    assert st.n_frames == 3  # refitted although the scene may hold a fit.json
+    cp = triangulate_clicks(seen["clicks"], seen["cams"])
+    placed = pipeline.clicked_positions()
+    for j, x in zip(cp.names, cp.xyz, strict=True):
+        assert np.linalg.norm(x - placed[j]) < 1e-4, j
+    assert (DEFAULT_SCENE / "clicks.json").read_bytes() == before

@@ -48,7 +48,7 @@ def fake_run_fit(bpy_module, monkeypatch):
 
     calls = []
 
-    def run_fit(scene_dir, out_json, progress=None, cues="texture"):
+    def run_fit(scene_dir, out_json, progress=None, cues="texture", clicks_xyz=None):
         calls.append((scene_dir.name, cues))
         write_state(out_json, synthetic_state(4, seed=len(calls)))
         return out_json
@@ -216,3 +216,33 @@ def test_panel_property_and_operator(registered, tmp_path, fake_run_fit):
     assert s.body is not None and s.body.name.startswith("walk_armature")
     with pytest.raises(TypeError):
         s.fit_cues = "skin"
+
+
+def test_fit_button_uses_the_key_joints_the_user_moved(registered, monkeypatch, capfd):
+    """Place key joints, drag one, press Fit: the fit gets that joint's new place (and
+    refits rather than reading a cached fit.json); unmoved, it gets none."""
+    from addon import pipeline
+    from tests.conftest import DEFAULT_SCENE
+
+    if not (DEFAULT_SCENE / "clicks.json").is_file():
+        pytest.skip("default scene without clicks")
+    bpy = registered
+    got = []
+
+    def run_fit(scene_dir, out_json, progress=None, cues="texture", clicks_xyz=None):
+        got.append(clicks_xyz)
+        write_state(out_json, synthetic_state(4, seed=5))
+        return out_json
+
+    monkeypatch.setattr(pipeline, "run_fit", run_fit)
+    s = bpy.context.scene.somacap
+    s.scene_dir = str(DEFAULT_SCENE)
+    assert bpy.ops.somacap.place_clicks() == {"FINISHED"}
+    bpy.data.objects["click_r_wrist"].location.z += 0.03
+    assert bpy.ops.somacap.fit() == {"FINISHED"}
+    assert list(got[-1]) == ["r_wrist"]
+    assert "key joints you moved: r_wrist" in capfd.readouterr().out
+    bpy.data.objects["click_r_wrist"].location.z -= 0.03
+    if not (DEFAULT_SCENE / "fit.json").is_file():
+        assert bpy.ops.somacap.fit() == {"FINISHED"}
+        assert got[-1] == {}

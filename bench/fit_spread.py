@@ -17,6 +17,12 @@ a-priori σ (:class:`core.fit_flow.FlowSettings` ``sigma_px``), so that two sett
 be compared by their medians rather than by one run each; ``--setting`` likewise sets a
 field of :class:`core.fit_types.SequenceSettings` (VALUE in JSON: ``shape_scales=true``).
 
+``--drag JOINT,...`` does, before each fit, what a user dragging those joints' empties
+in a side view of Blender's viewport does at best (:func:`dragged_clicks`): each joint's
+clicked point moves along its forward intersection's least-certain axis (the cameras'
+depth on ``line3``) to the point of that line nearest the truth; run with and without
+it on the same runs to see what correcting a click's depth is worth.
+
 A SCENE is a scene folder or a :data:`bench.fit.STUDIO_SCENES` name (rendered and
 cached under ``out/bench_fit`` on first use; default: the default sample scene).  The
 fits run in-process (:func:`core.fit_scene.run_scene` with ``observations="tracks"``
@@ -62,6 +68,26 @@ def perturbed_clicks(clicks: dict, noise_px: float, seed: int) -> dict:
     return {**clicks, "joints": joints}
 
 
+def dragged_clicks(clicks: dict, cams, truth: dict, joints) -> dict:
+    """``clicks`` with each of ``joints`` re-clicked at the point of its intersection's
+    long axis (the largest-variance direction of ``ClickPoints.cov``) nearest the
+    truth's joint at the clicked frame — a depth corrected by hand, the rest kept."""
+    from core.evaluate import truth_joints
+    from core.fit_init import triangulate_clicks
+
+    cp = triangulate_clicks(clicks, cams)
+    txyz, names = truth_joints(truth)
+    by_name = {c.name: c for c in cams}
+    out = {j: dict(v) for j, v in clicks["joints"].items()}
+    for j in joints:
+        k = cp.names.index(j)
+        axis = np.linalg.eigh(cp.cov[k])[1][:, 2]
+        t = txyz[clicks["frame"], names.index(j)]
+        x = cp.xyz[k] + axis * (axis @ (t - cp.xyz[k]))
+        out[j] = {c: by_name[c].project(x[None])[0] for c in out[j]}
+    return {**clicks, "joints": out}
+
+
 def fit_once(
     scene_dir: str,
     tracks: str,
@@ -70,6 +96,7 @@ def fit_once(
     seed: int,
     flow_sigma_px: float | None = None,
     settings: dict | None = None,
+    drag: tuple = (),
 ) -> dict:
     """One in-process fit of the scene's tracks with perturbed clicks; its figures.
     ``flow_sigma_px``: the texture flow's σ (None: ``FlowSettings``' default);
@@ -83,6 +110,8 @@ def fit_once(
 
     scene = load_scene(Path(scene_dir), check_images=False)
     clicks = perturbed_clicks(scene.clicks(), noise_px, seed)
+    if drag:
+        clicks = dragged_clicks(clicks, scene.calibration(), scene.truth, drag)
     scene.clicks = lambda: clicks  # the fit's initialisation reads them from here
     flow = "auto" if flow_sigma_px is None else FlowSettings(sigma_px=flow_sigma_px)
     t0 = time.perf_counter()
@@ -194,8 +223,15 @@ def main(argv: list[str] | None = None) -> int:
         metavar="NAME=VALUE",
         help="a SequenceSettings field, VALUE in JSON (repeatable)",
     )
+    ap.add_argument(
+        "--drag",
+        default="",
+        metavar="JOINT,...",
+        help="move these joints' clicks along their depth onto the truth first",
+    )
     ap.add_argument("--json", type=Path, default=None, help="write the figures here")
     args = ap.parse_args(argv)
+    drag = tuple(j for j in args.drag.split(",") if j)
     if args.runs < 1 or args.jobs < 1:
         ap.error("--runs and --jobs must be at least 1")
     if args.flow_sigma is not None and args.cues != "both":
@@ -208,7 +244,8 @@ def main(argv: list[str] | None = None) -> int:
         f"{scene.name}: {args.runs} fits of {tracks}, cues {args.cues}, clicks moved by "
         f"N(0, {args.click_noise} px) in runs 1..{args.runs - 1}"
         + ("" if args.flow_sigma is None else f", flow σ {args.flow_sigma} px")
-        + "".join(f", {k} = {v!r}" for k, v in settings.items()),
+        + "".join(f", {k} = {v!r}" for k, v in settings.items())
+        + (f", dragged in depth onto the truth: {', '.join(drag)}" if drag else ""),
         flush=True,
     )
     print(
@@ -228,6 +265,7 @@ def main(argv: list[str] | None = None) -> int:
                 k,
                 args.flow_sigma,
                 settings,
+                drag,
             )
             for k in range(args.runs)
         ]

@@ -111,3 +111,39 @@ def test_settings_are_sequence_settings_fields_in_json():
         parse_settings(["shape_scales=yes"], error)
     with pytest.raises(ValueError, match="only a number"):
         parse_settings(['fit={"max_nfev": 3}'], error)
+
+
+def test_dragged_clicks_move_only_the_depth_onto_the_truth():
+    """A knee clicked 2 px apart in the outer cameras: its intersection is off in depth;
+    dragged, it moves along its long axis only, to where no error is left along it, and
+    the other joints' clicks stay as they were."""
+    from pathlib import Path
+
+    from bench.fit_spread import dragged_clicks
+    from core.evaluate import truth_joints
+    from core.fit_init import triangulate_clicks
+    from core.scene import load_scene
+
+    sc = load_scene(Path(SCENE), check_images=False)
+    if not sc.has_truth:
+        pytest.skip("default scene without truth")
+    cams = sc.calibration()
+    c = sc.clicks()
+    views = sorted(c["joints"]["l_knee"])  # the outer cameras moved apart: depth
+    shift = dict(zip(views, np.linspace(2.0, -2.0, len(views)), strict=True))
+    c["joints"]["l_knee"] = {
+        k: np.asarray(v) + [shift[k], 0.0] for k, v in c["joints"]["l_knee"].items()
+    }
+    d = dragged_clicks(c, cams, sc.truth, ["l_knee"])
+    before, after = triangulate_clicks(c, cams), triangulate_clicks(d, cams)
+    txyz, names = truth_joints(sc.truth)
+    t = txyz[c["frame"], names.index("l_knee")]
+    k = before.names.index("l_knee")
+    axis = np.linalg.eigh(before.cov[k])[1][:, 2]
+    moved = after.xyz[k] - before.xyz[k]
+    assert np.linalg.norm(np.cross(moved, axis)) < 1e-4  # along the long axis only
+    assert abs((after.xyz[k] - t) @ axis) < 1e-4  # no error left along it
+    assert abs((before.xyz[k] - t) @ axis) > 0.003
+    for j in c["joints"]:
+        if j != "l_knee":
+            assert d["joints"][j] == c["joints"][j]

@@ -52,7 +52,7 @@ def run_fit(scene_dir, out_json, progress=None, cues: str = "texture", clicks_xy
     check_cues(cues)
     sc = _core.scene.load_scene(scene_dir)
     if clicks_xyz:
-        moved = clicks_at(sc.clicks(), sc.calibration(), clicks_xyz)
+        moved = _core.fit_init.clicks_at(sc.clicks(), sc.calibration(), clicks_xyz)
         sc.clicks = lambda: moved
     state = _core.load("fit_scene").fit_scene(sc, progress=progress, cues=cues)
     _core.state.write_state(out_json, state)
@@ -82,19 +82,6 @@ def state_for_scene(
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "fit.json"
         return read_state(run_fit(scene_dir, out, progress, cues=cues, clicks_xyz=clicks_xyz))
-
-
-def clicks_at(clicks: dict, cams, xyz: dict) -> dict:
-    """A copy of ``clicks`` (``Scene.clicks()``) with the joints of ``xyz`` (``{joint:
-    (3,) world metres}``) clicked where they project, in the cameras that clicked them;
-    their forward intersection is then that point."""
-    by_name = {c.name: c for c in cams}
-    joints = {j: dict(v) for j, v in clicks["joints"].items()}
-    for j, x in xyz.items():
-        if j in joints:
-            p = np.asarray(x, float)[None]
-            joints[j] = {c: by_name[c].project(p)[0] for c in joints[j] if c in by_name}
-    return {**clicks, "joints": joints}
 
 
 def create_scene_cameras(scene_dir, calibration=None):

@@ -73,19 +73,17 @@ def dragged_clicks(clicks: dict, cams, truth: dict, joints) -> dict:
     long axis (the largest-variance direction of ``ClickPoints.cov``) nearest the
     truth's joint at the clicked frame — a depth corrected by hand, the rest kept."""
     from core.evaluate import truth_joints
-    from core.fit_init import triangulate_clicks
+    from core.fit_init import clicks_at, triangulate_clicks
 
     cp = triangulate_clicks(clicks, cams)
     txyz, names = truth_joints(truth)
-    by_name = {c.name: c for c in cams}
-    out = {j: dict(v) for j, v in clicks["joints"].items()}
+    moved = {}
     for j in joints:
         k = cp.names.index(j)
         axis = np.linalg.eigh(cp.cov[k])[1][:, 2]
         t = txyz[clicks["frame"], names.index(j)]
-        x = cp.xyz[k] + axis * (axis @ (t - cp.xyz[k]))
-        out[j] = {c: by_name[c].project(x[None])[0] for c in out[j]}
-    return {**clicks, "joints": out}
+        moved[j] = cp.xyz[k] + axis * (axis @ (t - cp.xyz[k]))
+    return clicks_at(clicks, cams, moved)
 
 
 def fit_once(

@@ -110,6 +110,20 @@ class ClickPoints:
         return out
 
 
+def clicks_at(clicks: dict, cameras: list[Camera], xyz: dict) -> dict:
+    """A copy of ``clicks`` (:meth:`core.scene.Scene.clicks`) with the joints of ``xyz``
+    (``{joint: (3,) world metres}``) re-clicked where those points project, in the
+    cameras that had clicked them: their forward intersection is then that point (a
+    joint dragged in Blender's viewport, a depth corrected by hand)."""
+    by_name = {c.name: c for c in cameras}
+    joints = {j: dict(v) for j, v in clicks["joints"].items()}
+    for j, x in xyz.items():
+        if j in joints:
+            p = np.asarray(x, float).reshape(1, 3)
+            joints[j] = {c: by_name[c].project(p)[0] for c in joints[j] if c in by_name}
+    return {**clicks, "joints": joints}
+
+
 @dataclass
 class Initialisation:
     """The initial body: personalised skeleton, scales, posture of the clicked frame."""

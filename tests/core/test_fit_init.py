@@ -5,7 +5,7 @@ import pytest
 
 from core import skeleton as sk
 from core.errors import InputError
-from core.fit_init import REQUIRED_JOINTS, initialise, triangulate_clicks
+from core.fit_init import REQUIRED_JOINTS, clicks_at, initialise, triangulate_clicks
 from core.landmarks import CLICK_JOINTS, OPTIONAL_CLICK_JOINTS
 from tests.core._bodyscene import cameras, clicks_of
 
@@ -115,3 +115,22 @@ def test_click_covariance_is_per_pixel_and_long_in_depth(subject, rng):
     across, depth = cp0.precision_mm()
     assert 2.0 < across < 6.0 and depth > 2.5 * across
     assert any(f"±{depth:.1f} mm" in m for m in cp0.messages())
+
+
+def test_a_joint_re_clicked_at_a_point_intersects_there(subject):
+    """``clicks_at``: a knee moved 2 cm (as dragged in the viewport) is clicked where it
+    projects, in the cameras that clicked it, and intersects at the moved point; the
+    other joints' clicks are the same objects' values as before."""
+    skel, theta, root, s = subject
+    cams = cameras()
+    clicks = clicks_of(skel, theta, root, s, cams, CLICK_JOINTS)
+    del clicks["joints"]["l_knee"]["cam03"]  # clicked in two cameras only
+    x = sk.joint_positions(skel, theta, root, s)[skel.joint_index("l_knee")] + [0, 0.02, 0]
+    moved = clicks_at(clicks, cams, {"l_knee": x})
+    assert sorted(moved["joints"]["l_knee"]) == ["cam01", "cam02"]
+    cp = triangulate_clicks(moved, cams)
+    assert np.linalg.norm(cp.xyz[cp.names.index("l_knee")] - x) < 1e-6
+    for j in clicks["joints"]:
+        if j != "l_knee":
+            assert moved["joints"][j] == clicks["joints"][j]
+    assert "cam03" not in clicks["joints"]["l_knee"]  # the input is not changed

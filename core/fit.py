@@ -65,7 +65,9 @@ clicked frame's initial posture (:mod:`core.fit_init`):
    before that, a limb whose observed frames show it moving with the opposite thigh
    (gait) follows that thigh across the stretch (``couple_hidden``,
    :mod:`core.fit_coupling`), and a hidden arm takes the other arm's angles, mirrored,
-   where the legs move mirrored (a jump; ``mirror_hidden``, :mod:`core.fit_mirror`).
+   where the legs move mirrored (a jump; ``mirror_hidden``, :mod:`core.fit_mirror`);
+   last, in a walk, a hidden arm that neither placed swings with the opposite thigh
+   (``gait_swing_arms``, :mod:`core.fit_gait`).
 
 **Free space** (``free_space``, :mod:`core.free_space`; the points' ``views`` and the
 cameras): the limb search and the explain cost that picks among a frame's fits also
@@ -338,6 +340,8 @@ def fit_sequence(
         cfg.mirror_r2,
         cfg.mirror_keep_seen,
         cfg.smooth_held_frames,
+        cfg.gait_arms,
+        cfg.gait_arm_ratio,
     )
     fx.msgs += fill_msgs
     if cfg.shape == "fit" and not shape_first:  # at the fitted poses, for the state only

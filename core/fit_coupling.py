@@ -42,6 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .fit_bridge import bridge_hidden, hidden_runs
+from .fit_gait import gait_swing_arms
 from .fit_mirror import mirror_hidden
 from .fit_reattach import reattach_seen
 from .fit_smooth import smooth_held
@@ -262,9 +263,12 @@ def fill_unobserved(
     mirror_r2: float = 0.8,
     keep_seen: bool = True,
     smooth_width: int = 7,
+    gait: bool = True,
+    gait_ratio: float = 0.7,
 ) -> tuple[np.ndarray, list[str]]:
     """The sequence fit's last step: unobserved angles coupled, hidden arms mirrored, the
-    rest bridged, what is left smoothed over time.
+    rest bridged, what is left smoothed over time; in a walk, hidden arms swung with the
+    opposite thigh.
 
     Parameters
     ----------
@@ -281,6 +285,10 @@ def fill_unobserved(
         stay where their points put them (:func:`core.fit_reattach.reattach_seen`)
     smooth_width : frames of the running median over the unobserved angles that none of
         these replaced (:func:`core.fit_smooth.smooth_held`; 1: none)
+    gait, gait_ratio : last, in a walk, swing the hidden arms that neither the coupling
+        nor the mirror placed with the opposite thigh, ``gait_ratio`` degrees per
+        degree (:func:`core.fit_gait.gait_swing_arms`; their bridged or held shoulder
+        angles are replaced)
 
     Returns
     -------
@@ -321,6 +329,7 @@ def fill_unobserved(
                     f"{int(moved.any(axis=1).sum())} frames: the seen parts below a "
                     "mirrored one re-posed onto the places their points gave them"
                 )
+    swingable = left
     if bridge:
         theta, bridged = bridge_hidden(theta, left, diverged)
         left = left & ~bridged
@@ -335,4 +344,14 @@ def fill_unobserved(
             f"{int(smoothed.any(axis=1).sum())} frames with held angles smoothed over "
             f"{smooth_width} frames"
         )
+    if gait:
+        theta, _, greport = gait_swing_arms(
+            skel, theta, root_xyz, s, unobs, swingable, diverged, ratio=gait_ratio
+        )
+        msgs += [
+            f"{g.limb}: {g.frames} hidden frames swung with the opposite thigh "
+            f"({gait_ratio:g} per degree; the thighs' swings correlate at {g.legs_r:.2f})"
+            for g in greport
+            if g.frames
+        ]
     return theta, msgs

@@ -89,6 +89,11 @@ class SequenceSettings:
     #: last frame) take their running median over this many frames: no observation
     #: decides them and they flicker (:mod:`core.fit_smooth`; 1: off)
     smooth_held_frames: int = 7
+    #: in a walk (the thighs swing against each other), a hidden arm that nothing above
+    #: placed swings with the opposite thigh, ``gait_arm_ratio`` degrees per degree,
+    #: from the literature's arm and hip excursions (:mod:`core.fit_gait`)
+    gait_arms: bool = True
+    gait_arm_ratio: float = 0.7
     #: σ (rad) of the difference between neighbouring spine links' changes from the
     #: clicked posture (:mod:`core.fit_chain`); None: no such prior (0.1 narrows the
     #: walk's spread over click sets but loses the dance)

@@ -350,7 +350,8 @@ def fill_unobserved(
         )
         msgs += [
             f"{g.limb}: {g.frames} hidden frames swung with the opposite thigh "
-            f"({gait_ratio:g} per degree; the thighs' swings correlate at {g.legs_r:.2f})"
+            f"({gait_ratio:g} per degree; the thighs' swings correlate at {g.legs_r:.2f}, "
+            f"the other arm swings {g.other_ratio:.2f} per degree)"
             for g in greport
             if g.frames
         ]

@@ -32,7 +32,11 @@ is near its extreme, and that slope is ill-determined.
 
 It applies only to gait: the thighs' swings must move against each other (their
 correlation over the fitted frames ≤ ``max_legs_r``, −0.5; a walk gives −0.8 to −0.9,
-a jump +1.0) and swing at all (standard deviation ≥ ``min_thigh_deg``).
+a jump +1.0) and swing at all (standard deviation ≥ ``min_thigh_deg``), and the other
+arm, where it was seen (at least 10 frames), must swing with its own opposite thigh
+(least-squares slope ≥ ``min_other_ratio``, 0.15; on make demo's walk 0.33–0.45 over
+the click draws): legs pedalling a bicycle move against each other too, but the hands
+stay on the handlebar.
 
 On make demo's walk (the right arm behind the trunk in frames 8–23 and 35–49), the
 four fits of ``bench.fit_spread --runs 4`` (run 0 the exact clicks): MPJPE 12.46 /
@@ -64,11 +68,14 @@ class GaitSwing:
     ----------
     limb : ``"r_arm"`` or ``"l_arm"``
     legs_r : float, correlation of the two thighs' swings over the fitted frames
+    other_ratio : float, the other arm's swing per degree of its opposite thigh's where
+        it was seen (NaN when seen in fewer than 10 frames)
     frames : int, frames whose shoulder angles were replaced
     """
 
     limb: str
     legs_r: float
+    other_ratio: float
     frames: int
 
 
@@ -187,6 +194,7 @@ def gait_swing_arms(
     ratio: float = 0.7,
     max_legs_r: float = -0.5,
     min_thigh_deg: float = 5.0,
+    min_other_ratio: float = 0.15,
 ) -> tuple[np.ndarray, np.ndarray, list[GaitSwing]]:
     """Swing hidden arms with the opposite thigh in a walk (see the module text).
 
@@ -201,6 +209,8 @@ def gait_swing_arms(
     ratio : the arm's swing change per degree of the opposite thigh's
     max_legs_r : the thighs' swings must correlate at most this much (gait)
     min_thigh_deg : ... and each vary by at least this standard deviation, degrees
+    min_other_ratio : the other arm's least-squares swing per degree of its opposite
+        thigh's, over the frames it was seen, must be at least this
 
     Returns
     -------
@@ -237,8 +247,15 @@ def gait_swing_arms(
         run = repl[:, dofs].any(axis=1) & ~div & thigh_ok[other]
         if not run.any():
             continue
-        if legs_r > max_legs_r:
-            report.append(GaitSwing(f"{side}_arm", legs_r, 0))
+        other_dofs = [skel.dof_index(f"{other}_shoulder_{a}") for a in SHOULDER_AXES]
+        other_seen = ~unobs[:, other_dofs].any(axis=1) & ~div & thigh_ok[side]
+        other_ratio = np.nan
+        if other_seen.sum() >= 10:
+            other_ratio = float(
+                np.polyfit(sw[f"{side}_thigh"][other_seen], sw[f"{other}_arm"][other_seen], 1)[0]
+            )
+        if legs_r > max_legs_r or not other_ratio >= min_other_ratio:
+            report.append(GaitSwing(f"{side}_arm", legs_r, other_ratio, 0))
             continue
         seen = ~unobs[:, dofs].any(axis=1) & ~div
         phi, d = sw[f"{side}_arm"], sw[f"{other}_thigh"]
@@ -259,5 +276,5 @@ def gait_swing_arms(
                 )
             done[a:b] = True
         swung[np.ix_(done, dofs)] = True
-        report.append(GaitSwing(f"{side}_arm", legs_r, int(done.sum())))
+        report.append(GaitSwing(f"{side}_arm", legs_r, other_ratio, int(done.sum())))
     return theta, swung, report

@@ -19,10 +19,11 @@ RATIO = 0.7
 SHOULDER = ["r_shoulder_x", "r_shoulder_y", "r_shoulder_z"]
 
 
-def _walk(legs_sign=-1.0):
+def _walk(legs_sign=-1.0, left_arm_ratio=0.4):
     """Legs swinging at 1 Hz (25 fps) against each other (``legs_sign=-1``) or alike
     (+1); the right upper arm's sagittal swing exactly ``RATIO`` times the left thigh's
-    plus 3°, set through :func:`turn_bone`."""
+    plus 3°, the left upper arm's ``left_arm_ratio`` times the right thigh's, both set
+    through :func:`turn_bone`."""
     skel = sk.make_skeleton()
     s = np.ones(skel.n_groups)
     t = np.arange(NF) / 25.0
@@ -33,13 +34,14 @@ def _walk(legs_sign=-1.0):
     theta[:, skel.dof_index("r_elbow_x")] = -0.4
     theta[:, skel.dof_index("pelvis_z")] = 0.1 * np.sin(phase)  # the body turns a little
     root = np.column_stack([np.zeros(NF), 1.2 * t, np.full(NF, 1.0)])
-    dofs = np.array([skel.dof_index(n) for n in SHOULDER])
     x = sk.joint_positions(skel, theta, root, s)
     sw = sagittal_swings(x, skel.joint_names)
     right = -body_axes(x, skel.joint_names)["trunk"][0]
-    for f in range(NF):
-        turn = _rotation(right[f], RATIO * sw["l_thigh"][f] + 3.0 - sw["r_arm"][f])
-        theta[f, dofs] = turn_bone(skel, theta[f], root[f], s, "r_shoulder", dofs, turn)
+    for side, other, ratio in (("r", "l", RATIO), ("l", "r", left_arm_ratio)):
+        dofs = np.array([skel.dof_index(f"{side}_shoulder_{a}") for a in "xyz"])
+        for f in range(NF):
+            turn = _rotation(right[f], ratio * sw[f"{other}_thigh"][f] + 3.0 - sw[f"{side}_arm"][f])
+            theta[f, dofs] = turn_bone(skel, theta[f], root[f], s, f"{side}_shoulder", dofs, turn)
     return skel, s, theta, root
 
 
@@ -123,6 +125,7 @@ def test_a_hidden_arm_swings_back_with_the_opposite_thigh():
     assert np.array_equal(out[~swung], held[~swung])
     (r_arm,) = report
     assert r_arm.limb == "r_arm" and r_arm.frames == b - a and r_arm.legs_r < -0.9
+    assert r_arm.other_ratio == pytest.approx(0.4, abs=0.05)
 
 
 def test_a_stretch_to_the_last_frame_keeps_its_observed_end():
@@ -142,6 +145,15 @@ def test_legs_moving_alike_are_not_gait():
     out, swung, report = gait_swing_arms(skel, held, root, s, unobs, unobs)
     assert not swung.any() and np.array_equal(out, held)
     assert report[0].frames == 0 and report[0].legs_r > 0.9
+
+
+def test_arms_that_do_not_swing_are_not_gait():
+    """Pedalling: the legs move against each other, the seen left hand stays put."""
+    skel, s, truth, root = _walk(left_arm_ratio=0.0)
+    held, unobs = _hide_right_arm(skel, truth, 14, 30)
+    out, swung, report = gait_swing_arms(skel, held, root, s, unobs, unobs)
+    assert not swung.any() and np.array_equal(out, held)
+    assert report[0].frames == 0 and abs(report[0].other_ratio) < 0.05
 
 
 def test_angles_placed_earlier_are_not_replaced():

@@ -108,3 +108,27 @@ def bridge_hidden(
             theta[a:b, j] = h00 * y0 + h10 * m0 + h01 * y1 + h11 * m1
             bridged[a:b, j] = True
     return theta, bridged
+
+
+def fill_runs(
+    y: np.ndarray, pred: np.ndarray, hidden: np.ndarray, ok: np.ndarray, ends: bool
+) -> np.ndarray:
+    """(F,) bool: the frames of ``y`` (modified in place) replaced by the prediction.
+
+    Each run of ``hidden`` gets ``pred`` plus the residual ``y − pred`` of its observed
+    end frames (``ok``) interpolated across; a run without an observed frame on both
+    sides is skipped unless ``ends`` (then its one end's residual is held).
+    """
+    nf = len(y)
+    done = np.zeros(nf, bool)
+    resid = y - pred
+    for a, b in hidden_runs(hidden):
+        left, right = a > 0 and ok[a - 1], b < nf and ok[b]
+        if not (left and right or ends and (left or right)):
+            continue
+        r0 = resid[a - 1] if left else resid[b]
+        r1 = resid[b] if right else resid[a - 1]
+        w = (np.arange(a, b) - (a - 1)) / (b - a + 1)
+        y[a:b] = pred[a:b] + (1 - w) * r0 + w * r1
+        done[a:b] = True
+    return done

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .fit_bridge import bridge_hidden, hidden_runs
+from .fit_bridge import bridge_hidden, fill_runs, hidden_runs
 from .fit_gait import gait_swing_arms
 from .fit_mirror import mirror_hidden
 from .fit_reattach import reattach_seen
@@ -145,30 +145,6 @@ def coupling_lines(
     keep = r2 >= r2_min
     pooled = float(1.0 - ss_res[keep].sum() / ss_tot[keep].sum()) if keep.any() else 0.0
     return coef, keep, pooled
-
-
-def fill_runs(
-    y: np.ndarray, pred: np.ndarray, hidden: np.ndarray, ok: np.ndarray, ends: bool
-) -> np.ndarray:
-    """(F,) bool: the frames of ``y`` (modified in place) replaced by the prediction.
-
-    Each run of ``hidden`` gets ``pred`` plus the residual ``y − pred`` of its observed
-    end frames (``ok``) interpolated across; a run without an observed frame on both
-    sides is skipped unless ``ends`` (then its one end's residual is held).
-    """
-    nf = len(y)
-    done = np.zeros(nf, bool)
-    resid = y - pred
-    for a, b in hidden_runs(hidden):
-        left, right = a > 0 and ok[a - 1], b < nf and ok[b]
-        if not (left and right or ends and (left or right)):
-            continue
-        r0 = resid[a - 1] if left else resid[b]
-        r1 = resid[b] if right else resid[a - 1]
-        w = (np.arange(a, b) - (a - 1)) / (b - a + 1)
-        y[a:b] = pred[a:b] + (1 - w) * r0 + w * r1
-        done[a:b] = True
-    return done
 
 
 def couple_hidden(

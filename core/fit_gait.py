@@ -53,7 +53,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from .fit_bridge import hidden_runs
+from .fit_bridge import fill_runs
 from .skeleton import Skeleton, bone_frames, forward, joint_positions
 
 #: the shoulder's DOF axes (``r_shoulder_x`` …) that the swing solves for
@@ -259,22 +259,13 @@ def gait_swing_arms(
             continue
         seen = ~unobs[:, dofs].any(axis=1) & ~div
         phi, d = sw[f"{side}_arm"], sw[f"{other}_thigh"]
-        resid = phi - ratio * d
-        done = np.zeros(nf, bool)
-        for a, b in hidden_runs(run):
-            left, right = a > 0 and seen[a - 1], b < nf and seen[b]
-            if not (left or right):
-                continue
-            r0 = resid[a - 1] if left else resid[b]
-            r1 = resid[b] if right else resid[a - 1]
-            w = (np.arange(a, b) - (a - 1)) / (b - a + 1)
-            target = ratio * d[a:b] + (1 - w) * r0 + w * r1
-            for f, t in zip(range(a, b), target, strict=True):
-                turn = _rotation(trunk_right[f], float(t - phi[f]))
-                theta[f, dofs] = turn_bone(
-                    skel, theta[f], root_xyz[f], s, f"{side}_shoulder", dofs, turn
-                )
-            done[a:b] = True
+        target = phi.copy()
+        done = fill_runs(target, ratio * d, run, seen, ends=True)
+        for f in np.flatnonzero(done):
+            turn = _rotation(trunk_right[f], float(target[f] - phi[f]))
+            theta[f, dofs] = turn_bone(
+                skel, theta[f], root_xyz[f], s, f"{side}_shoulder", dofs, turn
+            )
         swung[np.ix_(done, dofs)] = True
         report.append(GaitSwing(f"{side}_arm", legs_r, other_ratio, int(done.sum())))
     return theta, swung, report

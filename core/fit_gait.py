@@ -30,13 +30,13 @@ ratio of 0.6–0.75; the default is 0.7.  Fitting the ratio to the frames where 
 hidden arm was seen does not work: it is seen in one half of its swing, where the thigh
 is near its extreme, and that slope is ill-determined.
 
-It applies only to gait: the thighs' swings must move against each other (their
-correlation over the fitted frames ≤ ``max_legs_r``, −0.5; a walk gives −0.8 to −0.9,
-a jump +1.0) and swing at all (standard deviation ≥ ``min_thigh_deg``), and the other
-arm, where it was seen (at least 10 frames), must swing with its own opposite thigh
-(least-squares slope ≥ ``min_other_ratio``, 0.15; on make demo's walk 0.33–0.45 over
-the click draws): legs pedalling a bicycle move against each other too, but the hands
-stay on the handlebar.
+It applies only to gait.  The thighs' swings must move against each other: their
+correlation over the fitted frames ≤ ``max_legs_r`` (−0.5; make demo's walk gives
+−0.69 to −0.87 over the click draws, a jump +1.0), each with a standard deviation
+≥ ``min_thigh_deg``.  And the other arm, where it was seen (at least 10 frames), must
+swing with its own opposite thigh: least-squares slope ≥ ``min_other_ratio`` (0.15;
+make demo's walk 0.33–0.46 over the click draws).  Legs pedalling a bicycle move
+against each other too, but the hands stay on the handlebar.
 
 On make demo's walk (the right arm behind the trunk in frames 8–23 and 35–49), the
 four fits of ``bench.fit_spread --runs 4`` (run 0 the exact clicks): MPJPE 12.46 /

@@ -40,6 +40,7 @@ import numpy as np
 
 from .camera import Camera, camera_project_jacobians
 from .contour_obs import body_ellipsoids
+from .ellipse_kernel import covered
 from .fit_search import LIMBS, grid_search
 from .metaballs import Metaballs, world_frames
 from .skeleton import Skeleton, forward, joint_positions
@@ -132,19 +133,6 @@ def image_ellipses(
     return np.where(ok[:, None], uv, 0.0), inv
 
 
-def _covered(uv: np.ndarray, mu: np.ndarray, inv: np.ndarray) -> np.ndarray:
-    """(..., G) bool: grid pixels ``uv`` (G, 2) inside any of the ellipses (..., E)."""
-    du = uv[:, 0] - mu[..., 0, None]  # (..., E, G)
-    dv = uv[:, 1] - mu[..., 1, None]
-    q = (
-        inv[..., 0, 0, None] * du * du
-        + 2.0 * inv[..., 0, 1, None] * du * dv
-        + inv[..., 1, 1, None] * dv * dv
-    )
-    live = np.any(inv != 0, axis=(-1, -2))[..., None]  # (..., E, 1)
-    return np.any((q <= 1.0) & live, axis=-2)
-
-
 def _body_coverage(skel, balls, theta, root, s, cameras, grids):
     """Per camera the body's coverage (G,) bool of its grid's pixels (None: empty grid)."""
     centers, axes, radii, _ = body_ellipsoids(skel, theta, root, s, balls)
@@ -154,7 +142,7 @@ def _body_coverage(skel, balls, theta, root, s, cameras, grids):
             out.append(None)
             continue
         mu, inv = image_ellipses(cam, centers, axes, radii)
-        out.append(_covered(g.uv, mu, inv))
+        out.append(covered(g.uv, mu, inv))
     return out
 
 
@@ -328,7 +316,7 @@ def _limb_gain(
         if not len(uv):
             continue
         mu, inv = image_ellipses(cam, centers[~on], axes[~on], radii[~on])
-        unexplained = uv[~_covered(uv, mu, inv)]  # foreground the rest leaves to the limb
+        unexplained = uv[~covered(uv, mu, inv)]  # foreground the rest leaves to the limb
         if len(unexplained):
             views.append((cam, mask, unexplained))
     if not views:
@@ -346,7 +334,7 @@ def _limb_gain(
                 cam, cw[:, on].reshape(-1, 3), Rw[:, on].reshape(-1, 3, 3), np.tile(r_on, (H, 1))
             )
             mu, inv = mu.reshape(H, E, 2), inv.reshape(H, E, 2, 2)
-            total += _covered(uv, mu, inv).sum(axis=1) * float(step) ** 2
+            total += covered(uv, mu, inv).sum(axis=1) * float(step) ** 2
             total -= w_background * _ellipse_background(mask, mu, inv).sum(axis=1)
         return total
 

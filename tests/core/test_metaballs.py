@@ -118,6 +118,43 @@ def test_surface_sampler_lands_on_iso_surface(setup):
     np.testing.assert_allclose(F, 0.5, atol=1e-8)
 
 
+def test_local_coords_and_gradient_by_definition(setup, rng):
+    """``local_coords`` is ``Rwᵀ (x − c)`` per metaball, and the field's gradient is
+    ``−4 Σ f_m Rw_m q_m`` (the matrix-product forms against the plain sums)."""
+    skel, theta, root, s, balls = setup
+    Rw, cw = mb.world_frames(skel, sk.forward(skel, theta, root, s), balls, s)
+    Rw, cw = Rw[0], cw[0]
+    x = cw[rng.integers(0, len(balls), 30)] + rng.normal(scale=0.04, size=(30, 3))
+    y = mb.local_coords(x, Rw, cw)
+    ref = np.stack([[Rw[m].T @ (xi - cw[m]) for m in range(len(balls))] for xi in x])
+    np.testing.assert_allclose(y, ref, atol=1e-14)
+    F, grad, f, _ = mb.field(x, Rw, cw, balls.radii)
+    q = ref / balls.radii[None] ** 2
+    M = len(balls)
+    g_ref = -4.0 * np.stack([sum(f[n, m] * Rw[m] @ q[n, m] for m in range(M)) for n in range(30)])
+    np.testing.assert_allclose(grad, g_ref, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(F, f.sum(axis=1))
+
+
+def test_projection_settles_each_point_on_its_own(setup):
+    """Points already on the surface stay where they are; far ones walk in; the result
+    does not depend on which other points are projected with them."""
+    skel, theta, root, s, balls = setup
+    pose = sk.forward(skel, theta, root, s)
+    Rw, cw = mb.world_frames(skel, pose, balls, s)
+    Rw, cw = Rw[0], cw[0]
+    on, ok = mb.sample_surface(skel, pose, balls, s, per_ball=10)
+    on = on[ok]
+    far = cw[:5] + np.array([0.0, 0.0, 0.3])
+    xs, good = mb.project_to_surface(np.vstack([on, far]), Rw, cw, balls.radii)
+    np.testing.assert_array_equal(xs[: len(on)], on)
+    assert good.all()
+    F, _, _, _ = mb.field(xs, Rw, cw, balls.radii)
+    np.testing.assert_allclose(F, 0.5, atol=1e-9)
+    alone, _ = mb.project_to_surface(far, Rw, cw, balls.radii)
+    np.testing.assert_array_equal(alone, xs[len(on) :])
+
+
 @pytest.mark.parametrize("model", ["simplified", "complete"])
 @pytest.mark.parametrize("per_part", [True, False])
 def test_deflated_blend_follows_the_rendered_ellipsoids(model, per_part):

@@ -215,12 +215,15 @@ def _skew(v: np.ndarray) -> np.ndarray:
     )
 
 
-def rodrigues_batch(rvec: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def rodrigues_batch(
+    rvec: np.ndarray, derivative: bool = True
+) -> tuple[np.ndarray, np.ndarray | None]:
     """Rotation vectors (M, 3) -> matrices R (M, 3, 3) and dR/drvec (M, 3, 3, 3).
 
     ``dR[m, i]`` is the derivative of ``R[m]`` with respect to ``rvec[m, i]``
     (Gallego & Yezzi 2015, "A compact formula for the derivative of a 3-D rotation in
     exponential coordinates", eq. 9); near zero it tends to the skew matrix of e_i.
+    Without ``derivative`` dR is None (and R the same, bit for bit).
     """
     rvec = np.asarray(rvec, dtype=float).reshape(-1, 3)
     theta = np.linalg.norm(rvec, axis=1)
@@ -231,6 +234,8 @@ def rodrigues_batch(rvec: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     s, c = np.sin(theta)[:, None, None], np.cos(theta)[:, None, None]
     R = np.eye(3) + s * Kx + (1.0 - c) * (Kx @ Kx)
     R[small] = np.eye(3) + _skew(rvec[small])
+    if not derivative:
+        return R, None
     eye = np.eye(3)
     Vx = _skew(rvec)  # (M, 3, 3)
     ImR = eye - R  # (M, 3, 3)
@@ -278,14 +283,15 @@ def _project(params, xyz, jacobian, camera_jacobian, one_camera):
     follow)."""
     xyz = np.asarray(xyz, dtype=float).reshape(-1, 3)
     params = np.asarray(params, dtype=float)
+    need_dR = jacobian and camera_jacobian
     if one_camera:
-        R, dR = rodrigues_batch(params[None, :3])
+        R, dR = rodrigues_batch(params[None, :3], need_dR)
         t = params[None, 3:6]
         f, a, cx, cy, k1, k2, k3, p1, p2 = params[6:]
         pc = xyz @ R[0].T + t
     else:
         params = np.broadcast_to(params, (xyz.shape[0], N_PARAMS))
-        R, dR = rodrigues_batch(params[:, :3])
+        R, dR = rodrigues_batch(params[:, :3], need_dR)
         t = params[:, 3:6]
         f, a, cx, cy, k1, k2, k3, p1, p2 = params[:, 6:].T
         pc = np.einsum("mij,mj->mi", R, xyz) + t

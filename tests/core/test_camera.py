@@ -84,6 +84,9 @@ def test_rodrigues_derivative_matches_finite_differences(scale, rng):
         e[k] = h
         num = (rodrigues_batch(rvec + e)[0] - rodrigues_batch(rvec - e)[0]) / (2 * h)
         np.testing.assert_allclose(dR[:, k], num, atol=1e-6)
+    R2, none = rodrigues_batch(rvec, derivative=False)  # the rotations alone, the same bits
+    np.testing.assert_array_equal(R2, R)
+    assert none is None
 
 
 def test_projection_jacobians_match_finite_differences(rng):

@@ -123,7 +123,7 @@ def triangulate(
         r = np.zeros((idx.size, c, 2))
         for j in range(c):
             with np.errstate(over="ignore", invalid="ignore"):
-                pred, _, J_xyz = project_params(params[j], xyz[idx])
+                pred, _, J_xyz = project_params(params[j], xyz[idx], camera_jacobian=False)
             ok_j = (
                 seen[idx, j]
                 & np.all(np.isfinite(pred), axis=1)

@@ -9,6 +9,9 @@ surface.  A metaball ``exp(-2 d)`` with threshold ``T`` on its own has the surfa
 ``d = -ln(T) / 2``, i.e. the ellipsoid with radii scaled by ``sqrt(-ln(T) / 2)``
 (0.589 for T = 0.5); callers pass the radii they want rendered.
 
+The rendering loop itself is :mod:`core.render_kernel`: compiled with numba where it
+is available (the same arrays as its numpy path, bit for bit), else numpy.
+
 Frames: world Z up, metres; cameras as in :mod:`core.camera` (distortion honoured
 through the undistorted viewing ray of every pixel).
 """
@@ -19,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import render_kernel
 from .camera import Camera
 
 
@@ -56,14 +60,6 @@ class PartRender:
     def mask(self) -> np.ndarray:
         """Silhouette of the whole body, ``(H, W)`` bool."""
         return self.part_id >= 0
-
-
-def _ray_grid(camera: Camera, step: int = 1) -> np.ndarray:
-    w, h = camera.size
-    vv, uu = np.mgrid[0:h:step, 0:w:step]
-    uv = np.stack([uu, vv], axis=-1).astype(float)
-    _, d = camera.rays(uv)
-    return d  # (h, w, 3) unit world directions
 
 
 def render_parts(
@@ -114,85 +110,16 @@ def render_parts(
     Returns
     -------
     PartRender
+        With ``full_area`` all zero when P > 64.
+
+    Notes
+    -----
+    Runs :func:`core.render_kernel.render_compiled` (numba) where it can, else
+    :func:`core.render_kernel.render_numpy`; both give the same arrays bit for bit.
     """
-    centers = np.asarray(centers, float)
-    axes = np.asarray(axes, float)
-    radii = np.asarray(radii, float)
-    part = np.asarray(part, int)
-    n_parts = int(part.max()) + 1 if n_parts is None else n_parts
-    w, h = camera.size
-    d_all = _ray_grid(camera) if rays is None else rays
-    origin = camera.center
-    depth = np.full((h, w), np.inf)
-    part_id = np.full((h, w), -1, int)
-    full_area = np.zeros(n_parts, int)
-    covered = np.zeros((n_parts, h, w), bool) if n_parts <= 64 else None
-
-    # projected bounding boxes from the 8 corners of each ellipsoid's box
-    corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
-    A_all = np.transpose(axes, (0, 2, 1)) / radii[:, :, None]  # world -> unit sphere
-    reach = radii.max(axis=1)
-    near = np.linalg.norm(centers[:, None] - centers[None], axis=2) < reach[:, None] + reach[None]
-    pts = centers[:, None, :] + np.einsum("eij,ekj->eki", axes, corners[None] * radii[:, None, :])
-    uv = camera.project(pts.reshape(-1, 3)).reshape(len(centers), 8, 2)
-    cam_z = camera.to_camera(pts.reshape(-1, 3))[:, 2].reshape(len(centers), 8)
-    for e in range(len(centers)):
-        if np.any(cam_z[e] <= 1e-6) or not np.all(np.isfinite(uv[e])):
-            # behind or straddling the camera: test the whole image (rare)
-            u0, v0, u1, v1 = 0, 0, w - 1, h - 1
-        else:
-            u0 = max(int(np.floor(uv[e, :, 0].min())) - 1, 0)
-            v0 = max(int(np.floor(uv[e, :, 1].min())) - 1, 0)
-            u1 = min(int(np.ceil(uv[e, :, 0].max())) + 1, w - 1)
-            v1 = min(int(np.ceil(uv[e, :, 1].max())) + 1, h - 1)
-        if u0 > u1 or v0 > v1:
-            continue
-        d = d_all[v0 : v1 + 1, u0 : u1 + 1]  # (bh, bw, 3)
-        # ray o + s d in the ellipsoid's unit-sphere frame: q(s) = A (o - c) + s A d
-        A = axes[e].T / radii[e][:, None]  # world -> scaled local
-        oc = A @ (origin - centers[e])
-        dl = d @ A.T
-        a = np.einsum("hwk,hwk->hw", dl, dl)
-        b = 2.0 * dl @ oc
-        c = oc @ oc - 1.0
-        disc = b * b - 4.0 * a * c
-        hit = disc >= 0
-        sq = np.sqrt(np.where(hit, disc, 0.0))
-        s_near = (-b - sq) / (2.0 * a)
-        s_far = (-b + sq) / (2.0 * a)
-        s = np.where(s_near > 0, s_near, s_far)
-        hit &= s > 0
-        if not hit.any():
-            continue
-        p = part[e]
-        full_area_box = hit
-        if outer_only:
-            others = np.flatnonzero(near[e])
-            others = others[others != e]
-            if buried_by is not None:
-                others = others[np.asarray(buried_by, bool)[part[e], part[others]]]
-            if len(others):
-                full_area_box = hit & (
-                    _outer(origin, d, s_near, others, A_all, centers)
-                    | _outer(origin, d, s_far, others, A_all, centers)
-                )
-        if covered is not None:
-            covered[p, v0 : v1 + 1, u0 : u1 + 1] |= full_area_box
-        sub_depth = depth[v0 : v1 + 1, u0 : u1 + 1]
-        closer = hit & (s < sub_depth)
-        sub_depth[closer] = s[closer]
-        part_id[v0 : v1 + 1, u0 : u1 + 1][closer] = p
-    if covered is not None:
-        full_area = covered.reshape(n_parts, -1).sum(axis=1)
-    visible_area = np.bincount(part_id[part_id >= 0], minlength=n_parts)[:n_parts]
-    return PartRender(part_id, depth, full_area, visible_area)
-
-
-def _outer(origin, d, s, others, A_all, centers, shrink: float = 0.995) -> np.ndarray:
-    """Whether the points ``origin + s d`` (h, w) lie inside none of ``others``."""
-    x = origin + np.where(np.isfinite(s), s, 0.0)[..., None] * d  # (h, w, 3)
-    q = np.einsum("oij,hwoj->hwoi", A_all[others], x[:, :, None, :] - centers[others])
-    return ~np.any(np.einsum("hwoi,hwoi->hwo", q, q) < shrink**2, axis=2) & (s > 0)
+    args = (camera, centers, axes, radii, part, n_parts, rays, outer_only, buried_by)
+    out = render_kernel.render_compiled(*args)
+    return PartRender(*(render_kernel.render_numpy(*args) if out is None else out))
 
 
 def neighbour_parts(parent: np.ndarray) -> np.ndarray:
@@ -207,4 +134,4 @@ def neighbour_parts(parent: np.ndarray) -> np.ndarray:
 
 def camera_rays(camera: Camera) -> np.ndarray:
     """Unit world viewing directions of every pixel, shape (H, W, 3)."""
-    return _ray_grid(camera)
+    return render_kernel.ray_grid(camera)

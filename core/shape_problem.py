@@ -91,7 +91,7 @@ class _Frame:
         self.theta, self.root, self.contours, self.parts = theta, root, contours, parts
         self.idx = self.valid = self.w = None
         self.knee = np.inf
-        self.xs = self.sidx = self.svalid = self.soff = self.sinv = None
+        self.xs = self.sidx = self.svalid = self.soff = self.sinv = self.sw = None
         self.soff_all = None
         self.sil = None  # silhouette rows linearised at the round's start: (r0, J, x0, w)
         self.sil_rms = np.nan
@@ -195,6 +195,9 @@ class ShapeProblem:
             fr.xs, fr.sidx, fr.svalid = xs[bulge], sidx[bulge], svalid[bulge]
             fr.soff = off[bulge] - cfg.model_gate
             fr.sinv = satt.inv_g[bulge]
+            fr.sw = np.full(len(fr.soff), 1.0 / cfg.sigma_model)
+            if cfg.model_robust_scale > 0:  # a large offset is as likely a gap in the data
+                fr.sw *= _cauchy(fr.soff, cfg.model_robust_scale * cfg.sigma_model)
 
     def _freeze_silhouette(self, fr: _Frame, b: Metaballs, x: np.ndarray) -> None:
         """Pair the blended surface's rim with the frame's image contours and linearise.
@@ -284,7 +287,7 @@ class ShapeProblem:
                     fr.xs,
                     fr.sidx,
                     fr.svalid,
-                    np.full(len(fr.xs), 1.0 / cfg.sigma_model),
+                    fr.sw,
                     off=(fr.soff, fr.sinv),
                 )
                 res.append(r)

@@ -22,10 +22,11 @@ prior:
   2 cm aside lie 4 mm below the tangent plane of a 5 cm limb), which a two-sided term
   would turn into a systematic shrinking.  A metaball growing into space where the
   cameras see nothing is pulled back; a region no camera sees is left to the
-  symmetry and the prior.  The excess ``o − gate`` is Cauchy-weighted (knee
-  ``model_robust_scale · σ_model``, 12 mm): a seen surface with no tracked point near
-  it is as often a gap in the points (tracks lost, weak texture) as a bulge, and
-  fully weighted such gaps pulled the trunk in across them;
+  symmetry and the prior.  In a frame whose silhouettes hold the outline, the excess
+  ``o − gate`` is Cauchy-weighted (knee ``model_robust_scale · σ_model``, 12 mm): a
+  seen surface with no tracked point near it is as often a gap in the points (tracks
+  lost, weak texture) as a bulge, and fully weighted such gaps pulled the trunk in
+  across them;
 * **symmetry** (soft, ``σ_symmetry``): a left metaball and its right partner have the
   same radii and mirror-image centres (about the skeleton's rest-pose sagittal plane),
   and a metaball of the trunk or head is centred on that plane.  The studio's

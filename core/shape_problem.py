@@ -196,7 +196,8 @@ class ShapeProblem:
             fr.soff = off[bulge] - cfg.model_gate
             fr.sinv = satt.inv_g[bulge]
             fr.sw = np.full(len(fr.soff), 1.0 / cfg.sigma_model)
-            if cfg.model_robust_scale > 0:  # a large offset is as likely a gap in the data
+            if cfg.model_robust_scale > 0 and fr.sil is not None:
+                # the silhouettes hold the outline: a large offset is as likely a gap
                 fr.sw *= _cauchy(fr.soff, cfg.model_robust_scale * cfg.sigma_model)
 
     def _freeze_silhouette(self, fr: _Frame, b: Metaballs, x: np.ndarray) -> None:

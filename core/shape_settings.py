@@ -30,11 +30,13 @@ class ShapeSettings:
     neighbours: int = 5  # data points whose median normal offset a model point uses
     max_offset: float = 0.05  # cap of a model point's offset
     model_gate: float = 0.01  # offsets below this are no bulge (curvature, point spacing)
-    #: Cauchy knee of a seen model point's offset beyond the gate, in ``sigma_model``
-    #: (0: every bulge weighs fully).  No tracked point where the model's surface is seen
-    #: is as often a gap in the points (tracks lost, weak texture, a limb in front in
-    #: other frames) as a bulge; weighed fully, a gap pulls the surface in across it
-    #: (make demo's walk: the trunk 17–31 mm off the true mesh, 6–11 with the knee)
+    #: Cauchy knee of a seen model point's offset beyond the gate, in ``sigma_model``, in
+    #: a frame whose silhouettes are fitted too (0: every bulge weighs fully).  No
+    #: tracked point where the model's surface is seen is as often a gap in the points
+    #: (tracks lost, weak texture, a limb in front in other frames) as a bulge; weighed
+    #: fully, a gap pulls the surface in across it (make demo's walk: the trunk's
+    #: metaballs 16–29 mm off the true mesh, 11–21 with it).  With points alone the model
+    #: points are all that holds a bulge and keep their full weight
     model_robust_scale: float = 3.0
     robust_scale: float = 3.0  # Cauchy knee of the data points, in σ
     rounds: int = 10

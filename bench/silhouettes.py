@@ -9,7 +9,9 @@
    using a camera) from our metaball body against a reference splatted from the true
    mesh (:mod:`bench.visibility`): mean absolute difference and the agreement of the
    ``VI >= 0.2`` decision.  The body is ``--fit FIT.json`` when given, else the truth pose
-   (``core.truth_state``) carrying the *template* metaball shape — labelled as such.
+   (``core.truth_state``) carrying the *template* metaball shape — labelled as such
+   (``python -m bench.visibility SCENE FIT.json …`` prints this section alone, for the
+   template and any number of fitted states).
 3. Contour tracking (paper 2) on the studio scene from the image foreground alone: the
    key-joint clicks give the first pose, the metaball shape is fitted to the first frame's
    silhouettes, then the EKF tracks from contours with per-part camera selection and,
@@ -106,8 +108,8 @@ def visibility(scene_dir: Path, fit: Path | None) -> None:
         f"{len(scene.cameras)} cameras"
     )
     for outer, how in ((False, "whole ellipsoids"), (True, "outer surface only")):
-        # outer: a part's area ignoring occlusion leaves out its surface buried inside a
-        # larger kinematic neighbour (core.model_render.render_parts(outer_only=True))
+        # outer: a part's area ignoring occlusion leaves out its surface inside any other
+        # ellipsoid of the body (core.model_render.render_parts(outer_only=True))
         t0 = time.perf_counter()
         r = compare(state, scene.truth, scene.calibration(), frames, outer_only=outer)
         dt = time.perf_counter() - t0

@@ -92,34 +92,25 @@ def studio(scene_dir: Path) -> None:
 
 
 def visibility(scene_dir: Path, fit: Path | None) -> None:
-    from bench.visibility import compare
+    from bench.visibility import HEADER, report
     from core.state import read_state
     from core.truth_state import truth_to_state
 
     scene = load_scene(scene_dir)
     if fit is not None:
-        state, label = read_state(fit), f"fitted state {fit}"
+        state, label = read_state(fit), fit.name
     else:
         state, _ = truth_to_state(scene.truth, scene.fps)
-        label = "truth pose with the template metaball shape (no fit given)"
+        label = "template, truth pose"
     frames = range(0, scene.n_frames, 5)
     print(
-        f"\n2. Visibility index vs the true mesh ({label}), {len(frames)} frames x "
-        f"{len(scene.cameras)} cameras"
+        f"\n2. Visibility index vs the true mesh ({len(frames)} frames x "
+        f"{len(scene.cameras)} cameras; the template metaball shape at the truth pose "
+        "unless --fit is given); our area ignoring occlusion: whole ellipsoids, or only "
+        "the outer surface, which no other ellipsoid covers"
     )
-    for outer, how in ((False, "whole ellipsoids"), (True, "outer surface only")):
-        # outer: a part's area ignoring occlusion leaves out its surface inside any other
-        # ellipsoid of the body (core.model_render.render_parts(outer_only=True))
-        t0 = time.perf_counter()
-        r = compare(state, scene.truth, scene.calibration(), frames, outer_only=outer)
-        dt = time.perf_counter() - t0
-        worst = sorted(r["per_part"].items(), key=lambda kv: -kv[1])[:5]
-        print(
-            f"   {how:18s}: mean |VI ours - VI truth| = {r['mean_abs_diff']:.3f} over "
-            f"{r['n']} part-views; VI >= 0.2 decision agrees in "
-            f"{100 * r['decision_agreement']:.1f} %; {dt:.1f} s; worst parts: "
-            + ", ".join(f"{k} {v:.3f}" for k, v in worst)
-        )
+    print(HEADER)
+    report(label, state, scene, frames)
 
 
 def contour_tracking(scene_dir: Path, n_frames: int) -> None:

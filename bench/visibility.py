@@ -36,7 +36,7 @@ selection renders it, or only the part's outer surface — where a point of its
 ellipsoid lies inside any other ellipsoid of the body it is not skin.  Earlier only a
 kinematic neighbour at least as large buried a part's surface; on the fitted bodies
 ``core fit`` writes that left 0.065 / 0.070 (walk_line3 / jumps_line3), any ellipsoid
-0.047 / 0.047, the template at the truth pose the same either way (0.065 / 0.066).
+0.046 / 0.047; the template at the truth pose hardly moves (0.065 → 0.066 / 0.066).
 
 ``python -m bench.visibility SCENE [FIT.json ...]`` prints both for the template at the
 truth pose and for each fitted state (``core fit … -o FIT.json``; ``make demo`` writes
@@ -52,6 +52,7 @@ from core.model_render import camera_rays, render_parts
 from core.skeleton import Skeleton
 
 MIN_AREA_PX = 80  # parts covering fewer pixels (ignoring occlusion) are not scored
+HEADER = f"{'body':28s} {'our area':16s} {'mean |dVI|':>10s} {'VI>=0.2 agree':>14s} {'n':>5s}"
 
 
 def _segments(skel: Skeleton, joints: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -190,7 +191,10 @@ def compare(
     }
 
 
-def _report(label: str, state, scene, frames) -> None:
+def report(label: str, state, scene, frames) -> None:
+    """Print mean |ΔVI|, the VI ≥ 0.2 decision's agreement, the scored part-views and
+    the worst parts of ``state`` over ``frames`` of ``scene``, whole ellipsoids and
+    outer surface."""
     cams = scene.calibration()
     for outer, how in ((False, "whole ellipsoids"), (True, "outer surface")):
         r = compare(state, scene.truth, cams, frames, outer_only=outer)
@@ -222,10 +226,10 @@ def main(argv=None) -> int:
         f"Visibility index vs the true mesh, {args.scene.name}, {len(frames)} frames x "
         f"{len(scene.cameras)} cameras (target: mean |dVI| <= 0.05)"
     )
-    print(f"{'body':28s} {'our area':16s} {'mean |dVI|':>10s} {'VI>=0.2 agree':>14s} {'n':>5s}")
-    _report("template, truth pose", truth_to_state(scene.truth, scene.fps)[0], scene, frames)
+    print(HEADER)
+    report("template, truth pose", truth_to_state(scene.truth, scene.fps)[0], scene, frames)
     for fit in args.fits:
-        _report(fit.name, read_state(fit), scene, frames)
+        report(fit.name, read_state(fit), scene, frames)
     return 0
 
 

@@ -3,9 +3,9 @@
 For each of N points, the ``(2h+1)²`` template around ``uv_template`` is correlated
 with every integer offset of a ``(2r+1)²`` search box around ``uv_predicted``; the
 best offset is refined to sub-pixel by a parabola through its neighbours along u
-and v.  The correlations of all points are computed at once (FFT convolution over
-the batch axis, local sums by integral images): no Python loop per point.  This
-gives least squares matching (:mod:`core.lsm`) its start.
+and v.  The correlations of all points are computed at once, in one compiled loop or
+by FFT convolution over the batch axis (:mod:`core.ncc_kernel`): no Python loop per
+point.  This gives least squares matching (:mod:`core.lsm`) its start.
 """
 
 from __future__ import annotations
@@ -14,9 +14,9 @@ from dataclasses import dataclass
 from enum import IntEnum
 
 import numpy as np
-from scipy.signal import fftconvolve
 
 from .lsm import ImageStack
+from .ncc_kernel import ncc_maps
 
 
 class NCCStatus(IntEnum):
@@ -51,13 +51,6 @@ class NCCResult:
     @property
     def ok(self) -> np.ndarray:
         return self.status == NCCStatus.OK
-
-
-def _box_sums(a: np.ndarray, k: int) -> np.ndarray:
-    """Sums over all k × k windows of a batch (N, H, W) -> (N, H-k+1, W-k+1)."""
-    c = np.cumsum(np.cumsum(a, axis=1), axis=2)
-    c = np.pad(c, ((0, 0), (1, 0), (1, 0)))
-    return c[:, k:, k:] - c[:, :-k, k:] - c[:, k:, :-k] + c[:, :-k, :-k]
 
 
 def search(
@@ -123,18 +116,10 @@ def search(
     S = sstack.windows(
         si[use], cs_i[:, 0] - half - radius, cs_i[:, 1] - half - radius, 2 * (half + radius) + 1
     ).astype(np.float64)
-    k = 2 * half + 1
-    npx = k * k
     T0 = T - T.mean(axis=(1, 2), keepdims=True)
     tnorm = np.sqrt(np.sum(T0 * T0, axis=(1, 2)))
-    num = fftconvolve(S, T0[:, ::-1, ::-1], mode="valid", axes=(1, 2))  # (n, 2r+1, 2r+1)
-    s1 = _box_sums(S, k)
-    s2 = _box_sums(S * S, k)
-    var = np.maximum(s2 - s1 * s1 / npx, 0.0)
-    den = tnorm[:, None, None] * np.sqrt(var)
-    flat = (tnorm < 1e-6) | np.all(den < 1e-6, axis=(1, 2))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ncc = np.where(den > 1e-6, num / den, -1.0)
+    ncc, textured = ncc_maps(S, T0, tnorm)  # (n, 2r+1, 2r+1)
+    flat = (tnorm < 1e-6) | ~textured
     w = 2 * radius + 1
     best = np.argmax(ncc.reshape(len(use), -1), axis=1)
     iy, ix = np.divmod(best, w)

@@ -42,11 +42,13 @@ def levenberg_marquardt(
     r, J = system(x)
     cost = float(r @ r)
     mu, nfev = 1e-3, 1
+    A = None  # the normal equations of J, kept while steps are refused
     while nfev < max_nfev:
-        A = J.T @ J
-        g = J.T @ r
-        d = np.diag(A).copy()
-        d = np.maximum(d, 1e-12 * max(d.max(initial=0.0), 1e-30))
+        if A is None:
+            A = J.T @ J
+            g = J.T @ r
+            d = np.diag(A).copy()
+            d = np.maximum(d, 1e-12 * max(d.max(initial=0.0), 1e-30))
         try:
             step = np.linalg.solve(A + mu * np.diag(d), -g)
         except np.linalg.LinAlgError:
@@ -63,6 +65,7 @@ def levenberg_marquardt(
             small = (cost - cn) <= tol * cost  # no longer a significant decrease
             small = small or float(np.abs(step).max(initial=0.0)) < 1e-10
             x, r, J, cost = xn, rn, Jn, cn
+            A = None
             mu = max(mu / 5.0, 1e-15)
             if small or cost < 1e-28:
                 return LMResult(x, cost, nfev, 1, "converged")

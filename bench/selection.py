@@ -1,7 +1,7 @@
 """Per-part camera selection against all cameras fused, on self-occluding studio scenes.
 
 ``python -m bench.selection [--scenes dance_line3,dance_ortho3,pirouette_line3,pirouette_ortho3]
-[--frames N] [--fps F] [--tracker ekf|fit]``
+[--frames N] [--fps F] [--tracker ekf|fit] [--cues contours|both]``
 
 The second paper's claim (issue 7): tracking each body part only from the cameras that see
 it (visibility index ≥ 0.2) and observe its motion survives self-occlusion better than
@@ -27,7 +27,9 @@ silhouette limb search, the constant-velocity prediction) instead of the EKF, wi
 same three camera choices (:class:`core.fit_contours.ContourSettings` ``select`` and
 ``rank_motion``, without ``wide_view_deg``) and a fourth row, its default: the paper's
 selection plus a view across a part's kept views where those all look from one side
-(:data:`FIT_WIDE`); its own shape comes from the first frame's silhouettes.
+(:data:`FIT_WIDE`); its own shape comes from the first frame's silhouettes.  With
+``--cues both`` the fit also takes the scene's tracked texture points (``core track``,
+run first where ``tracks.npz`` is missing), as ``core fit --cues both`` does.
 
 Scenes: the dance scenes are :data:`bench.fit.STUDIO_SCENES` (rendered and cached by
 :func:`bench.fit.render_studio_scene`); the pirouette scenes (``pirouette.bvh``, CMU
@@ -212,8 +214,9 @@ def _joints_like_truth(skel, theta, root, s, names):
     return xyz[:, order]
 
 
-def _fit_rows(scene, nf: int, lost_mm: float, vis_frames, ref_vi):
-    """The sequence fit with contours alone, once per camera choice of :data:`METHODS`."""
+def _fit_rows(scene, nf: int, lost_mm: float, vis_frames, ref_vi, cues: str = "contours"):
+    """The sequence fit (``cues``: contours alone, or ``"both"`` with the tracked points),
+    once per camera choice of :data:`METHODS` and :data:`FIT_WIDE`."""
     from core.evaluate import evaluate_state
     from core.fit_contours import ContourSettings
     from core.fit_scene import run_scene as fit_run
@@ -230,7 +233,7 @@ def _fit_rows(scene, nf: int, lost_mm: float, vis_frames, ref_vi):
         res = fit_run(
             scene,
             observations="tracks",
-            cues="contours",
+            cues=cues,
             frames=nf,
             contour_settings=ContourSettings(select=select, rank_motion=ranked, wide_view_deg=wide),
         )
@@ -272,12 +275,14 @@ def run_scene(
     settings: dict | None = None,
     fps: float | None = None,
     tracker: str = "ekf",
+    cues: str = "contours",
 ):
     """Track one scene with selection and fused; returns a list of result dicts.
 
     ``fps``: the scene's frame rate (see :func:`scene_dir`); None for the studio's 25.
     ``tracker``: ``"ekf"`` (the contour EKF) or ``"fit"`` (the sequence fit with
-    contours alone; its MPJPE leaves out the frames it marked diverged).
+    contours alone; its MPJPE leaves out the frames it marked diverged).  ``cues``: with
+    the fit, ``"contours"`` alone or ``"both"`` (the tracked points too).
     """
     from core.contour_track import ContourTrackSettings, fit_shape_to_contours, track_contours
     from core.evaluate import evaluate, truth_joints
@@ -291,11 +296,11 @@ def run_scene(
     if tracker == "fit":
         vis_frames = list(range(0, nf, 5))
         ref_vi = truth_visibility(scene, vis_frames)
+        what = "contours alone" if cues == "contours" else "tracked points and contours"
         print(
-            f"\n{name}: {len(cams)} cameras, {nf} frames; the sequence fit with contours alone",
-            flush=True,
+            f"\n{name}: {len(cams)} cameras, {nf} frames; the sequence fit with {what}", flush=True
         )
-        return _fit_rows(scene, nf, lost_mm, vis_frames, ref_vi)
+        return _fit_rows(scene, nf, lost_mm, vis_frames, ref_vi, cues)
     t0 = time.process_time()
     contours = scene_contours(scene, nf)
     t_seg = time.process_time() - t0
@@ -419,11 +424,24 @@ def main(argv=None) -> int:
         default="ekf",
         help="the contour EKF (default) or the sequence fit with contours alone",
     )
+    ap.add_argument(
+        "--cues",
+        choices=("contours", "both"),
+        default="contours",
+        help="with --tracker fit: contours alone (default) or the tracked points too",
+    )
     args = ap.parse_args(argv)
+    if args.cues != "contours" and args.tracker != "fit":
+        ap.error("--cues both needs --tracker fit")
     rows = []
     for name in args.scenes.split(","):
         rows += run_scene(
-            name.strip(), args.frames, args.lost_mm, fps=args.fps, tracker=args.tracker
+            name.strip(),
+            args.frames,
+            args.lost_mm,
+            fps=args.fps,
+            tracker=args.tracker,
+            cues=args.cues,
         )
         print_rows(rows[-len(METHODS) - (args.tracker == "fit") :], args.lost_mm)
     load = " ".join(f"{x:.2f}" for x in os.getloadavg())

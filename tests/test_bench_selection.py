@@ -59,3 +59,35 @@ def test_camera_agreement_counts_hidden_used_and_seen_unused():
     assert np.isclose(hidden_used, 1 / 3)
     # seen part-views: (0,0), (1,0), (1,2) -> (1,0) unused
     assert np.isclose(seen_unused, 1 / 3)
+
+
+def test_fit_rows_pass_the_cues_to_the_fit(monkeypatch):
+    """``--cues both`` fits with the tracked points as well; the EKF cannot take them."""
+    import pytest
+
+    import bench.selection as sel
+
+    with pytest.raises(SystemExit):
+        sel.main(["--cues", "both", "--scenes", "x"])  # the EKF rows: refused up front
+
+    seen = []
+
+    class _Stop(Exception):
+        pass
+
+    def fake_fit(scene, **kw):
+        seen.append((kw["cues"], kw["observations"], kw["contour_settings"].select))
+        raise _Stop
+
+    monkeypatch.setattr("core.fit_scene.run_scene", fake_fit)
+
+    class _Scene:
+        truth = {}
+        n_frames = 3
+
+        def calibration(self):
+            return []
+
+    with pytest.raises(_Stop):
+        sel._fit_rows(_Scene(), 3, 100.0, [0], None, cues="both")
+    assert seen == [("both", "tracks", True)]

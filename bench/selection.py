@@ -422,7 +422,7 @@ def main(argv=None) -> int:
         "--tracker",
         choices=("ekf", "fit"),
         default="ekf",
-        help="the contour EKF (default) or the sequence fit with contours alone",
+        help="the contour EKF (default) or the sequence fit (contours alone, or see --cues)",
     )
     ap.add_argument(
         "--cues",

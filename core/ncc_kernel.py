@@ -7,6 +7,8 @@ images; at the tracker's search radii (3–16 px, ``k`` = 13) most of that work 
 FFTs of padded windows, 60 % of ``core track`` on the default scene.  The compiled path
 sums the ``(2r+1)² · k²`` products directly, point by point, with the window sums from
 one integral image per point: fewer operations at these sizes, and no temporaries.
+``core track`` of the walk: 113.3 → 64.5 s (median of 3 paired runs), its tracks bit for
+bit the same.
 
 The two paths round differently (the FFT's error is ~1e-13 of the correlation); the
 test suite holds them within 1e-9.  Optional at run time like :mod:`core.field_kernel`

@@ -1,7 +1,7 @@
 """Per-part camera selection against all cameras fused, on self-occluding studio scenes.
 
 ``python -m bench.selection [--scenes dance_line3,dance_ortho3,pirouette_line3,pirouette_ortho3]
-[--frames N] [--fps F] [--tracker ekf|fit] [--cues contours|both]``
+[--frames N] [--fps F] [--tracker ekf|fit] [--cues contours|both] [--click-draw N]``
 
 The second paper's claim (issue 7): tracking each body part only from the cameras that see
 it (visibility index ≥ 0.2) and observe its motion survives self-occlusion better than
@@ -30,6 +30,8 @@ selection plus a view across a part's kept views where those all look from one s
 (:data:`FIT_WIDE`); its own shape comes from the first frame's silhouettes.  With
 ``--cues both`` the fit also takes the scene's tracked texture points (``core track``,
 run first where ``tracks.npz`` is missing), as ``core fit --cues both`` does.
+``--click-draw N`` moves every click by N(0, 0.5 px) per axis with seed N, as
+``bench.fit_spread``'s run N does (0: the scene's clicks).
 
 Scenes: the dance scenes are :data:`bench.fit.STUDIO_SCENES` (rendered and cached by
 :func:`bench.fit.render_studio_scene`); the pirouette scenes (``pirouette.bvh``, CMU
@@ -276,6 +278,7 @@ def run_scene(
     fps: float | None = None,
     tracker: str = "ekf",
     cues: str = "contours",
+    click_draw: int = 0,
 ):
     """Track one scene with selection and fused; returns a list of result dicts.
 
@@ -283,6 +286,7 @@ def run_scene(
     ``tracker``: ``"ekf"`` (the contour EKF) or ``"fit"`` (the sequence fit with
     contours alone; its MPJPE leaves out the frames it marked diverged).  ``cues``: with
     the fit, ``"contours"`` alone or ``"both"`` (the tracked points too).
+    ``click_draw``: the clicks moved as ``bench.fit_spread``'s run of that number.
     """
     from core.contour_track import ContourTrackSettings, fit_shape_to_contours, track_contours
     from core.evaluate import evaluate, truth_joints
@@ -291,6 +295,11 @@ def run_scene(
     from core.scene import load_scene
 
     scene = load_scene(scene_dir(name, fps))
+    if click_draw:
+        from bench.fit_spread import perturbed_clicks
+
+        moved = perturbed_clicks(scene.clicks(), 0.5, click_draw)  # fit_spread's default
+        scene.clicks = lambda: moved
     cams = scene.calibration()
     nf = min(n_frames, scene.n_frames)
     if tracker == "fit":
@@ -430,6 +439,13 @@ def main(argv=None) -> int:
         default="contours",
         help="with --tracker fit: contours alone (default) or the tracked points too",
     )
+    ap.add_argument(
+        "--click-draw",
+        type=int,
+        default=0,
+        help="move every click by N(0, 0.5 px) with this seed, as bench.fit_spread's run "
+        "of that number (0: the scene's clicks)",
+    )
     args = ap.parse_args(argv)
     if args.cues != "contours" and args.tracker != "fit":
         ap.error("--cues both needs --tracker fit")
@@ -442,6 +458,7 @@ def main(argv=None) -> int:
             fps=args.fps,
             tracker=args.tracker,
             cues=args.cues,
+            click_draw=args.click_draw,
         )
         print_rows(rows[-len(METHODS) - (args.tracker == "fit") :], args.lost_mm)
     load = " ".join(f"{x:.2f}" for x in os.getloadavg())

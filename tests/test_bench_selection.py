@@ -91,3 +91,35 @@ def test_fit_rows_pass_the_cues_to_the_fit(monkeypatch):
     with pytest.raises(_Stop):
         sel._fit_rows(_Scene(), 3, 100.0, [0], None, cues="both")
     assert seen == [("both", "tracks", True)]
+
+
+def test_click_draw_moves_the_clicks_as_fit_spread_does(monkeypatch):
+    import bench.selection as sel
+    from bench.fit_spread import perturbed_clicks
+
+    clicks = {
+        "frame": 0,
+        "joints": {"head": {"cam1": [10.0, 20.0]}, "pelvis": {"cam1": [5.0, 6.0]}},
+    }
+
+    class _Scene:
+        truth = {}
+        n_frames = 3
+
+        def clicks(self):
+            return clicks
+
+        def calibration(self):
+            return []
+
+    monkeypatch.setattr(sel, "scene_dir", lambda name, fps=None: name)
+    monkeypatch.setattr("core.scene.load_scene", lambda path: _Scene())
+    monkeypatch.setattr(sel, "truth_visibility", lambda scene, frames: None)
+    got = []
+    monkeypatch.setattr(sel, "_fit_rows", lambda scene, *a: got.append(scene.clicks()) or [])
+    for draw in (0, 2):
+        sel.run_scene("x", 3, tracker="fit", cues="both", click_draw=draw)
+    assert got[0] is clicks
+    want = perturbed_clicks(clicks, 0.5, 2)["joints"]["head"]["cam1"]
+    np.testing.assert_array_equal(got[1]["joints"]["head"]["cam1"], want)
+    assert not np.allclose(want, clicks["joints"]["head"]["cam1"])

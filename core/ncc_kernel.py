@@ -10,7 +10,7 @@ one integral image per point: fewer operations at these sizes, and no temporarie
 ``core track`` of the walk: 113.3 → 64.5 s (median of 3 paired runs), its tracks bit for
 bit the same.
 
-The two paths round differently (the FFT's error is ~1e-13 of the correlation); the
+The two paths round differently (they differ by ~1e-14 in the correlation); the
 test suite holds them within 1e-9.  Optional at run time like :mod:`core.field_kernel`
 (whose :func:`~core.field_kernel.run` and :func:`~core.field_kernel.enabled` it shares):
 without numba, with ``SOMACAP_NO_NUMBA=1``, or after a failed first compile, the numpy

@@ -33,6 +33,7 @@ import numpy as np
 from . import attractor_kernel, field_kernel
 from .metaballs import THRESHOLD, Metaballs
 from .skeleton import Pose, Skeleton, bone_frames
+from .vec3 import norm3, sum3
 
 LN_T = float(np.log(THRESHOLD))
 
@@ -157,7 +158,7 @@ def attractor(
     R = Rw[idx]  # (N, K, 3, 3)
     y = np.matmul((x[:, None, :] - cw[idx])[..., None, :], R)[..., 0, :]  # Rᵀ (x − c)
     q = y / radii[idx] ** 2
-    a = -2.0 * np.sum(y * q, axis=-1)
+    a = -2.0 * sum3(y * q)
     a = np.where(valid, a, -np.inf)
     top = a.max(axis=1)
     top_f = np.where(np.isfinite(top), top, 0.0)
@@ -168,7 +169,7 @@ def attractor(
     p = e / np.maximum(tot, 1e-300)[:, None]
     gx = -4.0 * np.matmul(R, q[..., None])[..., 0]
     grad = np.matmul(p[:, None, :], gx)[:, 0]
-    gn = np.linalg.norm(grad, axis=-1)
+    gn = norm3(grad)
     inv_g = 1.0 / np.maximum(gn, g_min)
     L = np.where(valid.any(axis=1), L, -np.inf)
     dist = np.where(np.isfinite(L), (L - LN_T) * inv_g, -np.inf)

@@ -47,6 +47,7 @@ from .field_kernel import log_field
 from .free_space import DEPTHS, Probes, occlusion_cost
 from .metaballs import Metaballs, world_frames
 from .skeleton import Skeleton, forward, joint_positions
+from .vec3 import norm3
 
 _LEG_GRID = (
     ("hip_x", (-75, -50, -25, 0, 25, 50, 75)),
@@ -190,7 +191,7 @@ def _distance(L: np.ndarray, g: np.ndarray, g_min: float = 2.0) -> np.ndarray:
     """Signed distance to the surface ``Σ f = 0.5`` to first order,
     ``(L − ln 0.5) / max(|∇L|, g_min)`` metres (positive inside), as in
     :mod:`core.attractor`."""
-    return (L - LN_T) / np.maximum(np.linalg.norm(g, axis=-1), g_min)
+    return (L - LN_T) / np.maximum(norm3(g), g_min)
 
 
 def _rho(d: np.ndarray, tau: float, sigma: float) -> np.ndarray:

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .skeleton import Pose, Skeleton, bone_frames, forward
+from .vec3 import sum3
 
 #: Field threshold of the surface ``Σ f = T``.
 THRESHOLD = 0.5
@@ -291,7 +292,7 @@ def field(
     """
     y = local_coords(x, Rw, cw)
     q = y / radii[None] ** 2  # (N, M, 3)
-    d = np.sum(y * q, axis=-1)
+    d = sum3(y * q)
     f = np.exp(-2.0 * np.minimum(d, 700.0))
     if member is not None:
         f = f * member
@@ -419,7 +420,7 @@ def project_to_surface(
         if not len(active):
             break
         Fa, g, _, _ = field(x[active], Rw, cw, radii)
-        F[active], gg[active] = Fa, np.sum(g * g, axis=-1)
+        F[active], gg[active] = Fa, sum3(g * g)
         r = Fa - THRESHOLD
         # settled: on the surface, or without a usable gradient (a zero step for good)
         moving = (np.abs(r) >= tol) & (gg[active] > 1e-12)
@@ -431,7 +432,7 @@ def project_to_surface(
         x[active] -= step[:, None] * g
     if len(active):  # moved by the last step: evaluate where they landed
         Fa, g, _, _ = field(x[active], Rw, cw, radii)
-        F[active], gg[active] = Fa, np.sum(g * g, axis=-1)
+        F[active], gg[active] = Fa, sum3(g * g)
     ok = (np.abs(F - THRESHOLD) < tol) & (gg > 1e-12)
     return x, ok
 
@@ -571,7 +572,7 @@ def deflate(
     x = (cw[:, None] + np.einsum("mij,mpj->mpi", Rw, u[None] * v[:, None])).reshape(-1, 3)
     y = local_coords(x, Rw, cw)  # (N, M, 3)
     own = np.repeat(np.arange(M), per_ball)
-    inside = np.sum((y / v[None]) ** 2, axis=-1) < 1.0 - 1e-9
+    inside = sum3((y / v[None]) ** 2) < 1.0 - 1e-9
     inside[np.arange(len(x)), own] = False
     if per_part:  # only the metaballs of the point's own part count
         member = balls.bone[own][:, None] == balls.bone[None, :]
@@ -584,7 +585,7 @@ def deflate(
     logr = logr0.copy()
     for _ in range(iterations):
         q = (y / np.exp(logr)[None]) ** 2  # (n, M, 3)
-        f = np.exp(-2.0 * q.sum(axis=-1)) * member  # (n, M)
+        f = np.exp(-2.0 * sum3(q)) * member  # (n, M)
         F = np.maximum(f.sum(axis=1), 1e-300)
         r = np.concatenate([np.log(F) - np.log(THRESHOLD), (logr - logr0).ravel() / prior])
         J = np.concatenate(

@@ -20,6 +20,7 @@ import numpy as np
 
 from .metaballs import Metaballs, local_coords, world_frames
 from .skeleton import Skeleton, forward
+from .vec3 import norm3, sum3
 
 
 def surface_distance(
@@ -43,8 +44,8 @@ def surface_distance(
 
 def _local_surface_distance(y: np.ndarray, visible: np.ndarray) -> np.ndarray:
     """:func:`surface_distance` from the points in the metaballs' frames, y (N, M, 3)."""
-    r = np.sqrt(np.sum((y / visible[None]) ** 2, axis=-1))
-    norm = np.linalg.norm(y, axis=-1)
+    r = np.sqrt(sum3((y / visible[None]) ** 2))
+    norm = norm3(y)
     return norm * (1.0 - 1.0 / np.maximum(r, 1e-12))
 
 
@@ -86,7 +87,7 @@ def segment_points(
     Rw, cw = Rw[0], cw[0]
     y = local_coords(xyz, Rw, cw)
     dist = _local_surface_distance(y, radii * balls.vscale)
-    logf = -2.0 * np.sum((y / radii[None]) ** 2, axis=-1)  # (N, M)
+    logf = -2.0 * sum3((y / radii[None]) ** 2)  # (N, M)
     bones = np.unique(balls.bone)
     score = np.full((len(xyz), len(bones)), -np.inf)
     for k, b in enumerate(bones):  # log-sum-exp over each bone's metaballs

@@ -497,8 +497,15 @@ def point_jacobians(
     x = points_world(skel, pose, bone, q0, group, s)
     dof_of = skel.bone_dof[bone]  # (N,)
     mask = anc[dof_of]  # (N, n)
-    d = x[:, :, None, :] - pose.p[:, None, :, :]  # (F, N, n, 3)
-    J = np.cross(pose.axes[:, None, :, :], d) * mask[None, :, :, None]
+    F, N = x.shape[:2]
+    # ω_k × (x − p_k) one component at a time, with np.cross's arithmetic (the same
+    # bits) but without its (F, N, n, 3) difference array and axis moves
+    d = [x[:, :, None, i] - pose.p[:, None, :, i] for i in range(3)]  # 3 × (F, N, n)
+    w = [pose.axes[:, None, :, i] for i in range(3)]  # 3 × (F, 1, n)
+    J = np.empty((F, N, skel.n_dof, 3))
+    for c, (a, b) in enumerate(((1, 2), (2, 0), (0, 1))):
+        np.subtract(w[a] * d[b], w[b] * d[a], out=J[..., c])
+    J *= mask[None, :, :, None]
     J_theta = np.swapaxes(J, 2, 3)  # (F, N, 3, n)
     # scale: each DOF offset term R_parent(k) o_k s_g, plus the point's own q0 s_g
     G = skel.n_groups
@@ -506,7 +513,6 @@ def point_jacobians(
     onehot = np.zeros((skel.n_dof, G))
     has = skel.dof_group >= 0
     onehot[np.nonzero(has)[0], skel.dof_group[has]] = 1.0
-    F, N = x.shape[:2]
     per_dof = (off_world[..., None] * onehot[None, :, None, :]).reshape(F, skel.n_dof, 3 * G)
     J_s = (mask.astype(float)[None] @ per_dof).reshape(F, N, 3, G)
     Rb, _ = bone_frames(skel, pose)

@@ -110,6 +110,11 @@ def test_attached_point_jacobians(skel, rng):
         np.testing.assert_allclose(
             J_s[..., g], (pts(theta, s + e) - pts(theta, s - e)) / (2 * eps), atol=1e-8
         )
+    # the rotation columns are np.cross's ω_k × (x − p_k) on the ancestors, to the bit
+    pose = sk.forward(skel, theta, root, s)
+    mask = skel.ancestors()[skel.bone_dof[bone]]
+    ref = np.cross(pose.axes[:, None], x[:, :, None] - pose.p[:, None]) * mask[None, :, :, None]
+    np.testing.assert_array_equal(J_theta, np.swapaxes(ref, 2, 3))
 
 
 def test_bone_matrices_follow_bones(skel, rng):

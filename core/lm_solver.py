@@ -2,7 +2,8 @@
 
 The solver of the weighted least squares fits (:func:`core.fitting.fit`, the pose and
 shape solves; :func:`core.shape_fit.fit_shape`, the whole-body shape): ``system(x)``
-returns the weighted residuals ``r`` (m,) and their Jacobian ``J`` (m, p); a step solves
+returns the weighted residuals ``r`` (m,) and their Jacobian ``J`` (m, p; an array, or a
+``scipy.sparse`` matrix whose ``JᵀJ`` is then formed sparse and solved dense); a step solves
 ``(JᵀJ + μ·diag(JᵀJ)) δ = −Jᵀr`` (Marquardt's diagonal scaling), capped to
 ``max_step`` in parameter units (radians, metres) and projected onto the bounds.
 """
@@ -12,6 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import sparse
 
 
 @dataclass
@@ -46,6 +48,8 @@ def levenberg_marquardt(
     while nfev < max_nfev:
         if A is None:
             A = J.T @ J
+            if sparse.issparse(A):  # a sparse J (the whole-body shape): dense JᵀJ
+                A = A.toarray()
             g = J.T @ r
             d = np.diag(A).copy()
             d = np.maximum(d, 1e-12 * max(d.max(initial=0.0), 1e-30))

@@ -6,6 +6,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from scipy import sparse
 
 from core import metaballs as mb
 from core import skeleton as sk
@@ -134,6 +135,8 @@ def test_system_jacobian_matches_finite_differences(rng):
     prob.freeze(x)
     assert prob.frames[0].xs is not None and len(prob.frames[0].xs) > 20
     r, J = prob.system(x)
+    assert sparse.issparse(J) and J.nnz < 0.5 * np.prod(J.shape)  # members only
+    J = J.toarray()
     cols = rng.choice(len(x), 40, replace=False)
     h = 1e-6
     for c in cols:
@@ -301,3 +304,19 @@ def test_silhouettes_shape_the_side_no_point_sees(rng):
     assert d["points"].mean() < 0.5 * d["template"].mean()
     assert d["both"].mean() < 0.6 * d["points"].mean()
     assert d["silhouettes"].mean() < 0.3 * d["template"].mean()
+
+
+def test_member_rows_is_the_sparse_form_of_the_scattered_blocks(rng):
+    """Each point's K member blocks land in its members' columns, radii then centres."""
+    from core.attractor import scatter
+    from core.shape_problem import member_rows
+
+    N, K, M = 50, 4, 9
+    idx = np.array([rng.choice(M, K, replace=False) for _ in range(N)])
+    valid = rng.random((N, K)) > 0.3
+    b1, b2 = rng.normal(size=(N, K, 3)), rng.normal(size=(N, K, 3))
+    scale = rng.random(N)
+    J = member_rows([b1, b2], idx, valid, scale, M)
+    dense = np.hstack([scatter(b, idx, valid, M) * scale[:, None] for b in (b1, b2)])
+    assert J.shape == (N, 6 * M) and J.nnz == 6 * valid.sum()
+    np.testing.assert_array_equal(J.toarray(), dense)

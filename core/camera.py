@@ -278,9 +278,11 @@ def project_params(
 
 def _project(params, xyz, jacobian, camera_jacobian, one_camera):
     """:func:`project_params`; ``one_camera`` (params (15,)): the rotation computed
-    once for all points — equal to the per-point path to rounding (the calibration and
-    the intersection keep the per-point path, whose last bits the tracker's results
-    follow)."""
+    once for all points and applied as one matrix product — equal to the per-point path
+    to rounding (the calibration and the intersection keep the per-point path, whose
+    last bits the tracker's results follow).  The per-point path with one camera's
+    params (15,) also computes the rotation once, then applies it point by point as
+    before: the same bits."""
     xyz = np.asarray(xyz, dtype=float).reshape(-1, 3)
     params = np.asarray(params, dtype=float)
     need_dR = jacobian and camera_jacobian
@@ -290,8 +292,14 @@ def _project(params, xyz, jacobian, camera_jacobian, one_camera):
         f, a, cx, cy, k1, k2, k3, p1, p2 = params[6:]
         pc = xyz @ R[0].T + t
     else:
+        shared = params.ndim == 1  # one camera for every point
         params = np.broadcast_to(params, (xyz.shape[0], N_PARAMS))
-        R, dR = rodrigues_batch(params[:, :3], need_dR)
+        if shared:  # its rotation once: the same bits as one per point, without the cost
+            R, dR = rodrigues_batch(params[:1, :3], need_dR)
+            R = np.broadcast_to(R, (xyz.shape[0], 3, 3))
+            dR = None if dR is None else np.broadcast_to(dR, (xyz.shape[0], 3, 3, 3))
+        else:
+            R, dR = rodrigues_batch(params[:, :3], need_dR)
         t = params[:, 3:6]
         f, a, cx, cy, k1, k2, k3, p1, p2 = params[:, 6:].T
         pc = np.einsum("mij,mj->mi", R, xyz) + t

@@ -38,6 +38,7 @@ import cv2
 import numpy as np
 
 from .errors import InputError
+from .nan_median import nanmedian
 
 
 @dataclass
@@ -257,21 +258,8 @@ def fit_background(
 
 
 def _nanmedian0(a: np.ndarray) -> np.ndarray:
-    """Median over axis 0 ignoring NaN (all-NaN columns give NaN), equal to
-    ``np.nanmedian(a, axis=0)`` bit for bit and ~7x faster on image stacks: one sort
-    (NaN last) and the middle of each column's finite values, where numpy goes through
-    masked arrays."""
-    a = np.asarray(a)
-    if not len(a):
-        return np.full(a.shape[1:], np.nan, dtype=a.dtype)
-    srt = np.sort(a, axis=0)
-    n = np.sum(~np.isnan(a), axis=0)
-    lo = np.take_along_axis(srt, np.maximum((n - 1) // 2, 0)[None], 0)[0]
-    hi = np.take_along_axis(srt, (n // 2)[None], 0)[0]
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        mid = np.mean(np.stack([lo, hi]), axis=0)  # numpy's mean of the two middle values
-    return np.where(n > 0, mid, np.nan).astype(mid.dtype, copy=False)
+    """``np.nanmedian(a, axis=0)`` bit for bit, faster (:func:`core.nan_median.nanmedian`)."""
+    return nanmedian(a, axis=0)
 
 
 def _mode_colour(stack: np.ndarray, bins: int = 32) -> tuple[np.ndarray, np.ndarray]:

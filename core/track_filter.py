@@ -14,6 +14,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .camera import Camera
+from .nan_median import nanmedian
 
 #: Added to every point covariance in the filters: model error of a surface point
 #: (LSM bias on curved skin, texture slipping), m².
@@ -153,6 +154,6 @@ def neighbour_rates(
     have = np.isfinite(d)
     vals = np.where(have[..., None], rate[ok][np.minimum(idx, ok.sum() - 1)], np.nan)
     enough = have.sum(axis=1) >= 3
-    out[enough] = np.nanmedian(vals[enough], axis=1)
+    out[enough] = nanmedian(vals[enough], axis=1)
     sig[enough] = 0.01
     return out, sig

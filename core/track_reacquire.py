@@ -27,6 +27,7 @@ from scipy.spatial import cKDTree
 from .camera import Camera
 from .intersect import triangulate
 from .lsm import ImageStack, match
+from .nan_median import nanmedian
 from .ncc import search
 from .track_anchor import KeyTemplates
 from .track_filter import COV_FLOOR, PointFilter, neighbour_rates
@@ -148,15 +149,15 @@ def neighbour_motion(
     # (a rigid fit through gross outliers can be anything), then fit, drop neighbours
     # far off the fit, and fit again.
     disp = np.where(w[..., None] > 0, dst - src, np.nan)
-    dev = np.linalg.norm(disp - np.nanmedian(disp, axis=1)[:, None], axis=2)
+    dev = np.linalg.norm(disp - nanmedian(disp, axis=1)[:, None], axis=2)
     w = w * (
         np.nan_to_num(dev, nan=np.inf)
-        <= np.maximum(3.0 * np.nanmedian(dev, axis=1), 3 * inlier_m)[:, None]
+        <= np.maximum(3.0 * nanmedian(dev, axis=1), 3 * inlier_m)[:, None]
     )
     for _ in range(2):
         R, t = rigid_fit(src, dst, w)
         res = np.linalg.norm(np.einsum("qij,qkj->qki", R, src) + t[:, None] - dst, axis=2)
-        med = np.nanmedian(np.where(w > 0, res, np.nan), axis=1)
+        med = nanmedian(np.where(w > 0, res, np.nan), axis=1)
         w = w * (res <= np.maximum(3.0 * med, inlier_m)[:, None])
     R, t = rigid_fit(src, dst, w)
     res = np.einsum("qij,qkj->qki", R, src) + t[:, None] - dst

@@ -15,6 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .nan_median import nanmedian
+
 
 def derivative(x: np.ndarray, fps: float) -> np.ndarray:
     """Time derivative of ``x`` (F, ...) per second: central differences, one-sided
@@ -195,7 +197,7 @@ def filter_trajectories(
         enough = np.sum(np.isfinite(vals[..., 0]), axis=1) >= min_neighbours * len(frames)
         med = np.full((len(idx), 3), np.nan)
         if enough.any():
-            med[enough] = np.nanmedian(vals[enough], axis=1)
+            med[enough] = nanmedian(vals[enough], axis=1)
         dev = np.linalg.norm(v[f, idx] - med, axis=1)
         bad[f, idx[enough & (dev > max_dev)]] = True
     alive = np.all(np.isfinite(xyz), axis=2)

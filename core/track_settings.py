@@ -115,7 +115,11 @@ class TrackSettings:
         options above and the frame-0 surface filtered alike (2,006 of 2,124
         points): 0.01 -> 95th 9.0 mm, median 2.26 mm, measured in every frame
         25.4 %, live at the last frame 82 % (101 % with ``regen_every=3``: 95th
-        9.7 mm, 25.6 %); 0.015 -> 10.3 mm, 28.0 %, 94 %.
+        9.7 mm, 25.6 %); 0.015 -> 10.3 mm, 28.0 %, 94 %.  Measured against the
+        neighbours' local plane (their depth fitted on their offsets across the ray)
+        instead of their median depth (``bench.tracking --no-compare``, at e73476e):
+        0.01 -> measured in every frame 26.5 %, 95th 10.72 mm; 0.006 -> 22.6 %, 9.55 mm;
+        0.004 -> 17.8 %, 8.42 mm; the median at 0.01: 26.2 %, 9.69 mm -- kept.
     coast_neighbours : bool
         A coasting point (``max_coast``) is carried by the rigid motion of its measured
         neighbours (:func:`core.track_reacquire.predict_unmeasured`) instead of its own

@@ -229,7 +229,7 @@ def fit_background(
         colour = mode
         sigma = _inlier_sigma(stack, colour, min_sigma)
     else:
-        colour = _nanmedian0(np.where(exclude[..., None], np.nan, stack))
+        colour = nanmedian(np.where(exclude[..., None], np.nan, stack), axis=0)
         colour = np.where(np.isfinite(colour), colour, mode)
         sigma = _inlier_sigma(stack, colour, min_sigma, weights=~exclude)
     known = np.ones(colour.shape[:2], bool)
@@ -245,7 +245,7 @@ def fit_background(
         masked = np.where(bg[..., None], stack, np.nan)
         counts = bg.sum(axis=0)
         known = counts >= max(1, int(np.ceil(min_known_frac * len(src))))
-        new = _nanmedian0(masked[:, known])
+        new = nanmedian(masked[:, known], axis=0)
         colour = colour.copy()
         colour[known] = new
         sigma = _inlier_sigma(stack, colour, min_sigma, weights=bg)
@@ -255,11 +255,6 @@ def fit_background(
     colour[by_mode] = mode[by_mode]
     known |= by_mode
     return BackgroundModel(colour.astype(np.float32), sigma.astype(np.float32), known)
-
-
-def _nanmedian0(a: np.ndarray) -> np.ndarray:
-    """``np.nanmedian(a, axis=0)`` bit for bit, faster (:func:`core.nan_median.nanmedian`)."""
-    return nanmedian(a, axis=0)
 
 
 def _mode_colour(stack: np.ndarray, bins: int = 32) -> tuple[np.ndarray, np.ndarray]:
@@ -278,7 +273,7 @@ def _mode_colour(stack: np.ndarray, bins: int = 32) -> tuple[np.ndarray, np.ndar
     near[..., :-1] += cnt[..., 1:]
     best = np.argmax(near, axis=2)
     pick = np.abs(b - best[None]) <= 1
-    colour = _nanmedian0(np.where(pick[..., None], stack, np.nan))
+    colour = nanmedian(np.where(pick[..., None], stack, np.nan), axis=0)
     return colour, np.take_along_axis(near, best[..., None], axis=2)[..., 0]
 
 
@@ -301,7 +296,7 @@ def _inlier_sigma(stack, colour, min_sigma, weights=None, k: float = 4.0, min_to
         g = float(np.nanmedian(d)) / 1.54
     g = max(g if np.isfinite(g) else min_sigma, min_sigma)
     inl = np.where(d < max(k * g, min_tol), d, np.nan)
-    med = _nanmedian0(inl)
+    med = nanmedian(inl, axis=0)
     enough = np.sum(np.isfinite(inl), axis=0) >= 3
     sigma = np.where(enough & np.isfinite(med), med / 1.54, g)
     # a little spatial pooling keeps single noisy estimates from making holes

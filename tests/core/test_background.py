@@ -119,21 +119,3 @@ def test_a_person_covering_pixels_most_of_the_take_does_not_burn_in(rng):
     assert off[masks[-1]].mean() > 0.2
     # the noise level stays that of the camera, not of the person's pattern
     assert np.median(model.sigma[masks[-1]]) < 4.0
-
-
-def test_nanmedian0_equals_numpy_bit_for_bit():
-    import warnings
-
-    from core.background import _nanmedian0
-
-    rng = np.random.default_rng(4)
-    for n in (1, 2, 7, 30):
-        a = rng.uniform(0, 255, (n, 500, 3)).astype(np.float32)
-        a[rng.random(a.shape) < 0.4] = np.nan
-        a[:, :20] = np.nan  # columns with no value
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            want = np.nanmedian(a, axis=0)
-        got = _nanmedian0(a)
-        assert got.dtype == want.dtype
-        np.testing.assert_array_equal(got, want)

@@ -131,6 +131,7 @@ def fit_once(
         "segments_deg": ev.segment_orientation_rmse_deg,
         "within_1pct": ev.frames_within_1pct,
         "per_joint_mm": ev.per_joint_mm,
+        "per_segment_deg": ev.per_segment_rmse_deg,
         "wall_s": time.perf_counter() - t0,
     }
 

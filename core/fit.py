@@ -115,6 +115,7 @@ observations, the fit) and returns a :class:`core.state.FitState`.
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -126,6 +127,7 @@ from .fit_predict import PosePredictor
 from .fit_types import FramePoints, SequenceResult, SequenceSettings, frame_observations
 from .fit_whole_shape import whole_body_shape, written_shape
 from .fitting import FitSettings, fit
+from .foot_heading import feet_from_points
 from .metaballs import deflate
 from .progress import Progress
 from .segment import segment_points
@@ -174,11 +176,18 @@ def fit_sequence(
         raise ValueError(f"unknown shape option {cfg.shape!r}")
     if contours is not None and len(contours) < nf:
         raise ValueError(f"{len(contours)} contour frames for {nf} frames")
+    f0 = min(max(init.frame, 0), nf - 1)
+    feet = []
+    if cfg.foot_heading and len(frames[f0].xyz):
+        theta0, feet = feet_from_points(
+            init.skeleton, init.theta, init.root_xyz, init.s, frames[f0].xyz, init.clicks.names
+        )
+        init = replace(init, theta=theta0)
     fx = FrameFitter(frames, init, cfg, contours, flow, cameras)  # per frame: fit, results
+    fx.msgs += [f"clicked frame {f0}: " + h.message() for h in feet]
     skel = init.skeleton
     template = init.metaballs.copy()  # the shape solves' bounds (FitSettings.radius_ratio)
     n = skel.n_dof
-    f0 = min(max(init.frame, 0), nf - 1)
     ci = init.clicks
     click_obs = (np.array([skel.joint_index(j) for j in ci.names]), ci.xyz, cfg.sigma_click)
 
@@ -342,6 +351,7 @@ def fit_sequence(
         cfg.smooth_held_frames,
         cfg.gait_arms,
         cfg.gait_arm_ratio,
+        reach=cfg.couple_reach,
     )
     fx.msgs += fill_msgs
     if cfg.shape == "fit" and not shape_first:  # at the fitted poses, for the state only

@@ -116,3 +116,24 @@ def test_lines_and_runs():
     done = fill_runs(y, np.arange(10.0) + 5.0, hidden, ~hidden, ends=False)
     # the prediction is 5 too high at both ends: the residual brings it back
     assert done.tolist() == hidden.tolist() and np.allclose(y, np.arange(10.0))
+
+
+def test_a_line_seen_on_one_half_of_the_swing_is_not_extrapolated(rng):
+    """The arm hidden whenever the thigh swings forward (as make demo's right arm is in
+    its back swing): the line is fitted on the other half only, and the hidden
+    stretch's driver reaches far past that range — it is left to the bridge and the
+    gait swing, and reported.  Without the limit it is coupled."""
+    skel, s, truth, root = _gait(rng)
+    t = np.arange(NF) / 25.0
+    forward = np.sin(2 * np.pi * t) > 0.0
+    unobs = np.zeros(truth.shape, bool)
+    arm = limb_dofs(skel, "r", "arm")
+    unobs[np.ix_(forward, arm)] = True
+    held = truth.copy()
+    _, coupled, report = couple_hidden(skel, held, root, s, unobs)
+    assert not coupled.any()
+    r_arm = [c for c in report if c.limb == "r_arm"][0]
+    assert r_arm.frames == 0 and r_arm.beyond == 1  # the middle stretch (the ends: too few)
+    _, coupled, report = couple_hidden(skel, held, root, s, unobs, reach=None)
+    mid = np.flatnonzero(forward & (t > 0.9) & (t < 1.6))
+    assert coupled[mid][:, skel.dof_index("r_shoulder_x")].all()

@@ -184,7 +184,7 @@ def couple_hidden(
         its residual is held)
     reach : a run is coupled only where the driver stays within the range it spans on
         the training frames, widened by this share of that range on each side (None:
-        no limit).  A line fitted to one half of a swing does not tell the other half
+        no limit).  A line fitted to one half of a swing does not tell the other half.
 
     Returns
     -------

@@ -27,14 +27,15 @@ off), 1° on jumps_line3's seen foot (2°), 6° on pirouette_line3's right foot 
 off); the feet with too few points below the ankle (pirouette's left: 29; the jumps'
 and the dance's right: none or 1) keep the template's.
 
-It is off by default (``SequenceSettings.foot_heading``).  Over the four click sets of
-``bench.fit_spread --runs 4 --setting foot_heading=true`` on make demo's walk the
-right shin comes right (17.0 / 35.9 / 9.8 / 12.6 → 2.7 / 4.9 / 3.9 / 4.9°), but the
-left, whose heading the template already had within 2°, does not stay where it is
-turned: from frame 1 the fit holds it 5–7° further out than the clicked frame set it
-(left shin 2.0 / 9.7 / 13.3 / 11.9 → 8.3 / 5.2 / 10.7 / 10.9°), and MPJPE goes 9.7 /
-12.3 / 13.1 / 13.7 → 10.3 / 13.8 / 13.5 / 13.5 mm (``docs/design.md``, "A foot turned
-to its points, and a coupling not extrapolated").  World frame: Z up, metres.
+It is off by default (``SequenceSettings.foot_heading``, ``core fit
+--feet-from-points``).  Over the four click sets of ``bench.fit_spread --runs 4
+--setting foot_heading=true`` on make demo's walk the right shin comes right (17.0 /
+35.9 / 9.8 / 12.6 → 2.7 / 4.9 / 3.9 / 4.9°), but the left, whose heading the template
+already had within 2°, does not stay where it is turned: from frame 1 the fit holds it
+5–7° further out than the clicked frame set it (left shin 2.0 / 9.7 / 13.3 / 11.9 → 8.3
+/ 5.2 / 10.7 / 10.9°), and MPJPE goes 9.7 / 12.3 / 13.1 / 13.7 → 10.3 / 13.8 / 13.5 /
+13.5 mm (``docs/design.md``, "A foot turned to its points, and a coupling not
+extrapolated").  World frame: Z up, metres.
 """
 
 from __future__ import annotations

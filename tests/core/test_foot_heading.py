@@ -150,3 +150,28 @@ def test_the_sequence_fit_turns_the_feet_when_asked(subject, rng):
         return abs((e + 180) % 360 - 180)
 
     assert err(on) < 3.0 < 10.0 < err(off)
+
+
+def test_core_fit_passes_feet_from_points_to_the_sequence_fit(monkeypatch):
+    """``python -m core fit SCENE --feet-from-points`` asks the sequence fit for it; off
+    without the flag."""
+    from pathlib import Path
+
+    import core.fit_scene
+    from core.cli import main
+
+    seen = []
+
+    class Stop(Exception):
+        pass
+
+    def fake_run_scene(scene, settings=None, **kw):
+        seen.append(settings.foot_heading)
+        raise Stop
+
+    monkeypatch.setattr(core.fit_scene, "run_scene", fake_run_scene)
+    scene = Path(__file__).resolve().parents[2] / "sample_scenes" / "walk_line3"
+    for argv, want in ((["--feet-from-points"], True), ([], False)):
+        with pytest.raises(Stop):
+            main(["fit", str(scene), *argv])
+        assert seen[-1] is want

@@ -124,14 +124,21 @@ class SOMACAP_OT_fit(bpy.types.Operator):
         """The background job: the settings are read here, on the main thread."""
         s = _settings(context)
         scene_dir, state_path = bpy.path.abspath(s.scene_dir), bpy.path.abspath(s.state_path)
-        cues = s.fit_cues
+        cues, feet = s.fit_cues, s.feet_from_points
         moved = {} if state_path else pipeline.moved_clicks(scene_dir)
         self._moved = sorted(moved)
-        self._cached = not state_path and not moved and (Path(scene_dir) / "fit.json").is_file()
+        self._cached = (
+            not state_path and not moved and not feet and (Path(scene_dir) / "fit.json").is_file()
+        )
 
         def job(progress):
             return pipeline.state_for_scene(
-                scene_dir, state_path or None, progress, cues=cues, clicks_xyz=moved
+                scene_dir,
+                state_path or None,
+                progress,
+                cues=cues,
+                clicks_xyz=moved,
+                feet_from_points=feet,
             )
 
         return job

@@ -38,7 +38,14 @@ def check_cues(cues: str) -> str:
     return cues
 
 
-def run_fit(scene_dir, out_json, progress=None, cues: str = "texture", clicks_xyz=None) -> Path:
+def run_fit(
+    scene_dir,
+    out_json,
+    progress=None,
+    cues: str = "texture",
+    clicks_xyz=None,
+    feet_from_points: bool = False,
+) -> Path:
     """Run core's whole pipeline on a scene folder and write ``fit.json``
     (:func:`core.fit_scene.fit_scene`; cancellable through ``progress``).
 
@@ -46,7 +53,11 @@ def run_fit(scene_dir, out_json, progress=None, cues: str = "texture", clicks_xy
     ``"contours"`` or ``"both"``.  ``clicks_xyz`` (``{joint: (3,) world metres}``, e.g.
     :func:`moved_clicks`) replaces those joints' clicks for this fit only: each is
     clicked where it projects in the cameras that clicked it (``clicks.json`` is left
-    as it is).
+    as it is).  ``feet_from_points=True`` turns each foot about its shin at the clicked
+    frame to the heading of the surface points under it
+    (``SequenceSettings(foot_heading=True)``, :mod:`core.foot_heading`; off by default,
+    and a no-op without points, i.e. with ``cues="contours"``); off, core's default
+    settings are used (no ``settings`` is passed).
     """
     scene_dir, out_json = Path(scene_dir), Path(out_json)
     check_cues(cues)
@@ -54,7 +65,10 @@ def run_fit(scene_dir, out_json, progress=None, cues: str = "texture", clicks_xy
     if clicks_xyz:
         moved = _core.fit_init.clicks_at(sc.clicks(), sc.calibration(), clicks_xyz)
         sc.clicks = lambda: moved
-    state = _core.load("fit_scene").fit_scene(sc, progress=progress, cues=cues)
+    kw = {}
+    if feet_from_points:
+        kw["settings"] = _core.load("fit").SequenceSettings(foot_heading=True)
+    state = _core.load("fit_scene").fit_scene(sc, progress=progress, cues=cues, **kw)
     _core.state.write_state(out_json, state)
     return out_json
 
@@ -66,22 +80,34 @@ def state_for_scene(
     cues: str = "texture",
     refit: bool = False,
     clicks_xyz=None,
+    feet_from_points: bool = False,
 ):
     """The fitted state of a scene: ``fit_path``, else ``SCENE/fit.json``, else fit now.
 
     A fit uses ``cues`` (:data:`FIT_CUES`); ``refit=True`` fits even when
     ``SCENE/fit.json`` exists (which is then neither used nor overwritten), and so do
-    joints dragged in the viewport (``clicks_xyz``, :func:`run_fit`).
+    joints dragged in the viewport (``clicks_xyz``) and ``feet_from_points=True`` (the
+    feet turned to their points, :func:`run_fit`).
     """
     scene_dir = Path(scene_dir)
     check_cues(cues)
     if fit_path:
         return read_state(fit_path)
-    if not refit and not clicks_xyz and (scene_dir / "fit.json").is_file():
+    fresh = refit or clicks_xyz or feet_from_points
+    if not fresh and (scene_dir / "fit.json").is_file():
         return read_state(scene_dir / "fit.json")
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "fit.json"
-        return read_state(run_fit(scene_dir, out, progress, cues=cues, clicks_xyz=clicks_xyz))
+        return read_state(
+            run_fit(
+                scene_dir,
+                out,
+                progress,
+                cues=cues,
+                clicks_xyz=clicks_xyz,
+                feet_from_points=feet_from_points,
+            )
+        )
 
 
 def create_scene_cameras(scene_dir, calibration=None):

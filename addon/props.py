@@ -64,7 +64,8 @@ class SOMACAP_PG_settings(bpy.types.PropertyGroup):
     fit_cues: EnumProperty(
         name="Cues",
         default="texture",
-        description="Observations the fit uses (a scene's existing fit.json is used as it is)",
+        description="Observations the fit uses (a scene's existing fit.json is used "
+        "as it is, unless Feet from points is on)",
         items=[
             ("texture", "Texture", "3-D surface points from the tracker (needs textured clothing)"),
             (
@@ -80,6 +81,15 @@ class SOMACAP_PG_settings(bpy.types.PropertyGroup):
                 "2.7x the fit's CPU time",
             ),
         ],
+    )
+    feet_from_points: BoolProperty(
+        name="Feet from points",
+        default=False,
+        description="Turn each foot about its shin at the clicked frame to the heading of "
+        "the surface points under it, and fit anew (a scene's fit.json is not used). Off by "
+        "default: on the default scene it fixes the right foot's turn, but the fit's joint "
+        "error as a whole does not gain. Needs the Texture or Both cues (contours give no "
+        "points)",
     )
     export_format: EnumProperty(name="Format", items=[("BVH", "BVH", ""), ("FBX", "FBX", "")])
     progress: FloatProperty(name="Progress", subtype="PERCENTAGE", min=0, max=100)

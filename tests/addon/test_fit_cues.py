@@ -1,9 +1,11 @@
-"""The fit's cue choice (texture / contours / both) from the pipeline, CLI, panel and
-operator down to core's ``fit_scene``; core's fit is replaced by a recorder (seconds)."""
+"""The fit's cue choice (texture / contours / both) and its opt-in feet from points
+(``SequenceSettings(foot_heading=True)``) from the pipeline, CLI, panel and operator
+down to core's ``fit_scene``; core's fit is replaced by a recorder (seconds)."""
 
 from __future__ import annotations
 
 import inspect
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -43,13 +45,16 @@ def make_scene(root, with_fit=False):
 
 @pytest.fixture
 def fake_run_fit(bpy_module, monkeypatch):
-    """Replace ``addon.pipeline.run_fit``: record the cues, write a 4-frame state."""
+    """Replace ``addon.pipeline.run_fit``: record ``(scene, cues)`` (``(scene, cues,
+    "feet")`` with feet from points), write a 4-frame state."""
     from addon import pipeline
 
     calls = []
 
-    def run_fit(scene_dir, out_json, progress=None, cues="texture", clicks_xyz=None):
-        calls.append((scene_dir.name, cues))
+    def run_fit(
+        scene_dir, out_json, progress=None, cues="texture", clicks_xyz=None, feet_from_points=False
+    ):
+        calls.append((scene_dir.name, cues, "feet") if feet_from_points else (scene_dir.name, cues))
         write_state(out_json, synthetic_state(4, seed=len(calls)))
         return out_json
 
@@ -94,6 +99,74 @@ def test_run_fit_rejects_unknown_cues_before_fitting(bpy_module, tmp_path, monke
     ):
         pipeline.run_fit(tmp_path, tmp_path / "fit.json", cues="skin")
     assert not (tmp_path / "fit.json").exists()
+
+
+@pytest.fixture
+def fake_fit_scene(bpy_module, monkeypatch):
+    """Replace core's scene loading and ``fit_scene``: record each call's keywords."""
+    from core import fit_scene, scene
+
+    calls = []
+
+    def fit(sc, progress=None, **kwargs):
+        calls.append(kwargs)
+        return synthetic_state(5, seed=11)
+
+    monkeypatch.setattr(scene, "load_scene", lambda path, **kw: ("scene", path))
+    monkeypatch.setattr(fit_scene, "fit_scene", fit)
+    return calls
+
+
+@pytest.mark.parametrize("cues", CUES)
+def test_run_fit_feet_from_points_passes_foot_heading(tmp_path, fake_fit_scene, cues):
+    from addon import pipeline
+    from core.fit import SequenceSettings
+
+    out = pipeline.run_fit(tmp_path / "sc", tmp_path / "fit.json", cues=cues, feet_from_points=True)
+    assert pipeline.read_state(out).n_frames == 5
+    (kw,) = fake_fit_scene
+    assert set(kw) == {"cues", "settings"} and kw["cues"] == cues
+    assert isinstance(kw["settings"], SequenceSettings)
+    assert kw["settings"].foot_heading is True
+    # core's defaults otherwise, as `core fit --feet-from-points` leaves the rest
+    assert kw["settings"] == replace(SequenceSettings(), foot_heading=True)
+    assert SequenceSettings().foot_heading is False  # off is core's default
+
+
+def test_run_fit_without_feet_from_points_passes_no_settings(tmp_path, fake_fit_scene):
+    from addon import pipeline
+
+    pipeline.run_fit(tmp_path / "sc", tmp_path / "a.json")
+    pipeline.run_fit(tmp_path / "sc", tmp_path / "b.json", cues="both", feet_from_points=False)
+    assert fake_fit_scene == [{"cues": "texture"}, {"cues": "both"}]  # core's own default
+
+
+def test_state_for_scene_feet_from_points_refits_down_to_core(tmp_path, fake_fit_scene):
+    """A scene with a fit.json: asked for feet from points, the state is a new fit with
+    ``foot_heading`` on (through the real run_fit), and fit.json is left as it is."""
+    from addon import pipeline
+
+    scene = make_scene(tmp_path / "walk", with_fit=True)
+    before = (scene / "fit.json").read_bytes()
+    assert pipeline.state_for_scene(scene).n_frames == 3  # cached
+    assert fake_fit_scene == []
+    assert pipeline.state_for_scene(scene, cues="both", feet_from_points=True).n_frames == 5
+    (kw,) = fake_fit_scene
+    assert kw["cues"] == "both" and kw["settings"].foot_heading is True
+    assert (scene / "fit.json").read_bytes() == before  # not overwritten
+    # an explicit fitted state still wins, as it does over refit
+    assert pipeline.state_for_scene(scene, scene / "fit.json", feet_from_points=True).n_frames == 3
+    assert len(fake_fit_scene) == 1
+
+
+def test_state_for_scene_feet_from_points_not_cached(tmp_path, fake_run_fit):
+    from addon import pipeline
+
+    scene = make_scene(tmp_path / "walk", with_fit=True)
+    before = (scene / "fit.json").read_bytes()
+    assert pipeline.state_for_scene(scene, feet_from_points=True).n_frames == 4
+    assert fake_run_fit == [("walk", "texture", "feet")]
+    assert (scene / "fit.json").read_bytes() == before
 
 
 def test_state_for_scene_cached_unless_refit(tmp_path, fake_run_fit):
@@ -165,6 +238,56 @@ def test_cli_batch_cues(tmp_path, fake_run_fit, empty_blend, capsys):
     assert fake_run_fit == [("walk", "texture")]  # run uses its fit.json
 
 
+def test_cli_fit_feet_from_points(tmp_path, fake_run_fit, empty_blend, capsys):
+    scene = make_scene(tmp_path / "walk", with_fit=True)
+    before = (scene / "fit.json").read_bytes()
+    assert cli(["fit", scene, "--out", tmp_path / "a.blend", "--feet-from-points"]) == 0
+    assert fake_run_fit == [("walk", "texture", "feet")]  # refitted, not the cached fit
+    assert "walk: 4 frames" in capsys.readouterr().out
+    argv = ["fit", scene, "--out", tmp_path / "b.blend", "--cues", "both", "--feet-from-points"]
+    assert cli(argv) == 0
+    assert fake_run_fit[-1] == ("walk", "both", "feet")
+    assert (scene / "fit.json").read_bytes() == before
+
+    fake_run_fit.clear()
+    argv = ["fit", scene, "--out", tmp_path / "c.blend", "--fit", scene / "fit.json"]
+    assert cli([*argv, "--feet-from-points"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err == (
+        f"somacap: error: {scene / 'fit.json'}: --fit uses a fitted state and "
+        "--feet-from-points asks for a new fit: give one of them"
+    )
+    assert cli([*argv, "--feet-from-points", "--cues", "both"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "--cues and --feet-from-points ask for a new fit" in err
+    assert fake_run_fit == [] and not (tmp_path / "c.blend").exists()
+
+
+def test_cli_batch_feet_from_points(tmp_path, fake_run_fit, empty_blend, capsys):
+    takes = tmp_path / "takes"
+    make_scene(takes / "run", with_fit=True)
+    make_scene(takes / "walk")
+    write_state(takes / "jump.json", synthetic_state(6, seed=5))
+    assert cli(["batch", takes, "--out", tmp_path / "out", "--feet-from-points"]) == 0
+    assert sorted(fake_run_fit) == [("run", "texture", "feet"), ("walk", "texture", "feet")]
+    assert "3 converted, 0 failed" in capsys.readouterr().out  # jump.json as it is
+
+
+def test_cli_help_explains_feet_from_points(capsys):
+    from addon.cli_command import build_parser
+
+    for cmd in ("fit", "batch"):
+        with pytest.raises(SystemExit):
+            build_parser().parse_args([cmd, "--help"])
+        text = " ".join(capsys.readouterr().out.split())
+        assert "--feet-from-points turn each foot about its shin at the clicked frame" in text
+        assert "contours give no points" in text
+        assert not build_parser().parse_args([cmd, "x", "--out", "o"]).feet_from_points
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["retarget", "--help"])
+    assert "--feet-from-points" not in capsys.readouterr().out
+
+
 def test_cli_help_explains_each_cue(capsys):
     from addon import pipeline
     from addon.cli_command import build_parser
@@ -218,6 +341,41 @@ def test_panel_property_and_operator(registered, tmp_path, fake_run_fit):
         s.fit_cues = "skin"
 
 
+def test_panel_feet_from_points(registered, tmp_path, fake_run_fit, capfd):
+    """The check box under the cues and the Fit button; ticked, Fit refits with the feet
+    from points although the scene has a fit.json, unticked it uses that fit.json."""
+    bpy = registered
+    s = bpy.context.scene.somacap
+    prop = s.bl_rna.properties["feet_from_points"]
+    assert prop.type == "BOOLEAN" and prop.default is False and s.feet_from_points is False
+    assert prop.name == "Feet from points"
+    assert "heading of the surface points" in prop.description
+    assert "Texture or Both" in prop.description
+
+    from .user_scenario import panel_dump
+
+    log = panel_dump(bpy.context)
+    i = log.index("button somacap.fit")
+    assert log[i - 1 : i + 2] == ["field fit_cues", "button somacap.fit", "field feet_from_points"]
+
+    scene = make_scene(tmp_path / "walk", with_fit=True)
+    before = (scene / "fit.json").read_bytes()
+    s.scene_dir = str(scene)
+    s.take = "walk"
+    capfd.readouterr()
+    assert bpy.ops.somacap.fit() == {"FINISHED"}  # unticked: the scene's fit.json
+    assert fake_run_fit == []
+    assert "Used the scene's existing fit.json" in capfd.readouterr().out
+    s.feet_from_points = True
+    s.fit_cues = "both"
+    assert bpy.ops.somacap.fit() == {"FINISHED"}
+    assert fake_run_fit == [("walk", "both", "feet")]
+    assert "existing fit.json" not in capfd.readouterr().out  # not "cached"
+    assert s.body is not None and s.body["somacap_rmse_mm"] is not None
+    assert len(s.body["somacap_rmse_mm"]) == 4  # the new fit was built
+    assert (scene / "fit.json").read_bytes() == before
+
+
 def test_fit_button_uses_the_key_joints_the_user_moved(registered, monkeypatch, capfd):
     """Place key joints, drag one, press Fit: the fit gets that joint's new place (and
     refits rather than reading a cached fit.json); unmoved, it gets none."""
@@ -229,7 +387,9 @@ def test_fit_button_uses_the_key_joints_the_user_moved(registered, monkeypatch, 
     bpy = registered
     got = []
 
-    def run_fit(scene_dir, out_json, progress=None, cues="texture", clicks_xyz=None):
+    def run_fit(
+        scene_dir, out_json, progress=None, cues="texture", clicks_xyz=None, feet_from_points=False
+    ):
         got.append(clicks_xyz)
         write_state(out_json, synthetic_state(4, seed=5))
         return out_json

@@ -558,6 +558,11 @@ def print_row(r: dict, scene: Path, render_wall: float | None, name: str | None 
         "    per segment RMSE deg: "
         + ", ".join(f"{k} {v:.1f}" for k, v in m["per_segment_rmse_deg"].items())
     )
+    if m.get("accel_error_mm") is not None:
+        print(
+            "    acceleration error (jitter against the truth): "
+            f"{m['accel_error_mm']:.2f} mm/frame²"
+        )
     t = r.get("tracked")
     if t and t["n"]:
         print(

@@ -132,6 +132,7 @@ def fit_once(
         "within_1pct": ev.frames_within_1pct,
         "per_joint_mm": ev.per_joint_mm,
         "per_segment_deg": ev.per_segment_rmse_deg,
+        "accel_mm": ev.accel_error_mm,
         "wall_s": time.perf_counter() - t0,
     }
 
@@ -180,12 +181,14 @@ def scene_tracks(scene: Path) -> Path:
 def summary(rows: list[dict]) -> dict:
     """Median, min and max over the runs of MPJPE and of every joint's error."""
     m = np.array([r["mpjpe_mm"] for r in rows])
+    acc = np.array([r["accel_mm"] for r in rows])
     joints = list(rows[0]["per_joint_mm"])
     pj = np.array([[r["per_joint_mm"][j] for j in joints] for r in rows])
     return {
         "mpjpe_median_mm": float(np.median(m)),
         "mpjpe_min_mm": float(m.min()),
         "mpjpe_max_mm": float(m.max()),
+        "accel_median_mm": float(np.median(acc)),
         "per_joint": {
             j: (float(np.median(pj[:, k])), float(pj[:, k].min()), float(pj[:, k].max()))
             for k, j in enumerate(joints)
@@ -249,7 +252,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     print(
         f"{'run':>3}  {'MPJPE mm':>8}  {'diverged':>8}  {'segments °':>10}  "
-        f"{'≤1 % height':>11}  {'s':>5}",
+        f"{'≤1 % height':>11}  {'accel mm/f²':>11}  {'s':>5}",
         flush=True,
     )
     rows = []
@@ -274,13 +277,14 @@ def main(argv: list[str] | None = None) -> int:
             print(
                 f"{r['seed']:>3}  {r['mpjpe_mm']:8.1f}  {r['diverged']:8d}  "
                 f"{r['segments_deg']:10.1f}  {100 * r['within_1pct']:10.0f}%  "
-                f"{r['wall_s']:5.0f}",
+                f"{r['accel_mm']:11.2f}  {r['wall_s']:5.0f}",
                 flush=True,
             )
     s = summary(rows)
     print(
         f"MPJPE median {s['mpjpe_median_mm']:.1f} mm, range {s['mpjpe_min_mm']:.1f}–"
-        f"{s['mpjpe_max_mm']:.1f} mm over {len(rows)} runs"
+        f"{s['mpjpe_max_mm']:.1f} mm over {len(rows)} runs; acceleration error median "
+        f"{s['accel_median_mm']:.2f} mm/frame²"
     )
     print(
         "per joint, median (min–max) mm: "

@@ -139,6 +139,7 @@ def run_config(
     from core.fused_track import track_fused
     from core.landmarks import METRIC_JOINTS
     from core.model_render import camera_rays
+    from core.motion_smoother import smooth_motion
     from core.silhouette_check import body_masks, mask_iou, shift_iou
     from core.skeleton import joint_positions
 
@@ -250,6 +251,13 @@ def run_config(
         )
         if label == "contours only":
             th_c, rt_c, t_con = th, rt, spf
+            # the same track smoothed over the take (core.motion_smoother, as the
+            # sequence fit's last step): frames the filter did not update are not used
+            held = ~np.array([t.updated for t in tracks], bool)
+            th_sm, rt_sm, _ = smooth_motion(
+                th, rt, held, lo=init.skeleton.dof_lo, hi=init.skeleton.dof_hi
+            )
+            results["contours, smoothed"] = (init.s, balls_c, th_sm, rt_sm, spf, "")
             print(
                 f"contour shape at frame 0: RMS {rms0:.2f} px ({t_shape:.1f} s); contour "
                 f"EKF matches per frame median {int(np.median([t.n_matches for t in tracks]))}"
@@ -355,6 +363,7 @@ def run_config(
     colours = {
         "texture only": (60, 120, 255),
         "contours only": (255, 160, 0),
+        "contours, smoothed": (0, 160, 0),
         "texture + contours": (255, 0, 0),
         "texture, refined": (200, 0, 200),
         "contours, motion-ranked": (0, 200, 200),

@@ -37,6 +37,8 @@ def format_table(ev) -> str:
         "(upper/lower arms and legs)",
         f"metaball surface             {_fmt(ev.surface_mm, 1)} mm from the true mesh "
         "(mean, by area)",
+        f"acceleration error           {_fmt(ev.accel_error_mm, 2)} mm/frame² "
+        "(jitter against the truth's motion)",
         "",
         f"{'joint':<14}{'mean mm':>10}",
     ]

@@ -67,7 +67,12 @@ clicked frame's initial posture (:mod:`core.fit_init`):
    :mod:`core.fit_coupling`), and a hidden arm takes the other arm's angles, mirrored,
    where the legs move mirrored (a jump; ``mirror_hidden``, :mod:`core.fit_mirror`);
    last, in a walk, a hidden arm that neither placed swings with the opposite thigh
-   (``gait_swing_arms``, :mod:`core.fit_gait`).
+   (``gait_swing_arms``, :mod:`core.fit_gait`);
+6. **smoothing** (``smooth_motion``, :mod:`core.motion_smoother`) — the angles and the
+   root smoothed over the whole take by a fixed-interval Kalman smoother (forward and
+   backward), one smoothness for all of them that the take's own likelihood chooses;
+   diverged frames are left as they are (off by default: it spreads a lone fast limb's
+   kick over its neighbours).
 
 **Free space** (``free_space``, :mod:`core.free_space`; the points' ``views`` and the
 cameras): the limb search and the explain cost that picks among a frame's fits also
@@ -129,6 +134,7 @@ from .fit_whole_shape import whole_body_shape, written_shape
 from .fitting import FitSettings, fit
 from .foot_heading import feet_from_points
 from .metaballs import deflate
+from .motion_smoother import smooth_motion
 from .progress import Progress
 from .segment import segment_points
 from .state import FitState, Quality
@@ -354,6 +360,16 @@ def fit_sequence(
         reach=cfg.couple_reach,
     )
     fx.msgs += fill_msgs
+    if cfg.smooth_motion:
+        fx.theta[:], fx.root[:], sm = smooth_motion(
+            fx.theta, fx.root, fx.div, lo=skel.dof_lo, hi=skel.dof_hi
+        )
+        if np.isfinite(sm.ratio).any():
+            fx.msgs.append(
+                f"motion smoothed over the take (process / frame noise "
+                f"{np.nanmax(sm.ratio):.3g} per frame³; {int(sm.far.any(axis=1).sum())} "
+                f"frames with an angle more than 3 σ off the smoothed path down-weighted)"
+            )
     if cfg.shape == "fit" and not shape_first:  # at the fitted poses, for the state only
         fitted_balls, shape_rec = written_shape(
             skel,

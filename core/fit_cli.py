@@ -100,6 +100,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "points under it (off by default: on the default scene it fixes the right "
         "foot's 17 degrees but the fit as a whole loses; see core/foot_heading.py)",
     )
+    parser.add_argument(
+        "--smooth",
+        action="store_true",
+        help="smooth the fitted motion over the take (a Kalman smoother whose smoothness "
+        "the take's likelihood chooses; off by default: it spreads a sudden kick of one "
+        "limb; see core/motion_smoother.py)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -135,6 +142,7 @@ def run(args: argparse.Namespace) -> int:
             shape=shape,
             shape_fit_track=track,
             foot_heading=args.feet_from_points,
+            smooth_motion=args.smooth,
         ),
         progress=Progress(),
         n_points=args.points,

@@ -98,6 +98,18 @@ class SequenceSettings:
     #: from the literature's arm and hip excursions (:mod:`core.fit_gait`)
     gait_arms: bool = True
     gait_arm_ratio: float = 0.7
+    #: at the end, the angles and the root smoothed over the take by a Kalman smoother
+    #: whose smoothness the take's own likelihood chooses (:mod:`core.motion_smoother`).
+    #: Over 4 click sets (``bench.fit_spread``'s), MPJPE / acceleration error medians:
+    #: make demo's walk 13.51 / 4.06 → 13.45 mm / 3.69 mm per frame², jumps_line3
+    #: 14.86 / 5.36 → 14.70 / 4.06, walk_ortho3 13.14 / 5.73 → 12.94 / 3.65 (every fit
+    #: gains); dance_line3 (lost) run 0 199.9 → 200.5 mm (docs/design.md, "The jitter").
+    #: Off: one smoothness for every angle is outvoted by the still ones where a single
+    #: limb moves fast — a leg kicked 0.7 rad in one frame, the rest of the body still
+    #: (``tests/core/test_fit_recovery.py``), lands 130 mm from the ankle's place
+    #: instead of < 40 mm; each angle with its own smoothness breaks the spine's
+    #: compensation (the walk: 9.93 → 11.06 mm)
+    smooth_motion: bool = False
     #: σ (rad) of the difference between neighbouring spine links' changes from the
     #: clicked posture (:mod:`core.fit_chain`); None: no such prior (0.1 narrows the
     #: walk's spread over click sets but loses the dance)

@@ -90,9 +90,13 @@ def test_the_fit_initialises_from_the_perturbed_clicks(monkeypatch):
 
 
 def test_summary_median_and_range():
-    rows = [{"mpjpe_mm": m, "per_joint_mm": {"a": m, "b": 2 * m}} for m in (14.0, 12.0, 17.0)]
+    rows = [
+        {"mpjpe_mm": m, "accel_mm": m / 4, "per_joint_mm": {"a": m, "b": 2 * m}}
+        for m in (14.0, 12.0, 17.0)
+    ]
     s = summary(rows)
     assert (s["mpjpe_median_mm"], s["mpjpe_min_mm"], s["mpjpe_max_mm"]) == (14.0, 12.0, 17.0)
+    assert s["accel_median_mm"] == 3.5
     assert s["per_joint"]["b"] == (28.0, 24.0, 34.0)
 
 

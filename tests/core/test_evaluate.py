@@ -73,6 +73,20 @@ def test_rigid_translation_gives_its_length(truth, truth_state):
         assert v == pytest.approx(5.0, abs=1e-6)
     assert ev.max_joint_error_pct_height == pytest.approx(5.0 / 1700 * 100, rel=1e-6)
     assert ev.segment_orientation_rmse_deg < 1e-4
+    assert ev.accel_error_mm < 1e-6  # a constant offset does not shake
+
+
+def test_acceleration_error_is_the_jitter_of_one_frame(truth, truth_state):
+    """One frame pushed by 3 mm: Δ² sees it as 3 mm once and 6 mm in its own frame;
+    a diverged frame leaves its three second differences out."""
+    state, _ = truth_state
+    nf = state.n_frames
+    state.root_xyz[3] += np.array([0.0, 0.0, 0.003])
+    ev = evaluate_state(state, truth)
+    assert ev.accel_error_mm == pytest.approx((3.0 + 6.0 + 3.0) / (nf - 2), abs=1e-6)
+    assert ev.to_json()["accel_error_mm"] == ev.accel_error_mm
+    state.quality.diverged[3] = True
+    assert evaluate_state(state, truth).accel_error_mm < 1e-6
 
 
 def test_longer_forearm_moves_only_the_wrist(truth, truth_state):

@@ -1,5 +1,7 @@
 """Fitting across frames: a limb that jumps is re-found, a hidden part is coasted."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -182,3 +184,34 @@ def test_an_arm_hidden_through_a_jump_follows_the_other_arm(rng):
     # the arms swing forward and back by 0.6 rad; held near the clicked pose the right
     # wrist is lost by decimetres, mirrored from the left arm it stays within 4 cm
     assert err[True].max() < 0.04 and err[False].max() > 0.2, (err[True], err[False])
+
+
+@pytest.mark.slow
+def test_the_motion_smoothed_on_request_keeps_the_diverged_frame(rng):
+    """``smooth_motion``: the fit's last step smooths the fitted frames and reports it;
+    the frame marked diverged keeps its held pose."""
+    skel, s, balls = _body()
+    nf = 6
+    theta = np.zeros((nf, skel.n_dof))
+    theta[:, skel.dof_index("l_elbow_x")] = -0.1 * np.arange(nf)
+    root = np.array([[0.0, -0.01 * f, 1.0] for f in range(nf)])
+    frames = [
+        FramePoints(xyz=_outer_points(skel, balls, theta[f], root[f], s, rng), sigma=0.001)
+        for f in range(nf)
+    ]
+    box = rng.uniform([-0.5, -0.4, 0.0], [0.5, 0.4, 1.8], (len(frames[3].xyz), 3))
+    frames[3] = FramePoints(xyz=box, sigma=0.001)
+    init = _clicked(skel, theta[0], root[0], s)
+    cfg = SequenceSettings(max_nfev=15, max_nfev_shape=15, fit=FitSettings(members="part"))
+    plain = fit_sequence(frames, init, cfg)
+    smooth = fit_sequence(frames, init, replace(cfg, smooth_motion=True))
+    assert not any(m.startswith("motion smoothed") for m in plain.messages)
+    assert any(m.startswith("motion smoothed") for m in smooth.messages), smooth.messages
+    a, b = plain.state, smooth.state
+    assert a.quality.diverged[3] and b.quality.diverged[3]
+    np.testing.assert_array_equal(a.theta[3], b.theta[3])
+    np.testing.assert_array_equal(a.root_xyz[3], b.root_xyz[3])
+    assert not np.array_equal(a.theta, b.theta)
+    lo, hi = skel.dof_lo, skel.dof_hi  # within the limits wherever the fit was
+    assert np.all((b.theta >= np.minimum(lo, a.theta)) & (b.theta <= np.maximum(hi, a.theta)))
+    assert np.all(np.isfinite(b.theta)) and np.all(np.isfinite(b.root_xyz))

@@ -3,10 +3,10 @@
 ::
 
     blender -c somacap fit SCENE --out take.blend [--target character.blend] [--fit fit.json]
-                              [--cues texture|contours|both] [--feet-from-points]
+                              [--cues texture|contours|both] [--feet-from-points] [--smooth]
     blender -c somacap retarget fit.json --target character.blend --out take.blend
     blender -c somacap batch TAKES_DIR --out OUT_DIR [--target character.blend] [--cues …]
-                              [--feet-from-points]
+                              [--feet-from-points] [--smooth]
 
 The same commands run with the ``bpy`` module of the project's environment through the
 launcher: ``python -m addon.launch fit SCENE --out take.blend`` (from the repository root).
@@ -22,11 +22,17 @@ not used (nor overwritten); it cannot be combined with ``--fit``.
 heading of the surface points under it (core's ``SequenceSettings(foot_heading=True)``,
 ``core fit --feet-from-points``; off by default, and without effect with contours
 alone) and fits anew like ``--cues`` (nor can it be combined with ``--fit``).
+``--smooth`` smooths the fitted angles and root over the take with a Kalman smoother
+whose smoothness the take's likelihood chooses (core's
+``SequenceSettings(smooth_motion=True)``, ``core fit --smooth``; less jitter on walks
+and jumps, off by default as a sudden kick of one limb gets spread over its
+neighbouring frames) and fits anew in the same way; with ``--feet-from-points`` the
+fit has both.
 ``retarget`` builds the same file from a fitted state, without cameras.
 ``batch`` converts every take of a folder (scene folders and ``*.json`` states) into
 ``OUT_DIR/<take>.blend``, continues past a failing take, prints the failures and exits
-with status 1 when any take failed; ``--cues`` and ``--feet-from-points`` refit every
-scene folder (``.json`` states are used as they are).  Bad input: one line
+with status 1 when any take failed; ``--cues``, ``--feet-from-points`` and ``--smooth``
+refit every scene folder (``.json`` states are used as they are).  Bad input: one line
 ``somacap: error: …``, status 2.
 """
 
@@ -87,6 +93,15 @@ def build_parser() -> argparse.ArgumentParser:
             "joint error as a whole does not gain; needs --cues texture (the default) or "
             "both, as contours give no points",
         )
+        sp.add_argument(
+            "--smooth",
+            action="store_true",
+            help="smooth the fitted motion over the take (a Kalman smoother whose "
+            "smoothness the take's likelihood chooses), fitting anew (SCENE/fit.json is not "
+            "used); less jitter on walks and jumps; off by default: a sudden kick of one "
+            "limb while the rest of the body is still gets spread over its neighbouring "
+            "frames",
+        )
     for sp in (f, r, b):
         sp.add_argument(
             "--foot-lock",
@@ -142,6 +157,17 @@ def _take(state, take, target, out, exports, cameras_from=None, foot_lock=False)
     return f"{msg} -> {path}"
 
 
+def _fit_options(args) -> dict:
+    """The keywords of :func:`pipeline.state_for_scene` that ``fit`` and ``batch`` take
+    from their flags."""
+    return {
+        "cues": args.cues or "texture",
+        "refit": args.cues is not None,
+        "feet_from_points": args.feet_from_points,
+        "smooth_motion": args.smooth,
+    }
+
+
 def cmd_fit(args) -> int:
     from . import pipeline
 
@@ -150,21 +176,18 @@ def cmd_fit(args) -> int:
         for name, on in (
             ("--cues", args.cues is not None),
             ("--feet-from-points", args.feet_from_points),
+            ("--smooth", args.smooth),
         )
         if on
     ]
     if args.fit is not None and fresh:
+        names = fresh[0] if len(fresh) == 1 else f"{', '.join(fresh[:-1])} and {fresh[-1]}"
         raise _core.errors.InputError(
-            f"{args.fit}: --fit uses a fitted state and {' and '.join(fresh)} "
+            f"{args.fit}: --fit uses a fitted state and {names} "
             f"{'asks' if len(fresh) == 1 else 'ask'} for a new fit: give one of them"
         )
     state = pipeline.state_for_scene(
-        args.scene,
-        args.fit,
-        _core.progress.Progress(),
-        cues=args.cues or "texture",
-        refit=args.cues is not None,
-        feet_from_points=args.feet_from_points,
+        args.scene, args.fit, _core.progress.Progress(), **_fit_options(args)
     )
     take = args.take or args.scene.resolve().name
     print(
@@ -213,12 +236,7 @@ def cmd_batch(args) -> int:
         try:
             if take.is_dir():
                 state = pipeline.state_for_scene(
-                    take,
-                    None,
-                    _core.progress.Progress(),
-                    cues=args.cues or "texture",
-                    refit=args.cues is not None,
-                    feet_from_points=args.feet_from_points,
+                    take, None, _core.progress.Progress(), **_fit_options(args)
                 )
                 print(
                     _take(

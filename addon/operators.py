@@ -124,21 +124,20 @@ class SOMACAP_OT_fit(bpy.types.Operator):
         """The background job: the settings are read here, on the main thread."""
         s = _settings(context)
         scene_dir, state_path = bpy.path.abspath(s.scene_dir), bpy.path.abspath(s.state_path)
-        cues, feet = s.fit_cues, s.feet_from_points
+        cues = s.fit_cues
+        options = {"feet_from_points": s.feet_from_points, "smooth_motion": s.smooth_motion}
         moved = {} if state_path else pipeline.moved_clicks(scene_dir)
         self._moved = sorted(moved)
         self._cached = (
-            not state_path and not moved and not feet and (Path(scene_dir) / "fit.json").is_file()
+            not state_path
+            and not moved
+            and not any(options.values())
+            and (Path(scene_dir) / "fit.json").is_file()
         )
 
         def job(progress):
             return pipeline.state_for_scene(
-                scene_dir,
-                state_path or None,
-                progress,
-                cues=cues,
-                clicks_xyz=moved,
-                feet_from_points=feet,
+                scene_dir, state_path or None, progress, cues=cues, clicks_xyz=moved, **options
             )
 
         return job

@@ -35,7 +35,9 @@ class SOMACAP_PT_main(bpy.types.Panel):
         row = col.row(align=True)
         row.prop(s, "fit_cues", text="")
         row.operator("somacap.fit", icon="PLAY")
-        col.prop(s, "feet_from_points")
+        opts = col.column(align=True)
+        opts.prop(s, "feet_from_points")
+        opts.prop(s, "smooth_motion")
         if s.status:
             col.label(text=s.status)
         col.prop(s, "state_path")

@@ -38,6 +38,21 @@ def check_cues(cues: str) -> str:
     return cues
 
 
+def sequence_settings(feet_from_points: bool = False, smooth_motion: bool = False):
+    """core's ``SequenceSettings`` with the fit's opt-in options that are asked for
+    turned on (the rest core's defaults), or None when none is: core's own default.
+
+    ``feet_from_points`` sets ``foot_heading`` (:mod:`core.foot_heading`),
+    ``smooth_motion`` sets ``smooth_motion`` (:mod:`core.motion_smoother`).
+    """
+    fields = {
+        name: True
+        for name, on in (("foot_heading", feet_from_points), ("smooth_motion", smooth_motion))
+        if on
+    }
+    return _core.load("fit").SequenceSettings(**fields) if fields else None
+
+
 def run_fit(
     scene_dir,
     out_json,
@@ -45,6 +60,7 @@ def run_fit(
     cues: str = "texture",
     clicks_xyz=None,
     feet_from_points: bool = False,
+    smooth_motion: bool = False,
 ) -> Path:
     """Run core's whole pipeline on a scene folder and write ``fit.json``
     (:func:`core.fit_scene.fit_scene`; cancellable through ``progress``).
@@ -56,8 +72,12 @@ def run_fit(
     as it is).  ``feet_from_points=True`` turns each foot about its shin at the clicked
     frame to the heading of the surface points under it
     (``SequenceSettings(foot_heading=True)``, :mod:`core.foot_heading`; off by default,
-    and a no-op without points, i.e. with ``cues="contours"``); off, core's default
-    settings are used (no ``settings`` is passed).
+    and a no-op without points, i.e. with ``cues="contours"``).  ``smooth_motion=True``
+    smooths the fitted angles and root over the take
+    (``SequenceSettings(smooth_motion=True)``, :mod:`core.motion_smoother`; off by
+    default, as it spreads a sudden kick of one limb over the neighbouring frames).
+    Both on give one ``SequenceSettings`` with both set (:func:`sequence_settings`);
+    neither, core's default settings are used (no ``settings`` is passed).
     """
     scene_dir, out_json = Path(scene_dir), Path(out_json)
     check_cues(cues)
@@ -65,9 +85,8 @@ def run_fit(
     if clicks_xyz:
         moved = _core.fit_init.clicks_at(sc.clicks(), sc.calibration(), clicks_xyz)
         sc.clicks = lambda: moved
-    kw = {}
-    if feet_from_points:
-        kw["settings"] = _core.load("fit").SequenceSettings(foot_heading=True)
+    settings = sequence_settings(feet_from_points=feet_from_points, smooth_motion=smooth_motion)
+    kw = {} if settings is None else {"settings": settings}
     state = _core.load("fit_scene").fit_scene(sc, progress=progress, cues=cues, **kw)
     _core.state.write_state(out_json, state)
     return out_json
@@ -81,19 +100,21 @@ def state_for_scene(
     refit: bool = False,
     clicks_xyz=None,
     feet_from_points: bool = False,
+    smooth_motion: bool = False,
 ):
     """The fitted state of a scene: ``fit_path``, else ``SCENE/fit.json``, else fit now.
 
     A fit uses ``cues`` (:data:`FIT_CUES`); ``refit=True`` fits even when
     ``SCENE/fit.json`` exists (which is then neither used nor overwritten), and so do
-    joints dragged in the viewport (``clicks_xyz``) and ``feet_from_points=True`` (the
-    feet turned to their points, :func:`run_fit`).
+    joints dragged in the viewport (``clicks_xyz``), ``feet_from_points=True`` (the
+    feet turned to their points) and ``smooth_motion=True`` (the motion smoothed over
+    the take; both :func:`run_fit`).
     """
     scene_dir = Path(scene_dir)
     check_cues(cues)
     if fit_path:
         return read_state(fit_path)
-    fresh = refit or clicks_xyz or feet_from_points
+    fresh = refit or clicks_xyz or feet_from_points or smooth_motion
     if not fresh and (scene_dir / "fit.json").is_file():
         return read_state(scene_dir / "fit.json")
     with tempfile.TemporaryDirectory() as tmp:
@@ -106,6 +127,7 @@ def state_for_scene(
                 cues=cues,
                 clicks_xyz=clicks_xyz,
                 feet_from_points=feet_from_points,
+                smooth_motion=smooth_motion,
             )
         )
 

@@ -65,7 +65,7 @@ class SOMACAP_PG_settings(bpy.types.PropertyGroup):
         name="Cues",
         default="texture",
         description="Observations the fit uses (a scene's existing fit.json is used "
-        "as it is, unless Feet from points is on)",
+        "as it is, unless Feet from points or Smooth motion is on)",
         items=[
             ("texture", "Texture", "3-D surface points from the tracker (needs textured clothing)"),
             (
@@ -90,6 +90,13 @@ class SOMACAP_PG_settings(bpy.types.PropertyGroup):
         "default: on the default scene it fixes the right foot's turn, but the fit's joint "
         "error as a whole does not gain. Needs the Texture or Both cues (contours give no "
         "points)",
+    )
+    smooth_motion: BoolProperty(
+        name="Smooth motion",
+        default=False,
+        description="Smooth the fitted motion over the take (less jitter on walks and jumps), "
+        "and fit anew (a scene's fit.json is not used). Off by default: a sudden kick of one "
+        "limb, the rest of the body still, gets spread over its neighbouring frames",
     )
     export_format: EnumProperty(name="Format", items=[("BVH", "BVH", ""), ("FBX", "FBX", "")])
     progress: FloatProperty(name="Progress", subtype="PERCENTAGE", min=0, max=100)

@@ -1,11 +1,13 @@
-"""The fit's cue choice (texture / contours / both) and its opt-in feet from points
-(``SequenceSettings(foot_heading=True)``) from the pipeline, CLI, panel and operator
+"""The fit's cue choice (texture / contours / both) and its opt-in options, feet from
+points (``SequenceSettings(foot_heading=True)``) and smooth motion
+(``SequenceSettings(smooth_motion=True)``), from the pipeline, CLI, panel and operator
 down to core's ``fit_scene``; core's fit is replaced by a recorder (seconds)."""
 
 from __future__ import annotations
 
 import inspect
 from dataclasses import replace
+from typing import NamedTuple
 
 import numpy as np
 import pytest
@@ -20,6 +22,42 @@ from .state_fixtures import synthetic_state
 pytestmark = [pytest.mark.blender]
 
 CUES = ("texture", "contours", "both")
+
+
+class Option(NamedTuple):
+    """One of the fit's opt-in options, by its keyword of ``pipeline.run_fit`` (and
+    property of the panel)."""
+
+    field: str  # core's SequenceSettings field it turns on
+    flag: str  # the CLI flag of `fit` and `batch`
+    label: str  # the panel's check box
+    help: tuple  # words the flag's help holds
+    description: tuple  # words the property's tooltip holds
+
+
+OPTIONS = {
+    "feet_from_points": Option(
+        "foot_heading",
+        "--feet-from-points",
+        "Feet from points",
+        (
+            "--feet-from-points turn each foot about its shin at the clicked frame",
+            "contours give no points",
+        ),
+        ("heading of the surface points", "Texture or Both"),
+    ),
+    "smooth_motion": Option(
+        "smooth_motion",
+        "--smooth",
+        "Smooth motion",
+        (
+            "--smooth smooth the fitted motion over the take",
+            "less jitter on walks and jumps",
+            "a sudden kick of one limb",
+        ),
+        ("over the take", "less jitter on walks and jumps", "sudden kick of one limb", "fit anew"),
+    ),
+}
 
 
 def make_scene(root, with_fit=False):
@@ -45,19 +83,30 @@ def make_scene(root, with_fit=False):
 
 @pytest.fixture
 def fake_run_fit(bpy_module, monkeypatch):
-    """Replace ``addon.pipeline.run_fit``: record ``(scene, cues)`` (``(scene, cues,
-    "feet")`` with feet from points), write a 4-frame state."""
+    """Replace ``addon.pipeline.run_fit``: record ``(scene, cues, *options that are on)``
+    (e.g. ``("walk", "both", "smooth_motion")``), write a 4-frame state."""
     from addon import pipeline
 
     calls = []
 
     def run_fit(
-        scene_dir, out_json, progress=None, cues="texture", clicks_xyz=None, feet_from_points=False
+        scene_dir,
+        out_json,
+        progress=None,
+        cues="texture",
+        clicks_xyz=None,
+        feet_from_points=False,
+        smooth_motion=False,
     ):
-        calls.append((scene_dir.name, cues, "feet") if feet_from_points else (scene_dir.name, cues))
+        on = {"feet_from_points": feet_from_points, "smooth_motion": smooth_motion}
+        calls.append((scene_dir.name, cues, *(name for name in OPTIONS if on[name])))
         write_state(out_json, synthetic_state(4, seed=len(calls)))
         return out_json
 
+    # the stand-in takes what the real one takes
+    assert inspect.signature(run_fit).parameters.keys() == (
+        inspect.signature(pipeline.run_fit).parameters.keys()
+    )
     monkeypatch.setattr(pipeline, "run_fit", run_fit)
     return calls
 
@@ -118,54 +167,75 @@ def fake_fit_scene(bpy_module, monkeypatch):
 
 
 @pytest.mark.parametrize("cues", CUES)
-def test_run_fit_feet_from_points_passes_foot_heading(tmp_path, fake_fit_scene, cues):
+@pytest.mark.parametrize("option", OPTIONS)
+def test_run_fit_option_passes_sequence_settings(tmp_path, fake_fit_scene, option, cues):
     from addon import pipeline
     from core.fit import SequenceSettings
 
-    out = pipeline.run_fit(tmp_path / "sc", tmp_path / "fit.json", cues=cues, feet_from_points=True)
+    field = OPTIONS[option].field
+    out = pipeline.run_fit(tmp_path / "sc", tmp_path / "fit.json", cues=cues, **{option: True})
     assert pipeline.read_state(out).n_frames == 5
     (kw,) = fake_fit_scene
     assert set(kw) == {"cues", "settings"} and kw["cues"] == cues
     assert isinstance(kw["settings"], SequenceSettings)
-    assert kw["settings"].foot_heading is True
-    # core's defaults otherwise, as `core fit --feet-from-points` leaves the rest
-    assert kw["settings"] == replace(SequenceSettings(), foot_heading=True)
-    assert SequenceSettings().foot_heading is False  # off is core's default
+    assert getattr(kw["settings"], field) is True
+    # core's defaults otherwise, as `core fit --feet-from-points` / `--smooth` leave the rest
+    assert kw["settings"] == replace(SequenceSettings(), **{field: True})
+    assert getattr(SequenceSettings(), field) is False  # off is core's default
 
 
-def test_run_fit_without_feet_from_points_passes_no_settings(tmp_path, fake_fit_scene):
+def test_run_fit_both_options_pass_one_sequence_settings(tmp_path, fake_fit_scene):
+    from addon import pipeline
+    from core.fit import SequenceSettings
+
+    pipeline.run_fit(tmp_path / "sc", tmp_path / "fit.json", **dict.fromkeys(OPTIONS, True))
+    (kw,) = fake_fit_scene
+    assert set(kw) == {"cues", "settings"}
+    want = replace(SequenceSettings(), **{o.field: True for o in OPTIONS.values()})
+    assert kw["settings"] == want
+    assert kw["settings"].foot_heading is True and kw["settings"].smooth_motion is True
+
+
+def test_run_fit_without_options_passes_no_settings(tmp_path, fake_fit_scene):
     from addon import pipeline
 
     pipeline.run_fit(tmp_path / "sc", tmp_path / "a.json")
     pipeline.run_fit(tmp_path / "sc", tmp_path / "b.json", cues="both", feet_from_points=False)
-    assert fake_fit_scene == [{"cues": "texture"}, {"cues": "both"}]  # core's own default
+    pipeline.run_fit(tmp_path / "sc", tmp_path / "c.json", smooth_motion=False)
+    pipeline.run_fit(tmp_path / "sc", tmp_path / "d.json", **dict.fromkeys(OPTIONS, False))
+    # core's own default
+    assert fake_fit_scene == [{"cues": "texture"}, {"cues": "both"}] + [{"cues": "texture"}] * 2
 
 
-def test_state_for_scene_feet_from_points_refits_down_to_core(tmp_path, fake_fit_scene):
-    """A scene with a fit.json: asked for feet from points, the state is a new fit with
-    ``foot_heading`` on (through the real run_fit), and fit.json is left as it is."""
+@pytest.mark.parametrize("option", OPTIONS)
+def test_state_for_scene_option_refits_down_to_core(tmp_path, fake_fit_scene, option):
+    """A scene with a fit.json: asked for the option, the state is a new fit with its
+    field on (through the real run_fit), and fit.json is left as it is."""
     from addon import pipeline
 
     scene = make_scene(tmp_path / "walk", with_fit=True)
     before = (scene / "fit.json").read_bytes()
     assert pipeline.state_for_scene(scene).n_frames == 3  # cached
     assert fake_fit_scene == []
-    assert pipeline.state_for_scene(scene, cues="both", feet_from_points=True).n_frames == 5
+    assert pipeline.state_for_scene(scene, cues="both", **{option: True}).n_frames == 5
     (kw,) = fake_fit_scene
-    assert kw["cues"] == "both" and kw["settings"].foot_heading is True
+    assert kw["cues"] == "both" and getattr(kw["settings"], OPTIONS[option].field) is True
     assert (scene / "fit.json").read_bytes() == before  # not overwritten
     # an explicit fitted state still wins, as it does over refit
-    assert pipeline.state_for_scene(scene, scene / "fit.json", feet_from_points=True).n_frames == 3
+    assert pipeline.state_for_scene(scene, scene / "fit.json", **{option: True}).n_frames == 3
     assert len(fake_fit_scene) == 1
 
 
-def test_state_for_scene_feet_from_points_not_cached(tmp_path, fake_run_fit):
+@pytest.mark.parametrize("option", OPTIONS)
+def test_state_for_scene_option_not_cached(tmp_path, fake_run_fit, option):
     from addon import pipeline
 
     scene = make_scene(tmp_path / "walk", with_fit=True)
     before = (scene / "fit.json").read_bytes()
-    assert pipeline.state_for_scene(scene, feet_from_points=True).n_frames == 4
-    assert fake_run_fit == [("walk", "texture", "feet")]
+    assert pipeline.state_for_scene(scene, **{option: True}).n_frames == 4
+    assert fake_run_fit == [("walk", "texture", option)]
+    assert pipeline.state_for_scene(scene, **dict.fromkeys(OPTIONS, True)).n_frames == 4
+    assert fake_run_fit[-1] == ("walk", "texture", *OPTIONS)  # one fit with both
     assert (scene / "fit.json").read_bytes() == before
 
 
@@ -238,54 +308,76 @@ def test_cli_batch_cues(tmp_path, fake_run_fit, empty_blend, capsys):
     assert fake_run_fit == [("walk", "texture")]  # run uses its fit.json
 
 
-def test_cli_fit_feet_from_points(tmp_path, fake_run_fit, empty_blend, capsys):
+@pytest.mark.parametrize("option", OPTIONS)
+def test_cli_fit_option(tmp_path, fake_run_fit, empty_blend, capsys, option):
+    flag = OPTIONS[option].flag
     scene = make_scene(tmp_path / "walk", with_fit=True)
     before = (scene / "fit.json").read_bytes()
-    assert cli(["fit", scene, "--out", tmp_path / "a.blend", "--feet-from-points"]) == 0
-    assert fake_run_fit == [("walk", "texture", "feet")]  # refitted, not the cached fit
+    assert cli(["fit", scene, "--out", tmp_path / "a.blend", flag]) == 0
+    assert fake_run_fit == [("walk", "texture", option)]  # refitted, not the cached fit
     assert "walk: 4 frames" in capsys.readouterr().out
-    argv = ["fit", scene, "--out", tmp_path / "b.blend", "--cues", "both", "--feet-from-points"]
+    argv = ["fit", scene, "--out", tmp_path / "b.blend", "--cues", "both", flag]
     assert cli(argv) == 0
-    assert fake_run_fit[-1] == ("walk", "both", "feet")
+    assert fake_run_fit[-1] == ("walk", "both", option)
     assert (scene / "fit.json").read_bytes() == before
 
     fake_run_fit.clear()
     argv = ["fit", scene, "--out", tmp_path / "c.blend", "--fit", scene / "fit.json"]
-    assert cli([*argv, "--feet-from-points"]) == 2
-    err = capsys.readouterr().err.strip().splitlines()[-1]
-    assert err == (
+    assert cli([*argv, flag]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
         f"somacap: error: {scene / 'fit.json'}: --fit uses a fitted state and "
-        "--feet-from-points asks for a new fit: give one of them"
-    )
-    assert cli([*argv, "--feet-from-points", "--cues", "both"]) == 2
+        f"{flag} asks for a new fit: give one of them"
+    ]
+    assert cli([*argv, flag, "--cues", "both"]) == 2
     err = capsys.readouterr().err.strip().splitlines()[-1]
-    assert "--cues and --feet-from-points ask for a new fit" in err
+    assert f"--cues and {flag} ask for a new fit" in err
     assert fake_run_fit == [] and not (tmp_path / "c.blend").exists()
 
 
-def test_cli_batch_feet_from_points(tmp_path, fake_run_fit, empty_blend, capsys):
+def test_cli_fit_both_options(tmp_path, fake_run_fit, empty_blend, capsys):
+    scene = make_scene(tmp_path / "walk", with_fit=True)
+    flags = [o.flag for o in OPTIONS.values()]
+    assert cli(["fit", scene, "--out", tmp_path / "a.blend", *flags]) == 0
+    assert fake_run_fit == [("walk", "texture", *OPTIONS)]  # one fit with both
+    argv = ["fit", scene, "--out", tmp_path / "b.blend", "--fit", scene / "fit.json"]
+    assert cli([*argv, "--cues", "both", *flags]) == 2
+    assert (
+        capsys.readouterr()
+        .err.strip()
+        .splitlines()[-1]
+        .endswith("--cues, --feet-from-points and --smooth ask for a new fit: give one of them")
+    )
+    assert len(fake_run_fit) == 1 and not (tmp_path / "b.blend").exists()
+
+
+@pytest.mark.parametrize("option", OPTIONS)
+def test_cli_batch_option(tmp_path, fake_run_fit, empty_blend, capsys, option):
     takes = tmp_path / "takes"
     make_scene(takes / "run", with_fit=True)
     make_scene(takes / "walk")
     write_state(takes / "jump.json", synthetic_state(6, seed=5))
-    assert cli(["batch", takes, "--out", tmp_path / "out", "--feet-from-points"]) == 0
-    assert sorted(fake_run_fit) == [("run", "texture", "feet"), ("walk", "texture", "feet")]
+    assert cli(["batch", takes, "--out", tmp_path / "out", OPTIONS[option].flag]) == 0
+    assert sorted(fake_run_fit) == [("run", "texture", option), ("walk", "texture", option)]
     assert "3 converted, 0 failed" in capsys.readouterr().out  # jump.json as it is
 
 
-def test_cli_help_explains_feet_from_points(capsys):
+@pytest.mark.parametrize("option", OPTIONS)
+def test_cli_help_explains_option(capsys, option):
     from addon.cli_command import build_parser
 
+    opt = OPTIONS[option]
     for cmd in ("fit", "batch"):
         with pytest.raises(SystemExit):
             build_parser().parse_args([cmd, "--help"])
         text = " ".join(capsys.readouterr().out.split())
-        assert "--feet-from-points turn each foot about its shin at the clicked frame" in text
-        assert "contours give no points" in text
-        assert not build_parser().parse_args([cmd, "x", "--out", "o"]).feet_from_points
+        for words in opt.help:
+            assert words in text
+        args = vars(build_parser().parse_args([cmd, "x", "--out", "o"]))
+        assert args[opt.flag[2:].replace("-", "_")] is False  # off by default
     with pytest.raises(SystemExit):
         build_parser().parse_args(["retarget", "--help"])
-    assert "--feet-from-points" not in capsys.readouterr().out
+    assert opt.flag not in capsys.readouterr().out
 
 
 def test_cli_help_explains_each_cue(capsys):
@@ -341,22 +433,30 @@ def test_panel_property_and_operator(registered, tmp_path, fake_run_fit):
         s.fit_cues = "skin"
 
 
-def test_panel_feet_from_points(registered, tmp_path, fake_run_fit, capfd):
-    """The check box under the cues and the Fit button; ticked, Fit refits with the feet
-    from points although the scene has a fit.json, unticked it uses that fit.json."""
+@pytest.mark.parametrize("option", OPTIONS)
+def test_panel_option(registered, tmp_path, fake_run_fit, capfd, option):
+    """The check boxes under the cues and the Fit button; ticked, Fit refits with the
+    option although the scene has a fit.json, unticked it uses that fit.json."""
     bpy = registered
     s = bpy.context.scene.somacap
-    prop = s.bl_rna.properties["feet_from_points"]
-    assert prop.type == "BOOLEAN" and prop.default is False and s.feet_from_points is False
-    assert prop.name == "Feet from points"
-    assert "heading of the surface points" in prop.description
-    assert "Texture or Both" in prop.description
+    opt = OPTIONS[option]
+    prop = s.bl_rna.properties[option]
+    assert prop.type == "BOOLEAN" and prop.default is False and getattr(s, option) is False
+    assert prop.name == opt.label
+    for words in opt.description:
+        assert words in prop.description
+    assert opt.label in s.bl_rna.properties["fit_cues"].description  # refits
 
     from .user_scenario import panel_dump
 
     log = panel_dump(bpy.context)
     i = log.index("button somacap.fit")
-    assert log[i - 1 : i + 2] == ["field fit_cues", "button somacap.fit", "field feet_from_points"]
+    assert log[i - 1 : i + 3] == [
+        "field fit_cues",
+        "button somacap.fit",
+        "field feet_from_points",
+        "field smooth_motion",
+    ]
 
     scene = make_scene(tmp_path / "walk", with_fit=True)
     before = (scene / "fit.json").read_bytes()
@@ -366,13 +466,17 @@ def test_panel_feet_from_points(registered, tmp_path, fake_run_fit, capfd):
     assert bpy.ops.somacap.fit() == {"FINISHED"}  # unticked: the scene's fit.json
     assert fake_run_fit == []
     assert "Used the scene's existing fit.json" in capfd.readouterr().out
-    s.feet_from_points = True
+    setattr(s, option, True)
     s.fit_cues = "both"
     assert bpy.ops.somacap.fit() == {"FINISHED"}
-    assert fake_run_fit == [("walk", "both", "feet")]
+    assert fake_run_fit == [("walk", "both", option)]
     assert "existing fit.json" not in capfd.readouterr().out  # not "cached"
     assert s.body is not None and s.body["somacap_rmse_mm"] is not None
     assert len(s.body["somacap_rmse_mm"]) == 4  # the new fit was built
+    for name in OPTIONS:
+        setattr(s, name, True)
+    assert bpy.ops.somacap.fit() == {"FINISHED"}
+    assert fake_run_fit[-1] == ("walk", "both", *OPTIONS)  # both ticked: one fit with both
     assert (scene / "fit.json").read_bytes() == before
 
 
@@ -388,7 +492,13 @@ def test_fit_button_uses_the_key_joints_the_user_moved(registered, monkeypatch, 
     got = []
 
     def run_fit(
-        scene_dir, out_json, progress=None, cues="texture", clicks_xyz=None, feet_from_points=False
+        scene_dir,
+        out_json,
+        progress=None,
+        cues="texture",
+        clicks_xyz=None,
+        feet_from_points=False,
+        smooth_motion=False,
     ):
         got.append(clicks_xyz)
         write_state(out_json, synthetic_state(4, seed=5))

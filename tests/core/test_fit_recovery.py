@@ -85,10 +85,11 @@ def test_a_kick_is_refound_and_a_hidden_arm_coasts_with_growing_sigma(rng):
         assert np.all(np.isfinite(arr))
 
 
-@pytest.mark.slow
-def test_a_frame_of_clutter_is_marked_not_fitted(rng):
+def _cluttered_take(rng, nf, bad):
+    """An elbow bending over ``nf`` frames, frame ``bad`` replaced by as many points
+    scattered through the body's box (nothing fits them); the initialisation and the
+    quick settings these tests fit with."""
     skel, s, balls = _body()
-    nf = 4
     theta = np.zeros((nf, skel.n_dof))
     theta[:, skel.dof_index("l_elbow_x")] = -0.1 * np.arange(nf)
     root = np.array([[0.0, -0.01 * f, 1.0] for f in range(nf)])
@@ -96,15 +97,16 @@ def test_a_frame_of_clutter_is_marked_not_fitted(rng):
         FramePoints(xyz=_outer_points(skel, balls, theta[f], root[f], s, rng), sigma=0.001)
         for f in range(nf)
     ]
-    # frame 2: as many points, but scattered through the body's box (nothing fits them)
-    box = rng.uniform([-0.5, -0.4, 0.0], [0.5, 0.4, 1.8], (len(frames[2].xyz), 3))
-    frames[2] = FramePoints(xyz=box, sigma=0.001)
-    init = _clicked(skel, theta[0], root[0], s)
-    res = fit_sequence(
-        frames,
-        init,
-        SequenceSettings(max_nfev=15, max_nfev_shape=15, fit=FitSettings(members="part")),
-    )
+    box = rng.uniform([-0.5, -0.4, 0.0], [0.5, 0.4, 1.8], (len(frames[bad].xyz), 3))
+    frames[bad] = FramePoints(xyz=box, sigma=0.001)
+    cfg = SequenceSettings(max_nfev=15, max_nfev_shape=15, fit=FitSettings(members="part"))
+    return skel, frames, _clicked(skel, theta[0], root[0], s), cfg
+
+
+@pytest.mark.slow
+def test_a_frame_of_clutter_is_marked_not_fitted(rng):
+    _, frames, init, cfg = _cluttered_take(rng, 4, 2)
+    res = fit_sequence(frames, init, cfg)
     q = res.state.quality
     assert q.diverged.tolist() == [False, False, True, False], res.messages
     assert any(m.startswith("frame 2") for m in res.messages)
@@ -190,19 +192,7 @@ def test_an_arm_hidden_through_a_jump_follows_the_other_arm(rng):
 def test_the_motion_smoothed_on_request_keeps_the_diverged_frame(rng):
     """``smooth_motion``: the fit's last step smooths the fitted frames and reports it;
     the frame marked diverged keeps its held pose."""
-    skel, s, balls = _body()
-    nf = 6
-    theta = np.zeros((nf, skel.n_dof))
-    theta[:, skel.dof_index("l_elbow_x")] = -0.1 * np.arange(nf)
-    root = np.array([[0.0, -0.01 * f, 1.0] for f in range(nf)])
-    frames = [
-        FramePoints(xyz=_outer_points(skel, balls, theta[f], root[f], s, rng), sigma=0.001)
-        for f in range(nf)
-    ]
-    box = rng.uniform([-0.5, -0.4, 0.0], [0.5, 0.4, 1.8], (len(frames[3].xyz), 3))
-    frames[3] = FramePoints(xyz=box, sigma=0.001)
-    init = _clicked(skel, theta[0], root[0], s)
-    cfg = SequenceSettings(max_nfev=15, max_nfev_shape=15, fit=FitSettings(members="part"))
+    skel, frames, init, cfg = _cluttered_take(rng, 6, 3)
     plain = fit_sequence(frames, init, cfg)
     smooth = fit_sequence(frames, init, replace(cfg, smooth_motion=True))
     assert not any(m.startswith("motion smoothed") for m in plain.messages)

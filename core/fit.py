@@ -68,11 +68,13 @@ clicked frame's initial posture (:mod:`core.fit_init`):
    where the legs move mirrored (a jump; ``mirror_hidden``, :mod:`core.fit_mirror`);
    last, in a walk, a hidden arm that neither placed swings with the opposite thigh
    (``gait_swing_arms``, :mod:`core.fit_gait`);
-6. **smoothing** (``smooth_motion``, :mod:`core.motion_smoother`) — the angles and the
-   root smoothed over the whole take by a fixed-interval Kalman smoother (forward and
-   backward), one smoothness for all of them that the take's own likelihood chooses;
-   diverged frames are left as they are (off by default: it spreads a lone fast limb's
-   kick over its neighbours).
+6. **smoothing** (:mod:`core.motion_smoother`) — a fixed-interval Kalman smoother
+   (forward and backward) over the whole take, one smoothness for every angle and the
+   root that the take's own likelihood chooses; diverged frames are left as they are.
+   By default (``smooth_unobserved``) only the angles no observation decided (step 5's
+   filled and held ones) take their smoothed values; ``smooth_motion`` smooths every
+   angle and the root (off by default: it spreads a lone fast limb's kick over its
+   neighbours).
 
 **Free space** (``free_space``, :mod:`core.free_space`; the points' ``views`` and the
 cameras): the limb search and the explain cost that picks among a frame's fits also
@@ -360,15 +362,22 @@ def fit_sequence(
         reach=cfg.couple_reach,
     )
     fx.msgs += fill_msgs
-    if cfg.smooth_motion:
-        fx.theta[:], fx.root[:], sm = smooth_motion(
-            fx.theta, fx.root, fx.div, lo=skel.dof_lo, hi=skel.dof_hi
-        )
-        if np.isfinite(sm.ratio).any():
+    if cfg.smooth_motion or (cfg.smooth_unobserved and unobs.any()):
+        th_s, root_s, sm = smooth_motion(fx.theta, fx.root, fx.div, lo=skel.dof_lo, hi=skel.dof_hi)
+        if not np.isfinite(sm.ratio).any():
+            pass  # too few fitted frames to choose a smoothness
+        elif cfg.smooth_motion:
+            fx.theta[:], fx.root[:] = th_s, root_s
             fx.msgs.append(
                 f"motion smoothed over the take (process / frame noise "
                 f"{np.nanmax(sm.ratio):.3g} per frame³; {int(sm.far.any(axis=1).sum())} "
                 f"frames with an angle more than 3 σ off the smoothed path down-weighted)"
+            )
+        else:  # only what no observation decided: the filled and held angles
+            fx.theta[:] = np.where(unobs, th_s, fx.theta)
+            fx.msgs.append(
+                f"unobserved angles smoothed over the take in "
+                f"{int((unobs & ~fx.div[:, None]).any(axis=1).sum())} frames"
             )
     if cfg.shape == "fit" and not shape_first:  # at the fitted poses, for the state only
         fitted_balls, shape_rec = written_shape(

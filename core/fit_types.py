@@ -110,6 +110,15 @@ class SequenceSettings:
     #: instead of < 40 mm; each angle with its own smoothness breaks the spine's
     #: compensation (the walk: 9.93 → 11.06 mm)
     smooth_motion: bool = False
+    #: without ``smooth_motion``, the same smoother's values for the angles no
+    #: observation decided only (:func:`core.fit_bridge.unobserved`: the coupled,
+    #: mirrored, bridged, swung and held ones, whose jitter is most of the fit's — the
+    #: walk's hidden right wrist 13.4 mm/frame² against 0.8–4.2 for the seen joints);
+    #: a seen limb's kick is left as it was.  Over the same 4 click sets, MPJPE /
+    #: acceleration error medians: make demo's walk 13.51 / 4.06 → 13.40 / 3.62,
+    #: jumps_line3 14.86 / 5.36 → 14.82 / 4.56, walk_ortho3 13.14 / 5.73 → 13.12 / 5.68;
+    #: dance_line3 run 0 199.9 → 199.6 mm (docs/design.md, "The jitter")
+    smooth_unobserved: bool = True
     #: σ (rad) of the difference between neighbouring spine links' changes from the
     #: clicked posture (:mod:`core.fit_chain`); None: no such prior (0.1 narrows the
     #: walk's spread over click sets but loses the dance)

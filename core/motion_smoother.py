@@ -27,8 +27,10 @@ loses much), and the kick is spread over its neighbours.  Letting a series whose
 smoothness is far more likely (by 10 nats) keep it frees a kick only in longer takes
 (30 frames: 0.80 → 0.24 rad off at the kick, 7 frames: none) and breaks the walk's
 spine again (MPJPE 9.93 → 10.95 mm); a kick is a step, which no constant-velocity
-smoother follows.  The sequence fit therefore leaves this off by default
-(``SequenceSettings.smooth_motion``, with the figures; ``core fit --smooth``).
+smoother follows.  The sequence fit therefore gives the smoothed values by default only
+to the angles no observation decided (``SequenceSettings.smooth_unobserved``: a hidden
+limb's filled angles, whose jitter is most of the fit's) and to every angle on request
+(``SequenceSettings.smooth_motion``, ``core fit --smooth``; the figures are there).
 """
 
 from __future__ import annotations

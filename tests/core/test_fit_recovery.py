@@ -40,8 +40,10 @@ def _clicked(skel, theta0, root0, s):
     )
 
 
-@pytest.mark.slow
-def test_a_kick_is_refound_and_a_hidden_arm_coasts_with_growing_sigma(rng):
+def _kick_take(rng):
+    """A left leg kicked between frames 2 and 3 while the right arm, hidden from frame 4,
+    swings on; the initialisation and the quick settings (hidden parts coasting on the
+    damped prediction)."""
     skel, s, balls = _body()
     nf = 7
     theta = np.zeros((nf, skel.n_dof))
@@ -63,6 +65,12 @@ def test_a_kick_is_refound_and_a_hidden_arm_coasts_with_growing_sigma(rng):
     cfg = SequenceSettings(
         max_nfev=15, max_nfev_shape=15, fit=FitSettings(members="part"), hold_hidden=False
     )
+    return skel, theta, root, s, frames, init, cfg
+
+
+@pytest.mark.slow
+def test_a_kick_is_refound_and_a_hidden_arm_coasts_with_growing_sigma(rng):
+    skel, theta, root, s, frames, init, cfg = _kick_take(rng)
     res = fit_sequence(frames, init, cfg)
     st = res.state
     assert not st.quality.diverged.any(), res.messages
@@ -205,3 +213,20 @@ def test_the_motion_smoothed_on_request_keeps_the_diverged_frame(rng):
     lo, hi = skel.dof_lo, skel.dof_hi  # within the limits wherever the fit was
     assert np.all((b.theta >= np.minimum(lo, a.theta)) & (b.theta <= np.maximum(hi, a.theta)))
     assert np.all(np.isfinite(b.theta)) and np.all(np.isfinite(b.root_xyz))
+
+
+@pytest.mark.slow
+def test_by_default_only_the_unobserved_angles_are_smoothed(rng):
+    """``smooth_unobserved`` (the default): the hidden arm's angles take the smoother's
+    values; every angle an observation decided — the kick included — is as without it."""
+    skel, theta, root, s, frames, init, cfg = _kick_take(rng)
+    off = fit_sequence(frames, init, replace(cfg, smooth_unobserved=False)).state
+    res = fit_sequence(frames, init, cfg)
+    on = res.state
+    un = on.quality.unobserved
+    np.testing.assert_array_equal(off.quality.unobserved, un)
+    assert un[4:, skel.dof_index("r_shoulder_x")].all()
+    np.testing.assert_array_equal(on.theta[~un], off.theta[~un])
+    np.testing.assert_array_equal(on.root_xyz, off.root_xyz)
+    assert not np.array_equal(on.theta[un], off.theta[un])
+    assert any(m.startswith("unobserved angles smoothed") for m in res.messages)

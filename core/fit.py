@@ -70,11 +70,11 @@ clicked frame's initial posture (:mod:`core.fit_init`):
    (``gait_swing_arms``, :mod:`core.fit_gait`);
 6. **smoothing** (:mod:`core.motion_smoother`) — a fixed-interval Kalman smoother
    (forward and backward) over the whole take, one smoothness for every angle and the
-   root that the take's own likelihood chooses; diverged frames are left as they are.
-   By default (``smooth_unobserved``) only the angles no observation decided (step 5's
-   filled and held ones) take their smoothed values; ``smooth_motion`` smooths every
-   angle and the root (off by default: it spreads a lone fast limb's kick over its
-   neighbours).
+   root that the take's own likelihood chooses, after the written shape (fitted at the
+   poses the observations gave); diverged frames are left as they are.  By default
+   (``smooth_unobserved``) only the angles no observation decided (step 5's filled and
+   held ones) take their smoothed values; ``smooth_motion`` smooths every angle and the
+   root (off by default: it spreads a lone fast limb's kick over its neighbours).
 
 **Free space** (``free_space``, :mod:`core.free_space`; the points' ``views`` and the
 cameras): the limb search and the explain cost that picks among a frame's fits also
@@ -362,23 +362,6 @@ def fit_sequence(
         reach=cfg.couple_reach,
     )
     fx.msgs += fill_msgs
-    if cfg.smooth_motion or (cfg.smooth_unobserved and unobs.any()):
-        th_s, root_s, sm = smooth_motion(fx.theta, fx.root, fx.div, lo=skel.dof_lo, hi=skel.dof_hi)
-        if not np.isfinite(sm.ratio).any():
-            pass  # too few fitted frames to choose a smoothness
-        elif cfg.smooth_motion:
-            fx.theta[:], fx.root[:] = th_s, root_s
-            fx.msgs.append(
-                f"motion smoothed over the take (process / frame noise "
-                f"{np.nanmax(sm.ratio):.3g} per frame³; {int(sm.far.any(axis=1).sum())} "
-                f"frames with an angle more than 3 σ off the smoothed path down-weighted)"
-            )
-        else:  # only what no observation decided: the filled and held angles
-            fx.theta[:] = np.where(unobs, th_s, fx.theta)
-            fx.msgs.append(
-                f"unobserved angles smoothed over the take in "
-                f"{int((unobs & ~fx.div[:, None]).any(axis=1).sum())} frames"
-            )
     if cfg.shape == "fit" and not shape_first:  # at the fitted poses, for the state only
         fitted_balls, shape_rec = written_shape(
             skel,
@@ -397,6 +380,24 @@ def fit_sequence(
             fx.msgs,
             progress,
         )
+    # after the written shape, which is fitted at the poses the observations gave
+    if cfg.smooth_motion or (cfg.smooth_unobserved and unobs.any()):
+        th_s, root_s, sm = smooth_motion(fx.theta, fx.root, fx.div, lo=skel.dof_lo, hi=skel.dof_hi)
+        if not np.isfinite(sm.ratio).any():
+            pass  # too few fitted frames to choose a smoothness
+        elif cfg.smooth_motion:
+            fx.theta[:], fx.root[:] = th_s, root_s
+            fx.msgs.append(
+                f"motion smoothed over the take (process / frame noise "
+                f"{np.nanmax(sm.ratio):.3g} per frame³; {int(sm.far.any(axis=1).sum())} "
+                f"frames with an angle more than 3 σ off the smoothed path down-weighted)"
+            )
+        else:  # only what no observation decided: the filled and held angles
+            fx.theta[:] = np.where(unobs, th_s, fx.theta)
+            fx.msgs.append(
+                f"unobserved angles smoothed over the take in "
+                f"{int((unobs & ~fx.div[:, None]).any(axis=1).sum())} frames"
+            )
     balls_out = fx.balls.copy(radii=fx.radii) if fitted_balls is None else fitted_balls.copy()
     q = Quality(
         rmse_m=fx.rmse,

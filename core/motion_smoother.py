@@ -11,14 +11,13 @@ How smooth is not set by hand: the ratio of the process noise (the acceleration'
 variance) to the fit's frame-to-frame noise is the one that makes the take most likely
 (the filters' innovations, each series' measurement variance concentrated out: the
 generalised maximum likelihood choice of a smoothing spline's parameter).  For the
-motion it is one ratio for every angle and the root, from the sum of their
-likelihoods, so that the smoother is one linear operator over time for all of them
-(but for the down-weighted frames below):
-angles that trade off along a chain (the spine's links, a shoulder against its
-clavicle) keep their sum's path.  Each angle with its own ratio broke that (make
-demo's walk, exact clicks: head 3.9 → 9.1 mm, MPJPE 9.93 → 11.06 mm; one ratio:
-9.92 mm).  Frames marked diverged are not used and keep their values; a frame far off
-the smoothed path (a one-frame flip) is down-weighted in a few reweighted passes
+motion it is one ratio for every angle and the root, from the sum of their likelihoods,
+so that the smoother is one linear operator over time for all of them (but for the
+down-weighted frames below): angles that trade off along a chain (the spine's links, a
+shoulder against its clavicle) keep their sum's path.  Each angle with its own ratio
+broke that (make demo's walk, exact clicks: head 3.9 → 9.1 mm, MPJPE 9.93 → 11.06 mm;
+one ratio: 9.92 mm).  Frames marked diverged are not used and keep their values; a frame
+far off the smoothed path (a one-frame flip) is down-weighted in a few reweighted passes
 (Cauchy weights on the residuals).  Angles are kept within their joint limits.
 
 What one smoothness costs: where a single limb moves fast and the rest of the body is

@@ -94,9 +94,10 @@ class SOMACAP_PG_settings(bpy.types.PropertyGroup):
     smooth_motion: BoolProperty(
         name="Smooth motion",
         default=False,
-        description="Smooth the fitted motion over the take (less jitter on walks and jumps), "
-        "and fit anew (a scene's fit.json is not used). Off by default: a sudden kick of one "
-        "limb, the rest of the body still, gets spread over its neighbouring frames",
+        description="Smooth every fitted angle over the take (less jitter on walks and jumps; "
+        "the hidden limbs' angles are always smoothed), and fit anew (a scene's fit.json is "
+        "not used). Off by default: a sudden kick of one limb, the rest of the body still, "
+        "gets spread over its neighbouring frames",
     )
     export_format: EnumProperty(name="Format", items=[("BVH", "BVH", ""), ("FBX", "FBX", "")])
     progress: FloatProperty(name="Progress", subtype="PERCENTAGE", min=0, max=100)

@@ -22,8 +22,9 @@ not used (nor overwritten); it cannot be combined with ``--fit``.
 heading of the surface points under it (core's ``SequenceSettings(foot_heading=True)``,
 ``core fit --feet-from-points``; off by default, and without effect with contours
 alone) and fits anew like ``--cues`` (nor can it be combined with ``--fit``).
-``--smooth`` smooths the fitted angles and root over the take with a Kalman smoother
-whose smoothness the take's likelihood chooses (core's
+``--smooth`` smooths the fitted motion over the take — each joint's path by a Kalman
+smoother whose smoothness that path's likelihood chooses, then the angles solved to it
+(core's
 ``SequenceSettings(smooth_motion=True)``, ``core fit --smooth``; less jitter on walks
 and jumps, off by default as a sudden kick of one limb gets spread over its
 neighbouring frames) and fits anew in the same way; with ``--feet-from-points`` the
@@ -96,8 +97,9 @@ def build_parser() -> argparse.ArgumentParser:
         sp.add_argument(
             "--smooth",
             action="store_true",
-            help="smooth the fitted motion over the take (a Kalman smoother whose "
-            "smoothness the take's likelihood chooses), fitting anew (SCENE/fit.json is not "
+            help="smooth the fitted motion over the take (each joint's path by a Kalman "
+            "smoother whose smoothness its likelihood chooses, then the angles solved to it), "
+            "fitting anew (SCENE/fit.json is not "
             "used); less jitter on walks and jumps; off by default: a sudden kick of one "
             "limb while the rest of the body is still gets spread over its neighbouring "
             "frames",

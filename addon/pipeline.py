@@ -73,8 +73,8 @@ def run_fit(
     frame to the heading of the surface points under it
     (``SequenceSettings(foot_heading=True)``, :mod:`core.foot_heading`; off by default,
     and a no-op without points, i.e. with ``cues="contours"``).  ``smooth_motion=True``
-    smooths the fitted angles and root over the take
-    (``SequenceSettings(smooth_motion=True)``, :mod:`core.motion_smoother`; off by
+    smooths the fitted motion over the take, each joint's path, then the angles solved
+    to it (``SequenceSettings(smooth_motion=True)``, :mod:`core.motion_smoother`; off by
     default, as it spreads a sudden kick of one limb over the neighbouring frames).
     Both on give one ``SequenceSettings`` with both set (:func:`sequence_settings`);
     neither, core's default settings are used (no ``settings`` is passed).

@@ -94,9 +94,9 @@ class SOMACAP_PG_settings(bpy.types.PropertyGroup):
     smooth_motion: BoolProperty(
         name="Smooth motion",
         default=False,
-        description="Smooth every fitted angle over the take (less jitter on walks and jumps; "
-        "the hidden limbs' angles are always smoothed), and fit anew (a scene's fit.json is "
-        "not used). Off by default: a sudden kick of one limb, the rest of the body still, "
+        description="Smooth the whole fitted motion over the take, each joint's path (less "
+        "jitter on walks and jumps; the hidden limbs' angles are always smoothed), and fit "
+        "anew (a scene's fit.json is not used). Off by default: a sudden kick of one limb "
         "gets spread over its neighbouring frames",
     )
     export_format: EnumProperty(name="Format", items=[("BVH", "BVH", ""), ("FBX", "FBX", "")])

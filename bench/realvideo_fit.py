@@ -139,7 +139,7 @@ def run_config(
     from core.fused_track import track_fused
     from core.landmarks import METRIC_JOINTS
     from core.model_render import camera_rays
-    from core.motion_smoother import smooth_motion
+    from core.motion_smoother import smooth_joints
     from core.silhouette_check import body_masks, mask_iou, shift_iou
     from core.skeleton import joint_positions
 
@@ -252,11 +252,10 @@ def run_config(
         if label == "contours only":
             th_c, rt_c, t_con = th, rt, spf
             # the same track smoothed over the take (core.motion_smoother, as the
-            # sequence fit's last step): frames the filter did not update are not used
+            # sequence fit's opt-in smooth_motion): frames the filter did not update
+            # are not used
             held = ~np.array([t.updated for t in tracks], bool)
-            th_sm, rt_sm, _ = smooth_motion(
-                th, rt, held, lo=init.skeleton.dof_lo, hi=init.skeleton.dof_hi
-            )
+            th_sm, rt_sm, _ = smooth_joints(init.skeleton, init.s, th, rt, held)
             results["contours, smoothed"] = (init.s, balls_c, th_sm, rt_sm, spf, "")
             print(
                 f"contour shape at frame 0: RMS {rms0:.2f} px ({t_shape:.1f} s); contour "

@@ -136,7 +136,7 @@ from .fit_whole_shape import whole_body_shape, written_shape
 from .fitting import FitSettings, fit
 from .foot_heading import feet_from_points
 from .metaballs import deflate
-from .motion_smoother import smooth_motion
+from .motion_smoother import smooth_joints, smooth_motion
 from .progress import Progress
 from .segment import segment_points
 from .state import FitState, Quality
@@ -381,18 +381,17 @@ def fit_sequence(
             progress,
         )
     # after the written shape, which is fitted at the poses the observations gave
-    if cfg.smooth_motion or (cfg.smooth_unobserved and unobs.any()):
-        th_s, root_s, sm = smooth_motion(fx.theta, fx.root, fx.div, lo=skel.dof_lo, hi=skel.dof_hi)
-        if not np.isfinite(sm.ratio).any():
-            pass  # too few fitted frames to choose a smoothness
-        elif cfg.smooth_motion:
-            fx.theta[:], fx.root[:] = th_s, root_s
-            fx.msgs.append(
-                f"motion smoothed over the take (process / frame noise "
-                f"{np.nanmax(sm.ratio):.3g} per frame³; {int(sm.far.any(axis=1).sum())} "
-                f"frames with an angle more than 3 σ off the smoothed path down-weighted)"
-            )
-        else:  # only what no observation decided: the filled and held angles
+    if cfg.smooth_motion:
+        fx.theta[:], fx.root[:], sm = smooth_joints(skel, fx.s, fx.theta, fx.root, fx.div)
+        fx.msgs.append(
+            f"motion smoothed over the take (the joints' positions, then the angles; "
+            f"{int((sm.far.any(axis=1) & ~fx.div).sum())} frames with a joint more than "
+            f"3 σ off its smoothed path down-weighted)"
+        )
+    elif cfg.smooth_unobserved and unobs.any():
+        th_s, _, sm = smooth_motion(fx.theta, fx.root, fx.div, lo=skel.dof_lo, hi=skel.dof_hi)
+        if np.isfinite(sm.ratio).any():  # else too few fitted frames to choose a smoothness
+            # only what no observation decided: the filled and held angles
             fx.theta[:] = np.where(unobs, th_s, fx.theta)
             fx.msgs.append(
                 f"unobserved angles smoothed over the take in "

@@ -103,9 +103,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--smooth",
         action="store_true",
-        help="smooth the fitted motion over the take (a Kalman smoother whose smoothness "
-        "the take's likelihood chooses; off by default: it spreads a sudden kick of one "
-        "limb; see core/motion_smoother.py)",
+        help="smooth the whole fitted motion over the take (each joint's path by a Kalman "
+        "smoother whose smoothness its likelihood chooses, then the angles solved to it; "
+        "the hidden limbs' angles are smoothed anyway; off by default: it spreads a sudden "
+        "kick; see core/motion_smoother.py)",
     )
 
 

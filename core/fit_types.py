@@ -98,17 +98,17 @@ class SequenceSettings:
     #: from the literature's arm and hip excursions (:mod:`core.fit_gait`)
     gait_arms: bool = True
     gait_arm_ratio: float = 0.7
-    #: at the end, the angles and the root smoothed over the take by a Kalman smoother
-    #: whose smoothness the take's own likelihood chooses (:mod:`core.motion_smoother`).
-    #: Over 4 click sets (``bench.fit_spread``'s), MPJPE / acceleration error medians:
-    #: make demo's walk 13.51 / 4.06 → 13.45 mm / 3.69 mm per frame², jumps_line3
-    #: 14.86 / 5.36 → 14.70 / 4.06, walk_ortho3 13.14 / 5.73 → 12.94 / 3.65 (every fit
-    #: gains); dance_line3 (lost) run 0 199.9 → 200.5 mm (docs/design.md, "The jitter").
-    #: Off: one smoothness for every angle is outvoted by the still ones where a single
-    #: limb moves fast — a leg kicked 0.7 rad in one frame, the rest of the body still
-    #: (``tests/core/test_fit_recovery.py``), lands 130 mm from the ankle's place
-    #: instead of < 40 mm; each angle with its own smoothness breaks the spine's
-    #: compensation (the walk: 9.93 → 11.06 mm)
+    #: at the end, the motion smoothed over the take where it is seen too: each joint's
+    #: path by a Kalman smoother whose smoothness that path's likelihood chooses, then
+    #: the angles solved to it (:func:`core.motion_smoother.smooth_joints`).  Over 4
+    #: click sets (``bench.fit_spread``'s), MPJPE / acceleration error medians: make
+    #: demo's walk 13.51 / 4.06 → 13.34 mm / 2.90 mm per frame², jumps_line3 14.86 /
+    #: 5.36 → 14.67 / 3.49, walk_ortho3 13.14 / 5.73 → 12.93 / 3.36 (every fit gains);
+    #: dance_line3 run 0 199.9 → 200.1 mm, dance_ortho3 137.3 → 136.4 (docs/design.md,
+    #: "The jitter").  Off: a kick that is a step — a thigh turned 0.7 rad between two
+    #: frames, ``tests/core/test_fit_recovery.py`` — is spread over its neighbours (the
+    #: ankle 93 mm off at the kick instead of < 40 mm); one smoothness for every angle
+    #: did worse (130 mm there, and less gain elsewhere)
     smooth_motion: bool = False
     #: without ``smooth_motion``, the same smoother's values for the angles no
     #: observation decided only (:func:`core.fit_bridge.unobserved`: the coupled,

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from core import skeleton as sk
-from core.motion_smoother import smooth_motion, smooth_series
+from core.motion_smoother import smooth_joints, smooth_motion, smooth_series
 
 
 def _rms(a):
@@ -110,3 +110,38 @@ def test_core_fit_smooth_asks_the_sequence_fit_for_it(monkeypatch):
         with pytest.raises(Stop):
             main(["fit", str(scene), *argv])
         assert seen[-1] is want
+
+
+def test_the_joints_smoothed_where_they_are_seen_and_a_chain_kept(rng):
+    """``smooth_joints``: angles with frame-to-frame noise, and the spine's links
+    counter-rotating from frame to frame (their sum smooth): the joints come closer to
+    the truth, the head does not wobble, a diverged frame keeps its pose."""
+    skel = sk.make_skeleton()
+    s = np.ones(skel.n_groups)
+    f, n = 40, skel.n_dof
+    t = np.arange(f)[:, None]
+    truth = np.zeros((f, n))
+    moving = [skel.dof_index(d) for d in ("l_hip_x", "r_hip_x", "l_knee_x", "l_shoulder_x")]
+    truth[:, moving] = 0.4 * np.sin(2 * np.pi * t / 30 + np.arange(len(moving)))
+    truth[:, skel.dof_index("l_knee_x")] += 0.5  # bent, within its limits
+    root = np.c_[0.02 * t[:, 0], np.zeros(f), np.full(f, 0.95)]
+    theta = truth + rng.normal(0.0, 0.02, truth.shape)
+    wobble = rng.normal(0.0, 0.1, f)
+    theta[:, skel.dof_index("lowerback_x")] += wobble
+    theta[:, skel.dof_index("spine_x")] -= wobble
+    div = np.zeros(f, bool)
+    div[20] = True
+    th, rt, res = smooth_joints(skel, s, theta, root, div)
+    x_true = sk.joint_positions(skel, truth, root, s)
+    x_fit = sk.joint_positions(skel, theta, root, s)
+    x_sm = sk.joint_positions(skel, th, rt, s)
+    ok = ~div
+    err = lambda x: float(np.mean(np.linalg.norm(x[ok] - x_true[ok], axis=-1)))  # noqa: E731
+    assert err(x_sm) < 0.5 * err(x_fit)
+    head = skel.joint_index("head")
+    acc = lambda x: np.linalg.norm(np.diff(x[:20, head], 2, axis=0), axis=-1).mean()  # noqa: E731
+    assert acc(x_sm) < 0.2 * acc(x_fit)
+    np.testing.assert_array_equal(th[20], theta[20])
+    np.testing.assert_array_equal(rt[20], root[20])
+    assert np.all((th >= np.minimum(skel.dof_lo, theta)) & (th <= np.maximum(skel.dof_hi, theta)))
+    assert res.x.shape == (f, 3 * len(skel.joint_names))

@@ -73,8 +73,9 @@ clicked frame's initial posture (:mod:`core.fit_init`):
    root that the take's own likelihood chooses, after the written shape (fitted at the
    poses the observations gave); diverged frames are left as they are.  By default
    (``smooth_unobserved``) only the angles no observation decided (step 5's filled and
-   held ones) take their smoothed values; ``smooth_motion`` smooths every angle and the
-   root (off by default: it spreads a lone fast limb's kick over its neighbours).
+   held ones) take their smoothed values; ``smooth_motion`` smooths the whole motion
+   instead, each joint's path with its own smoothness and then the angles solved to it
+   (:func:`core.motion_smoother.smooth_joints`; off by default: it spreads a kick).
 
 **Free space** (``free_space``, :mod:`core.free_space`; the points' ``views`` and the
 cameras): the limb search and the explain cost that picks among a frame's fits also
@@ -136,7 +137,7 @@ from .fit_whole_shape import whole_body_shape, written_shape
 from .fitting import FitSettings, fit
 from .foot_heading import feet_from_points
 from .metaballs import deflate
-from .motion_smoother import smooth_joints, smooth_motion
+from .motion_smoother import smooth_angles, smooth_joints
 from .progress import Progress
 from .segment import segment_points
 from .state import FitState, Quality
@@ -389,7 +390,7 @@ def fit_sequence(
             f"3 σ off its smoothed path down-weighted)"
         )
     elif cfg.smooth_unobserved and unobs.any():
-        th_s, _, sm = smooth_motion(fx.theta, fx.root, fx.div, lo=skel.dof_lo, hi=skel.dof_hi)
+        th_s, _, sm = smooth_angles(fx.theta, fx.root, fx.div, lo=skel.dof_lo, hi=skel.dof_hi)
         if np.isfinite(sm.ratio).any():  # else too few fitted frames to choose a smoothness
             # only what no observation decided: the filled and held angles
             fx.theta[:] = np.where(unobs, th_s, fx.theta)

@@ -3,7 +3,7 @@
 The sequence fit solves frame after frame, each frame from the prediction of the last
 ones and its own observations (the second paper's filter, run forward only).  Once
 every frame is fitted, each frame's angles can also learn from the frames after it:
-:func:`smooth_motion` runs, for every degree of freedom on its own, a Kalman filter
+:func:`smooth_angles` runs, for every degree of freedom on its own, a Kalman filter
 forward and a Rauch–Tung–Striebel pass backward with a constant-velocity model (white
 acceleration), which is the cubic smoothing spline of that angle over time.
 
@@ -201,7 +201,7 @@ def smooth_series(
     return out
 
 
-def smooth_motion(
+def smooth_angles(
     theta: np.ndarray,
     root_xyz: np.ndarray,
     diverged: np.ndarray,
@@ -278,7 +278,7 @@ def smooth_joints(
     s : ndarray, shape (G,)
         Scale coefficients.
     theta, root_xyz, diverged :
-        As :func:`smooth_motion`; the angles are kept within the skeleton's limits the
+        As :func:`smooth_angles`; the angles are kept within the skeleton's limits the
         same way.
     hold : float
         Weight of each angle's pull towards its fitted value, m² per rad².

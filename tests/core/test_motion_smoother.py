@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from core import skeleton as sk
-from core.motion_smoother import smooth_joints, smooth_motion, smooth_series
+from core.motion_smoother import smooth_angles, smooth_joints, smooth_series
 
 
 def _rms(a):
@@ -64,7 +64,7 @@ def test_one_ratio_for_all_series_keeps_their_sum():
     assert _rms(res.x.sum(axis=1) - s_true) < 0.01
 
 
-def test_smooth_motion_unwraps_turns_keeps_limits_and_diverged_frames(rng):
+def test_smooth_angles_unwraps_turns_keeps_limits_and_diverged_frames(rng):
     skel = sk.make_skeleton()
     f, n = 40, skel.n_dof
     t = np.arange(f)
@@ -78,7 +78,7 @@ def test_smooth_motion_unwraps_turns_keeps_limits_and_diverged_frames(rng):
     root = np.c_[0.02 * t, np.zeros(f), np.full(f, 0.9)] + rng.normal(0, 0.003, (f, 3))
     div = np.zeros(f, bool)
     div[25] = True
-    th, rx, res = smooth_motion(theta, root, div, lo=skel.dof_lo, hi=skel.dof_hi)
+    th, rx, res = smooth_angles(theta, root, div, lo=skel.dof_lo, hi=skel.dof_hi)
     # the turn is one motion: each frame stays on its own branch, close to its value
     assert np.all(np.abs(th[:, 0] - theta[:, 0]) < 0.01)
     assert np.all(th[:, knee] >= np.minimum(lo, theta[:, knee]) - 1e-12)

@@ -47,11 +47,11 @@ the many skinny GEMMs gain nothing from threads and lose a lot to their spinning
 Optionally (``workers``), the patches are split into parts matched in parallel threads
 (the heavy steps release the GIL): for idle cores (on 2 busy cores it gained nothing).
 
-Where numba is installed, the normal matrices, their inverses, the upsampled windows
-and the iterations run compiled (:mod:`core.lsm_kernel`, same rules; ~1.6× the matches
-per CPU second).  Without numba (Blender), with ``SOMACAP_NO_NUMBA=1``, with a line
-constraint, or when compiling fails, this numpy path runs: same statuses and
-iterations, positions to ~1e-6 px.
+Where numba is installed, the normal matrices, their inverses, the template and the
+upsampled search windows and the iterations run compiled (:mod:`core.lsm_kernel`, same
+rules; ~2.3× the matches per CPU second).  Without numba (Blender), with
+``SOMACAP_NO_NUMBA=1``, with a line constraint, or when compiling fails, this numpy
+path runs: same statuses and iterations, positions to ~1e-6 px.
 
 Optional geometric constraint (multi-photo geometrically constrained matching):
 the matched point must lie on a given line ``n · uv = d`` in the search image (the

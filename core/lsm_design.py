@@ -63,12 +63,21 @@ def template_slopes(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     (n, s, s) -> 2 x (n, s - 2B, s - 2B) float32."""
     n, s, _ = P.shape
     m = s - 2 * BORDER
-    D = derivative_matrix(m)
     rows = np.ascontiguousarray(P[:, BORDER : s - BORDER, :], dtype=np.float32).reshape(n * m, s)
-    gu = (rows @ D).reshape(n, m, m)
     cols = np.ascontiguousarray(
         P.transpose(0, 2, 1)[:, BORDER : s - BORDER, :], dtype=np.float32
     ).reshape(n * m, s)
+    return slopes_of_lines(rows, cols)
+
+
+def slopes_of_lines(rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`template_slopes` from the central rows and columns of the patches: rows,
+    cols (n m, s) float32, ``rows[k m + i]`` row ``B + i`` of patch k and ``cols[k m +
+    j]`` its column ``B + j`` (s = m + 2B) -> gu, gv (n, m, m) float32."""
+    m = rows.shape[1] - 2 * BORDER
+    n = len(rows) // m
+    D = derivative_matrix(m)
+    gu = (rows @ D).reshape(n, m, m)
     gv = np.ascontiguousarray((cols @ D).reshape(n, m, m).transpose(0, 2, 1))
     return gu, gv
 
@@ -292,8 +301,9 @@ def template_patches(
 
     Integer centres are read directly (pixels beyond the image border repeat it);
     sub-pixel centres are resampled like the search patches of :func:`match`.
-    Gradients are the cubic-spline slopes.  ``kernel``: resample with the compiled
-    upsampling of :mod:`core.lsm_kernel` (numba must be there).
+    Gradients are the cubic-spline slopes.  ``kernel``: read the windows and resample
+    with the compiled steps of :mod:`core.lsm_kernel` (numba must be there; the same
+    values).
 
     Returns
     -------
@@ -308,11 +318,14 @@ def template_patches(
     c = np.rint(uv)
     frac = uv - c
     if kernel:
-        from .lsm_kernel import upsampled_windows
+        from .lsm_kernel import template_lines, upsampled_windows
     else:
         upsampled_windows = None
     if np.all(np.abs(frac) < 1e-9):
         ci = c.astype(np.int64) - half - BORDER
+        if kernel:
+            T, rows, cols = template_lines(stack, idx, ci[:, 0], ci[:, 1], half, BORDER)
+            return (T, *slopes_of_lines(rows, cols))
         P = _windows(stack, idx, ci[:, 0], ci[:, 1], 2 * (half + BORDER) + 1)
     else:
         src = PatchSource(stack, idx, uv, half + BORDER + 1, upsample, upsampled_windows)

@@ -13,8 +13,8 @@ still shift-only).  Numerical differences to the numpy path: sums in float64 her
 last shift change lies within rounding of ``tol_px``.
 
 Also compiled: the normal matrices and their inverses
-(:mod:`core.lsm_kernel_linalg`) and the 2× upsampled search windows
-(:mod:`core.lsm_kernel_sample`).  All loops over patches; single-threaded (``nogil``:
+(:mod:`core.lsm_kernel_linalg`), the template windows and the 2× upsampled search
+windows (:mod:`core.lsm_kernel_sample`).  All loops over patches; single-threaded (``nogil``:
 :func:`core.lsm.match`'s ``workers`` threads run them in parallel).
 
 Optional at run time: without numba (Blender does not bundle it), or with the
@@ -38,7 +38,7 @@ from .lsm_design import FLAT_SD
 from .lsm_kernel_jit import ENV_OFF as ENV_OFF  # re-exported: the switch
 from .lsm_kernel_jit import env_off, jit, numba
 from .lsm_kernel_linalg import _inv4, _normal_matrices, _solve4, _spd_inverses
-from .lsm_kernel_sample import _bilinear, _sample_grid, _upsampled_windows
+from .lsm_kernel_sample import _bilinear, _sample_grid, _template_lines, _upsampled_windows
 
 _LOCK = threading.Lock()
 _COMPILED: dict = {}  # argument types -> seconds of the first call
@@ -412,6 +412,32 @@ def upsampled_windows(stack, index, u0, v0, wr):
         out,
     )
     return out
+
+
+def template_lines(stack, index, u0, v0, half, border):
+    """The template windows of :func:`core.lsm_design.template_patches` at integer
+    centres, compiled (:func:`_template_lines`): windows of ``s = 2 (half + border) + 1``
+    pixels from ``(u0, v0)`` (N,) of images ``index`` (N,) of the stack.  Returns
+    T (N, m, m), rows and cols (N m, s) float32 (m = 2 half + 1) as
+    :func:`core.lsm_design.slopes_of_lines` takes them."""
+    n, m = len(index), 2 * half + 1
+    s = m + 2 * border
+    T = np.empty((n, m, m), np.float32)
+    rows = np.empty((n * m, s), np.float32)
+    cols = np.empty((n * m, s), np.float32)
+    _first_call(
+        _template_lines,
+        "template",
+        np.ascontiguousarray(stack.images),
+        np.ascontiguousarray(index, np.int64),
+        np.ascontiguousarray(u0, np.int64),
+        np.ascontiguousarray(v0, np.int64),
+        int(border),
+        T,
+        rows,
+        cols,
+    )
+    return T, rows, cols
 
 
 def _first_call(fn, key, *args):

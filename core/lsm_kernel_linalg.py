@@ -1,5 +1,6 @@
 """Compiled (numba) small linear algebra of :mod:`core.lsm_kernel`: normal matrices from
-moment sums, SPD inverses, the closed-form shift-and-radiometry solve; per patch.
+moment sums, SPD inverses, the closed-form shift-and-radiometry solve; per patch (the
+inverses :data:`_LANES` patches side by side, each with the operations of its own).
 
 The same algebra as :mod:`core.lsm_design` and :mod:`core.batched_linalg` (sums in
 float64 here); plain Python functions where numba is missing (never called then).
@@ -20,48 +21,70 @@ def _eye(M):
             M[i, j] = 1.0 if i == j else 0.0
 
 
+#: Matrices that :func:`_spd_inverses` inverts side by side (the lanes of its vector loops).
+_LANES = 8
+
+
 @jit()
-def _spd_inverse1(N, Ninv, L):
-    """Inverse of one SPD matrix (k, k) into Ninv by unit-diagonal scaling and
-    Cholesky; False (and Ninv = I) when not finite or not positive definite."""
-    k = N.shape[0]
-    r = np.empty(k)
+def _spd_inverse_lanes(A, Ainv, ok, r, L, X, s, t):
+    """Inverses of ``_LANES`` SPD matrices side by side by unit-diagonal scaling and Cholesky.
+
+    A (k, k, B) holds matrix q in ``A[:, :, q]`` (B = ``_LANES``); its inverse goes to
+    ``Ainv[:, :, q]`` and ``ok[q]`` (B,) says whether it was finite and positive
+    definite.  Every step runs over the B lanes in an inner loop (vectorised), the
+    operations and their order per matrix those of a scalar Cholesky, so a lane's
+    values do not depend on the others.  A lane that fails continues with a unit pivot
+    (no division by zero); its result is meaningless.  Work arrays: r, s, t (k, B), L,
+    X (k, k, B), float64.
+    """
+    k = A.shape[0]
+    for q in range(_LANES):
+        ok[q] = True
     for i in range(k):
         for j in range(k):
-            if not np.isfinite(N[i, j]):
-                _eye(Ninv)
-                return False
-        r[i] = 1.0 / np.sqrt(max(N[i, i], 1e-30))
+            for q in range(_LANES):
+                ok[q] = ok[q] and np.isfinite(A[i, j, q])
+        for q in range(_LANES):
+            r[i, q] = 1.0 / np.sqrt(max(A[i, i, q], 1e-30))
     for j in range(k):
-        s = N[j, j] * r[j] * r[j]
+        for q in range(_LANES):
+            s[j, q] = A[j, j, q] * r[j, q] * r[j, q]
         for m in range(j):
-            s -= L[j, m] * L[j, m]
-        if not s > 1e-12:
-            _eye(Ninv)
-            return False
-        d = np.sqrt(s)
-        L[j, j] = d
+            for q in range(_LANES):
+                s[j, q] -= L[j, m, q] * L[j, m, q]
+        for q in range(_LANES):
+            pivot = s[j, q] > 1e-12
+            ok[q] = ok[q] and pivot
+            L[j, j, q] = np.sqrt(s[j, q] if pivot else 1.0)
         for i in range(j + 1, k):
-            t = N[i, j] * r[i] * r[j]
+            for q in range(_LANES):
+                t[i, q] = A[i, j, q] * r[i, q] * r[j, q]
             for m in range(j):
-                t -= L[i, m] * L[j, m]
-            L[i, j] = t / d
-    # X = L⁻¹ (lower), then N⁻¹ = r Xᵀ X r.
-    X = np.zeros((k, k))
+                for q in range(_LANES):
+                    t[i, q] -= L[i, m, q] * L[j, m, q]
+            for q in range(_LANES):
+                L[i, j, q] = t[i, q] / L[j, j, q]
+    # X = L⁻¹ (lower), then A⁻¹ = r Xᵀ X r.
     for i in range(k):
-        X[i, i] = 1.0 / L[i, i]
+        for q in range(_LANES):
+            X[i, i, q] = 1.0 / L[i, i, q]
         for j in range(i):
-            t = 0.0
+            for q in range(_LANES):
+                t[j, q] = 0.0
             for m in range(j, i):
-                t += L[i, m] * X[m, j]
-            X[i, j] = -t / L[i, i]
+                for q in range(_LANES):
+                    t[j, q] += L[i, m, q] * X[m, j, q]
+            for q in range(_LANES):
+                X[i, j, q] = -t[j, q] / L[i, i, q]
     for i in range(k):
         for j in range(i, k):
-            t = 0.0
+            for q in range(_LANES):
+                t[j, q] = 0.0
             for m in range(j, k):
-                t += X[m, i] * X[m, j]
-            Ninv[i, j] = Ninv[j, i] = t * r[i] * r[j]
-    return True
+                for q in range(_LANES):
+                    t[j, q] += X[m, i, q] * X[m, j, q]
+            for q in range(_LANES):
+                Ainv[i, j, q] = Ainv[j, i, q] = t[j, q] * r[i, q] * r[j, q]
 
 
 @jit(fastmath={"reassoc"})
@@ -114,9 +137,11 @@ def _moments3T(f, g, T, w, xs, ys, a):
 
 
 @jit(fastmath={"reassoc"})
-def _moments(T, gx, gy, w, xs, ys, mom):
-    """The 33 packed moment sums of :func:`core.lsm_design._normal_index` of one patch."""
-    a = np.zeros(9)
+def _moments(T, gx, gy, w, xs, ys, mom, a):
+    """The 33 packed moment sums of :func:`core.lsm_design._normal_index` of one patch
+    (a: work array (6,) float64)."""
+    for i in range(6):
+        a[i] = 0.0
     for j in range(T.size):
         x = xs[j]
         y = ys[j]
@@ -154,8 +179,9 @@ def _normal_matrices(T, gx, gy, w, xs, ys, N):
     """Normal matrices ``N = JᵀWJ`` (n, 8, 8) of the design ``[gx (1, x, y), gy (1, x, y),
     1, T]``, as :func:`core.lsm_design.normal_matrix` (sums in float64 here)."""
     mom = np.empty(33)
+    a = np.empty(6)
     for k in range(T.shape[0]):
-        _moments(T[k], gx[k], gy[k], w, xs, ys, mom)
+        _moments(T[k], gx[k], gy[k], w, xs, ys, mom, a)
         for i in range(8):
             for j in range(8):
                 N[k, i, j] = mom[_N_SRC[i * 8 + j]]
@@ -165,15 +191,39 @@ def _normal_matrices(T, gx, gy, w, xs, ys, N):
 def _spd_inverses(N, use, Ninv, pd):
     """Inverses and flags as :func:`core.batched_linalg.spd_inverse` (unit-diagonal
     scaling, Cholesky; ``pd`` False and ``Ninv`` = I where not positive definite);
-    rows not in ``use`` become N = Ninv = I (pd True), as :mod:`core.lsm` sets them."""
-    L = np.empty((8, 8))
-    for k in range(N.shape[0]):
-        if use[k]:
-            pd[k] = _spd_inverse1(N[k], Ninv[k], L)
-        else:
-            _eye(N[k])
-            _eye(Ninv[k])
-            pd[k] = True
+    rows not in ``use`` become N = Ninv = I (pd True), as :mod:`core.lsm` sets them.
+    ``_LANES`` matrices at a time (:func:`_spd_inverse_lanes`)."""
+    n, k, _ = N.shape
+    A = np.empty((k, k, _LANES))
+    Ainv = np.empty((k, k, _LANES))
+    ok = np.empty(_LANES, np.bool_)
+    r = np.empty((k, _LANES))
+    L = np.empty((k, k, _LANES))
+    X = np.empty((k, k, _LANES))
+    s = np.empty((k, _LANES))
+    t = np.empty((k, _LANES))
+    for k0 in range(0, n, _LANES):
+        nb = min(_LANES, n - k0)
+        for q in range(_LANES):
+            live = q < nb and use[k0 + q]
+            for i in range(k):
+                for j in range(k):
+                    A[i, j, q] = N[k0 + q, i, j] if live else (1.0 if i == j else 0.0)
+        _spd_inverse_lanes(A, Ainv, ok, r, L, X, s, t)
+        for q in range(nb):
+            c = k0 + q
+            if not use[c]:
+                _eye(N[c])
+                _eye(Ninv[c])
+                pd[c] = True
+            elif ok[q]:
+                for i in range(k):
+                    for j in range(k):
+                        Ninv[c, i, j] = Ainv[i, j, q]
+                pd[c] = True
+            else:
+                _eye(Ninv[c])
+                pd[c] = False
 
 
 @jit()

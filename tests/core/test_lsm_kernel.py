@@ -10,7 +10,7 @@ from bench.patches import make_pairs
 from core import image_stack, lsm_kernel, lsm_kernel_jit
 from core.batched_linalg import spd_inverse
 from core.lsm import Status, match
-from core.lsm_design import normal_matrix
+from core.lsm_design import normal_matrix, template_patches
 
 needs_numba = pytest.mark.skipif(lsm_kernel.numba is None, reason="numba is not installed")
 
@@ -210,6 +210,44 @@ def test_bilinear_is_cv2_remap_at_thirty_seconds(rng):
     ref = cv2.remap(img, pu[None], pv[None], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)[0]
     got = np.array([_bilinear(img, 0, img.shape[0], u, v) for u, v in zip(pu, pv, strict=True)])
     assert np.max(np.abs(got - ref)) < 1e-4
+
+
+#: (du_x, du_y, dv_x, dv_y) in 1/32 px per grid offset, and the grid step: whole-pixel
+#: steps (full and coarse grid, not upsampled, a mirrored u), and an affine warp.
+WARPS = [(64, 0, 0, 64, 1), (64, 0, 0, 64, 2), (32, 0, 0, 32, 1), (-64, 0, 0, 96, 1)]
+WARPS += [(67, -2, 1, 61, 1)]
+
+
+@needs_numba
+@pytest.mark.parametrize("warp", WARPS)
+def test_grid_samples_are_the_bilinear_samples(rng, warp):
+    """_sample_grid, with whole-pixel steps (one set of weights) or not, gives
+    _bilinear's value at every point of the warped grid, bit for bit."""
+    from core.lsm_kernel_sample import _bilinear, _sample_grid
+
+    du_x, du_y, dv_x, dv_y, gs = warp
+    img = rng.uniform(0, 255, (90, 70)).astype(np.float32)
+    g0, gn, r0 = -6, 13 if gs == 1 else 7, 10
+    iu0, iv0 = 35 * 32 + 5, 30 * 32 + 17
+    S = np.empty(gn * gn, np.float32)
+    _sample_grid(img, r0, iu0, iv0, du_x, du_y, dv_x, dv_y, g0, gs, gn, S)
+    y, x = np.meshgrid(*2 * [g0 + gs * np.arange(gn)], indexing="ij")
+    pu = (iu0 + du_x * x + du_y * y).ravel() / 32.0
+    pv = (iv0 + dv_x * x + dv_y * y).ravel() / 32.0
+    ref = [_bilinear(img, r0, img.shape[0] - r0, u, v) for u, v in zip(pu, pv, strict=True)]
+    assert np.array_equal(S, np.array(ref, np.float32))
+
+
+@needs_numba
+@pytest.mark.parametrize("dtype", [np.uint8, np.float64])
+def test_compiled_template_windows_are_the_numpy_ones(rng, dtype):
+    imgs = (rng.uniform(0, 255, (3, 30, 40)) * (1.37 if dtype == np.float64 else 1)).astype(dtype)
+    uv = np.array([[20.0, 15.0], [2.0, 3.0], [38.0, 28.0], [10.0, 25.0]])  # 2nd, 3rd: at borders
+    idx = np.array([0, 1, 2, 1])
+    ref = template_patches(imgs, uv, 6, idx, kernel=False)
+    got = template_patches(imgs, uv, 6, idx, kernel=True)
+    for a, b in zip(ref, got, strict=True):
+        assert a.shape == b.shape == (4, 13, 13) and np.array_equal(a, b)
 
 
 @needs_numba

@@ -325,8 +325,14 @@ def fit_sequence(
             q_prev = np.concatenate([fx.theta[f - direction], fx.root[f - direction]])
             if fx.cframe(f) is not None:  # predicted rates rank the cameras (observability)
                 fx.cframe(f).theta_rate = q_pred[:n] - q_prev[:n]
+            more = contour_starts(fx, f, direction, q_prev) if cfg.contour_starts else ()
             ok, q = fx.fit_frame(
-                f, q_pred, sig_pred, [q_prev], q_hold=q_prev if cfg.hold_hidden else None
+                f,
+                q_pred,
+                sig_pred,
+                [q_prev],
+                q_hold=q_prev if cfg.hold_hidden else None,
+                contour_starts=more,
             )
             if ok:
                 sig = np.concatenate([fx.q_sig[f], np.full(3, 0.005)])
@@ -433,3 +439,14 @@ def fit_sequence(
         contour_rms_px=fx.c_rms,
         hidden=fx.hid,
     )
+
+
+def contour_starts(fx: FrameFitter, f: int, direction: int, q_prev: np.ndarray) -> list:
+    """More starts (n + 3,) for frame f's fit from contours alone: the previous
+    frame's pose ``q_prev`` (``f − direction``) and, where the frame before it was
+    fitted too, their undamped constant-velocity extrapolation."""
+    starts = [q_prev]
+    g, h = f - direction, f - 2 * direction
+    if 0 <= h < fx.nf and not fx.div[g] and not fx.div[h]:
+        starts.append(2 * q_prev - np.concatenate([fx.theta[h], fx.root[h]]))
+    return starts

@@ -431,7 +431,30 @@ class FrameFitter:
             return res2, ok2, why2, st2
         return res, True, "", st
 
-    def fit_frame(self, f, q_pred, sig_pred, alternatives=(), joints=None, q_hold=None):
+    def contour_fit(self, f, res, ok, why, st, q_start, sig_pred, joints, q_hold):
+        """The silhouette retries of a frame without points, after its plain fit from
+        ``q_start``: recentred (:meth:`recentre_retry`) when it failed, then every limb
+        placed on the foreground (:meth:`silhouette_retry`).  Returns
+        ``(res, ok, why, stats)``."""
+        if not ok:
+            res, ok, why, st = self.recentre_retry(
+                f, res, ok, why, st, q_start, sig_pred, joints, q_hold
+            )
+        if ok:
+            res, ok, why, st = self.silhouette_retry(f, res, st, sig_pred, joints, q_hold)
+        return res, ok, why, st
+
+    def disagreement(self, f, q):
+        """Pixels where pose q's body and frame f's foreground disagree (all cameras)."""
+        cf = self.cframe(f)
+        body = self.balls.copy(radii=self.radii)
+        return silhouette_disagreement(
+            self.skel, body, q[: self.n], q[self.n :], self.s, cf.cameras, cf.grids()
+        )
+
+    def fit_frame(
+        self, f, q_pred, sig_pred, alternatives=(), joints=None, q_hold=None, contour_starts=()
+    ):
         """Fit frame f: the plain fit from the prediction, then
 
         * when it is accepted, the limb search (:func:`core.fit_search.search_limbs`)
@@ -442,8 +465,14 @@ class FrameFitter:
           from the body, an annealed fit (:meth:`one_frame` ``anneal``) from the best
           of the prediction and the alternatives;
 
-        the accepted fit of lowest explain cost wins.  Returns ``(ok, q)`` with q the
-        fitted pose, or the prediction when no fit is accepted."""
+        the accepted fit of lowest explain cost wins.  A frame without points (contours
+        alone) takes the silhouette retries (:meth:`contour_fit`); it is fitted the same
+        way from each pose of ``contour_starts`` too (e.g. the previous frame's and its
+        undamped extrapolation, where a fast limb outran the damped prediction); such a
+        fit replaces the prediction's when its body disagrees with the foreground at a
+        share ``cfg.contour_start_margin`` fewer pixels, and of those the fewest win.
+        Returns ``(ok, q)`` with q the fitted pose, or the prediction when no fit is
+        accepted."""
         res = self.one_frame(f, q_pred, sig_pred, joints, q_hold)
         ok, why, st = self.assess(f, res)
         search = self.cfg.search and len(self.frames[f].xyz) >= self.cfg.min_points  # needs points
@@ -500,12 +529,28 @@ class FrameFitter:
         ):
             res, ok, why, st = self.silhouette_retry(f, res, st, sig_pred, joints, q_hold)
         elif not search and self.cfg.silhouette_search and self.cframe(f) is not None:
-            if not ok:
-                res, ok, why, st = self.recentre_retry(
-                    f, res, ok, why, st, q_pred, sig_pred, joints, q_hold
+            res, ok, why, st = self.contour_fit(
+                f, res, ok, why, st, q_pred, sig_pred, joints, q_hold
+            )
+            # the prediction's fit is replaced only by a share ``contour_start_margin``
+            # fewer pixels; past that, the fewest win
+            bar = (
+                (1.0 - self.cfg.contour_start_margin) * self.disagreement(f, res[0])
+                if ok
+                else np.inf
+            )
+            retried = self.retried[f]
+            for q0 in contour_starts:
+                res2 = self.one_frame(f, q0, sig_pred, joints, q_hold)
+                ok2, why2, st2 = self.assess(f, res2)
+                res2, ok2, why2, st2 = self.contour_fit(
+                    f, res2, ok2, why2, st2, q0, sig_pred, joints, q_hold
                 )
-            if ok:
-                res, ok, why, st = self.silhouette_retry(f, res, st, sig_pred, joints, q_hold)
+                d2 = self.disagreement(f, res2[0]) if ok2 else np.inf
+                if d2 < bar:
+                    res, ok, why, st = res2, ok2, why2, st2
+                    bar, retried = d2, True
+            self.retried[f] = retried
         self.record(f, res, ok, why, st)
         if ok:
             self.hid[f] = self.hidden_dofs(

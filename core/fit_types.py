@@ -59,6 +59,15 @@ class SequenceSettings:
     sigma_pred: float = 0.15  # floor of the prior σ on each predicted angle
     sigma_pred_max: float = 0.6
     accel_sigma: float = 0.05  # EKF process noise, rad (or m) per frame²
+    #: a frame without points (contours alone) is also fitted from the previous
+    #: frame's pose and from its undamped extrapolation; such a fit replaces the one
+    #: from the prediction where its body disagrees with the foreground at a share
+    #: ``contour_start_margin`` fewer pixels (:meth:`core.fit_frame.FrameFitter.
+    #: fit_frame`): the damped prediction lags a fast limb, and on dance_ortho3 took
+    #: the crossing legs for each other (docs/design.md, "Three starts for a frame
+    #: fitted from contours alone"; a margin of 0.05 lost that dance again)
+    contour_starts: bool = True
+    contour_start_margin: float = 0.0
     shape_scales: bool = False  # bone scales refitted to the points (else: the clicks')
     shape_centers: bool = True  # metaball centres free in the shape solve
     shape_sigma_radius: float = 0.02  # shape priors towards the template, metres

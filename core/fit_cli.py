@@ -108,6 +108,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "the hidden limbs' angles are smoothed anyway; off by default: it spreads a sudden "
         "kick; see core/motion_smoother.py)",
     )
+    parser.add_argument(
+        "--prediction-start-only",
+        action="store_true",
+        help="fit a frame without texture points (contours alone) from the prediction "
+        "only, not also from the previous frame's pose and its extrapolation: about half "
+        "the fit time on a rig without points, but a fast limb may be lost (the "
+        "orthogonal dance: 36 against 96 mm; see SequenceSettings.contour_starts)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -144,6 +152,7 @@ def run(args: argparse.Namespace) -> int:
             shape_fit_track=track,
             foot_heading=args.feet_from_points,
             smooth_motion=args.smooth,
+            contour_starts=not args.prediction_start_only,
         ),
         progress=Progress(),
         n_points=args.points,

@@ -92,3 +92,28 @@ def test_a_prediction_that_swaps_the_legs_loses_to_the_previous_pose(crossing):
     assert ok and err < 0.015 and retried  # from the standing pose the kick is found
     ok, err, _ = _fit_frame_1(crossing, swapped, (q0,), margin=0.99)
     assert ok and err > 0.2  # the margin decides: 99 % fewer pixels are not found
+
+
+def test_core_fit_prediction_start_only_turns_the_starts_off(monkeypatch):
+    """``python -m core fit SCENE --prediction-start-only`` asks the sequence fit for
+    ``contour_starts`` off; without it they are on."""
+    from pathlib import Path
+
+    import core.fit_scene
+    from core.cli import main
+
+    seen = []
+
+    class Stop(Exception):
+        pass
+
+    def fake_run_scene(scene, settings=None, **kw):
+        seen.append(settings.contour_starts)
+        raise Stop
+
+    monkeypatch.setattr(core.fit_scene, "run_scene", fake_run_scene)
+    scene = Path(__file__).resolve().parents[2] / "sample_scenes" / "walk_line3"
+    for argv, want in ((["--prediction-start-only"], False), ([], True)):
+        with pytest.raises(Stop):
+            main(["fit", str(scene), *argv])
+        assert seen[-1] is want

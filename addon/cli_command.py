@@ -4,9 +4,10 @@
 
     blender -c somacap fit SCENE --out take.blend [--target character.blend] [--fit fit.json]
                               [--cues texture|contours|both] [--feet-from-points] [--smooth]
+                              [--prediction-start-only]
     blender -c somacap retarget fit.json --target character.blend --out take.blend
     blender -c somacap batch TAKES_DIR --out OUT_DIR [--target character.blend] [--cues …]
-                              [--feet-from-points] [--smooth]
+                              [--feet-from-points] [--smooth] [--prediction-start-only]
 
 The same commands run with the ``bpy`` module of the project's environment through the
 launcher: ``python -m addon.launch fit SCENE --out take.blend`` (from the repository root).
@@ -29,12 +30,17 @@ smoother whose smoothness that path's likelihood chooses, then the angles solved
 and jumps, off by default as a sudden kick of one limb gets spread over its
 neighbouring frames) and fits anew in the same way; with ``--feet-from-points`` the
 fit has both.
+``--prediction-start-only`` fits a frame without texture points (contours alone) from
+the prediction only, not also from the previous frame's pose and its extrapolation
+(core's ``SequenceSettings(contour_starts=False)``, ``core fit
+--prediction-start-only``; about half the fit time on a rig without points, but a fast
+limb may be lost, e.g. on the orthogonal rig) and fits anew in the same way.
 ``retarget`` builds the same file from a fitted state, without cameras.
 ``batch`` converts every take of a folder (scene folders and ``*.json`` states) into
 ``OUT_DIR/<take>.blend``, continues past a failing take, prints the failures and exits
-with status 1 when any take failed; ``--cues``, ``--feet-from-points`` and ``--smooth``
-refit every scene folder (``.json`` states are used as they are).  Bad input: one line
-``somacap: error: …``, status 2.
+with status 1 when any take failed; ``--cues``, ``--feet-from-points``, ``--smooth``
+and ``--prediction-start-only`` refit every scene folder (``.json`` states are used as
+they are).  Bad input: one line ``somacap: error: …``, status 2.
 """
 
 from __future__ import annotations
@@ -104,6 +110,15 @@ def build_parser() -> argparse.ArgumentParser:
             "limb while the rest of the body is still gets spread over its neighbouring "
             "frames",
         )
+        sp.add_argument(
+            "--prediction-start-only",
+            action="store_true",
+            help="fit a frame without texture points (contours alone) from the prediction "
+            "only, not also from the previous frame's pose and its extrapolation, fitting "
+            "anew (SCENE/fit.json is not used); about half the fit time on a rig without "
+            "points, but a fast limb may be lost (the crossing legs of a dance on the "
+            "orthogonal rig); off by default, as core fit --prediction-start-only",
+        )
     for sp in (f, r, b):
         sp.add_argument(
             "--foot-lock",
@@ -167,6 +182,7 @@ def _fit_options(args) -> dict:
         "refit": args.cues is not None,
         "feet_from_points": args.feet_from_points,
         "smooth_motion": args.smooth,
+        "contour_starts": not args.prediction_start_only,
     }
 
 
@@ -179,6 +195,7 @@ def cmd_fit(args) -> int:
             ("--cues", args.cues is not None),
             ("--feet-from-points", args.feet_from_points),
             ("--smooth", args.smooth),
+            ("--prediction-start-only", args.prediction_start_only),
         )
         if on
     ]

@@ -125,13 +125,17 @@ class SOMACAP_OT_fit(bpy.types.Operator):
         s = _settings(context)
         scene_dir, state_path = bpy.path.abspath(s.scene_dir), bpy.path.abspath(s.state_path)
         cues = s.fit_cues
-        options = {"feet_from_points": s.feet_from_points, "smooth_motion": s.smooth_motion}
+        options = {
+            "feet_from_points": s.feet_from_points,
+            "smooth_motion": s.smooth_motion,
+            "contour_starts": s.contour_starts,
+        }
         moved = {} if state_path else pipeline.moved_clicks(scene_dir)
         self._moved = sorted(moved)
         self._cached = (
             not state_path
             and not moved
-            and not any(options.values())
+            and not (s.feet_from_points or s.smooth_motion or not s.contour_starts)
             and (Path(scene_dir) / "fit.json").is_file()
         )
 

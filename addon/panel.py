@@ -38,6 +38,7 @@ class SOMACAP_PT_main(bpy.types.Panel):
         opts = col.column(align=True)
         opts.prop(s, "feet_from_points")
         opts.prop(s, "smooth_motion")
+        opts.prop(s, "contour_starts")
         if s.status:
             col.label(text=s.status)
         col.prop(s, "state_path")

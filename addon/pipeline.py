@@ -38,19 +38,26 @@ def check_cues(cues: str) -> str:
     return cues
 
 
-def sequence_settings(feet_from_points: bool = False, smooth_motion: bool = False):
-    """core's ``SequenceSettings`` with the fit's opt-in options that are asked for
-    turned on (the rest core's defaults), or None when none is: core's own default.
+def sequence_settings(
+    feet_from_points: bool = False, smooth_motion: bool = False, contour_starts: bool = True
+):
+    """core's ``SequenceSettings`` with the fit's options that differ from core's
+    defaults set (the rest core's defaults), or None when none does: core's own default.
 
     ``feet_from_points`` sets ``foot_heading`` (:mod:`core.foot_heading`),
-    ``smooth_motion`` sets ``smooth_motion`` (:mod:`core.motion_smoother`).
+    ``smooth_motion`` sets ``smooth_motion`` (:mod:`core.motion_smoother`), both off by
+    default; ``contour_starts`` sets ``contour_starts`` (on by default: a frame fitted
+    from contours alone is fitted from three starts, :func:`core.fit.contour_starts`).
     """
-    fields = {
-        name: True
-        for name, on in (("foot_heading", feet_from_points), ("smooth_motion", smooth_motion))
-        if on
+    asked = {
+        "foot_heading": feet_from_points,
+        "smooth_motion": smooth_motion,
+        "contour_starts": contour_starts,
     }
-    return _core.load("fit").SequenceSettings(**fields) if fields else None
+    SequenceSettings = _core.load("fit").SequenceSettings
+    default = SequenceSettings()
+    fields = {name: on for name, on in asked.items() if on != getattr(default, name)}
+    return SequenceSettings(**fields) if fields else None
 
 
 def run_fit(
@@ -61,6 +68,7 @@ def run_fit(
     clicks_xyz=None,
     feet_from_points: bool = False,
     smooth_motion: bool = False,
+    contour_starts: bool = True,
 ) -> Path:
     """Run core's whole pipeline on a scene folder and write ``fit.json``
     (:func:`core.fit_scene.fit_scene`; cancellable through ``progress``).
@@ -76,8 +84,13 @@ def run_fit(
     smooths the fitted motion over the take, each joint's path, then the angles solved
     to it (``SequenceSettings(smooth_motion=True)``, :mod:`core.motion_smoother`; off by
     default, as it spreads a sudden kick of one limb over the neighbouring frames).
-    Both on give one ``SequenceSettings`` with both set (:func:`sequence_settings`);
-    neither, core's default settings are used (no ``settings`` is passed).
+    ``contour_starts=False`` fits a frame without texture points (contours alone) from
+    the prediction only, not also from the previous frame's pose and its extrapolation
+    (``SequenceSettings(contour_starts=False)``, ``core fit --prediction-start-only``;
+    on by default: about 2x the fit time on a rig without points, but it keeps fast
+    limbs, e.g. on the orthogonal rig).  The options that differ from these defaults
+    give one ``SequenceSettings`` with all of them set (:func:`sequence_settings`);
+    none, core's default settings are used (no ``settings`` is passed).
     """
     scene_dir, out_json = Path(scene_dir), Path(out_json)
     check_cues(cues)
@@ -85,7 +98,11 @@ def run_fit(
     if clicks_xyz:
         moved = _core.fit_init.clicks_at(sc.clicks(), sc.calibration(), clicks_xyz)
         sc.clicks = lambda: moved
-    settings = sequence_settings(feet_from_points=feet_from_points, smooth_motion=smooth_motion)
+    settings = sequence_settings(
+        feet_from_points=feet_from_points,
+        smooth_motion=smooth_motion,
+        contour_starts=contour_starts,
+    )
     kw = {} if settings is None else {"settings": settings}
     state = _core.load("fit_scene").fit_scene(sc, progress=progress, cues=cues, **kw)
     _core.state.write_state(out_json, state)
@@ -101,20 +118,22 @@ def state_for_scene(
     clicks_xyz=None,
     feet_from_points: bool = False,
     smooth_motion: bool = False,
+    contour_starts: bool = True,
 ):
     """The fitted state of a scene: ``fit_path``, else ``SCENE/fit.json``, else fit now.
 
     A fit uses ``cues`` (:data:`FIT_CUES`); ``refit=True`` fits even when
     ``SCENE/fit.json`` exists (which is then neither used nor overwritten), and so do
     joints dragged in the viewport (``clicks_xyz``), ``feet_from_points=True`` (the
-    feet turned to their points) and ``smooth_motion=True`` (the motion smoothed over
-    the take; both :func:`run_fit`).
+    feet turned to their points), ``smooth_motion=True`` (the motion smoothed over
+    the take) and ``contour_starts=False`` (frames from contours alone fitted from the
+    prediction only; all :func:`run_fit`).
     """
     scene_dir = Path(scene_dir)
     check_cues(cues)
     if fit_path:
         return read_state(fit_path)
-    fresh = refit or clicks_xyz or feet_from_points or smooth_motion
+    fresh = refit or clicks_xyz or feet_from_points or smooth_motion or not contour_starts
     if not fresh and (scene_dir / "fit.json").is_file():
         return read_state(scene_dir / "fit.json")
     with tempfile.TemporaryDirectory() as tmp:
@@ -128,6 +147,7 @@ def state_for_scene(
                 clicks_xyz=clicks_xyz,
                 feet_from_points=feet_from_points,
                 smooth_motion=smooth_motion,
+                contour_starts=contour_starts,
             )
         )
 

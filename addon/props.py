@@ -65,7 +65,8 @@ class SOMACAP_PG_settings(bpy.types.PropertyGroup):
         name="Cues",
         default="texture",
         description="Observations the fit uses (a scene's existing fit.json is used "
-        "as it is, unless Feet from points or Smooth motion is on)",
+        "as it is, unless Feet from points or Smooth motion is on or Extra starts "
+        "(contours alone) is off)",
         items=[
             ("texture", "Texture", "3-D surface points from the tracker (needs textured clothing)"),
             (
@@ -98,6 +99,16 @@ class SOMACAP_PG_settings(bpy.types.PropertyGroup):
         "jitter on walks and jumps; the hidden limbs' angles are always smoothed), and fit "
         "anew (a scene's fit.json is not used). Off by default: a sudden kick of one limb "
         "gets spread over its neighbouring frames",
+    )
+    contour_starts: BoolProperty(
+        name="Extra starts (contours alone)",
+        default=True,
+        description="Fit each frame without texture points (contours alone) from three "
+        "starts: the prediction, the previous frame's pose and its extrapolation, keeping "
+        "the fit that best matches the foreground. Slower (about 2x the fit time on a rig "
+        "without points) but keeps fast limbs, e.g. the crossing legs of a dance on the "
+        "orthogonal rig. Off: the prediction only, and a new fit (a scene's fit.json is "
+        "not used)",
     )
     export_format: EnumProperty(name="Format", items=[("BVH", "BVH", ""), ("FBX", "FBX", "")])
     progress: FloatProperty(name="Progress", subtype="PERCENTAGE", min=0, max=100)

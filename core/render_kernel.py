@@ -11,27 +11,19 @@ surface (``s`` is the depth along the ray, metres, the rays being unit vectors).
 
 :func:`render_numpy` is the reference: one ellipsoid at a time with (box, 3)
 temporaries.  :func:`render_compiled` loops over the pixels of each box instead and
-gives the same four arrays **bit for bit**.  numpy's arithmetic is not plain left-to-
-right there, and the compiled loops replicate it operation for operation (measured
-on x86-64 with AVX2 and FMA, numpy 1.26.4 with its OpenBLAS 0.3.23 and numpy 2.4.6):
-
-* ``d @ A.T`` (a BLAS ``dgemm`` per box row): a fused multiply-add chain
-  ``fma(d2, A[i, 2], fma(d1, A[i, 1], d0 A[i, 0]))``; for a one-pixel-wide box numpy
-  leaves BLAS (a vector-matrix product it computes itself): ``(d0 A0 + d1 A1) + d2 A2``;
-* ``2 dl @ oc`` (a ``dgemv`` per box row): ``fma(t2, oc2, fma(t0, oc0, t1 oc1))`` with
-  ``t = 2 dl``; one pixel wide: ``(t0 oc0 + t1 oc1) + t2 oc2``;
-* ``einsum`` sums of three products (``|dl|²``, and in the buried-surface test of
-  ``outer_only`` ``A (x − c)`` and its squared norm): SIMD lanes, ``(p0 + p2) + p1``;
-* the rest elementwise as written; ``A (o − c)`` and ``c`` per ellipsoid are numpy's own.
-
-Because those orders are those of the BLAS kernels and SIMD code numpy picks at run
-time, the first compiled render of a process renders a small test body both ways
-(:func:`agrees`); if they differ in any bit the compiled path switches itself off and
-the numpy path runs.
+gives the same four arrays **bit for bit** on every machine.  Both write each product
+and sum of three out as elementwise operations, left to right and each rounded
+(``x0 y0 + x1 y1`` first, then ``+ x2 y2``; :func:`sphere_offsets`, ``dl``, ``a``,
+``b`` and the buried-surface test), never through numpy's ``@`` or ``einsum``: those
+pick BLAS and SIMD kernels at run time whose summation order depends on the CPU and
+even on the arrays' alignment (AVX-512's ``dgemv`` sums a box row's first pixel in
+another order than the rest), so no compiled loop could follow them everywhere.
+Elementwise ufuncs round every operation as IEEE does, and the compiled loops, built
+without fastmath, fuse nothing.
 
 Optional at run time like :mod:`core.ellipse_kernel`: without numba (the Blender add-on
 does not bundle it), with ``SOMACAP_NO_NUMBA=1``, or after a failed first compile, the
-numpy path runs.  No fastmath: LLVM then fuses nothing but the explicit ``fma`` calls.
+numpy path runs.
 
 Frames: world Z up, metres; cameras as in :mod:`core.camera` (pixel ``(u, v)`` at row
 ``v``, column ``u``; distortion honoured through each pixel's undistorted viewing ray).
@@ -40,7 +32,6 @@ Frames: world Z up, metres; cameras as in :mod:`core.camera` (pixel ``(u, v)`` a
 from __future__ import annotations
 
 import math
-from fractions import Fraction
 
 import numpy as np
 
@@ -137,6 +128,7 @@ def render_numpy(
 
     # projected bounding boxes from the 8 corners of each ellipsoid's box
     A_all = np.transpose(axes, (0, 2, 1)) / radii[:, :, None]  # world -> unit sphere
+    oc_all, c_all = sphere_offsets(A_all, origin, centers)
     reach = radii.max(axis=1)
     near = np.linalg.norm(centers[:, None] - centers[None], axis=2) < reach[:, None] + reach[None]
     uv, cam_z = _corners_uv(camera, centers, axes, radii)
@@ -153,12 +145,10 @@ def render_numpy(
             continue
         d = d_all[v0 : v1 + 1, u0 : u1 + 1]  # (bh, bw, 3)
         # ray o + s d in the ellipsoid's unit-sphere frame: q(s) = A (o - c) + s A d
-        A = axes[e].T / radii[e][:, None]  # world -> scaled local
-        oc = A @ (origin - centers[e])
-        dl = d @ A.T
-        a = np.einsum("hwk,hwk->hw", dl, dl)
-        b = 2.0 * dl @ oc
-        c = oc @ oc - 1.0
+        A, oc, c = A_all[e], oc_all[e], c_all[e]  # world -> unit sphere
+        dl0, dl1, dl2 = (_dot3(d[..., 0], d[..., 1], d[..., 2], A[i]) for i in range(3))
+        a = _dot3(dl0, dl1, dl2, (dl0, dl1, dl2))
+        b = _dot3(2.0 * dl0, 2.0 * dl1, 2.0 * dl2, oc)
         disc = b * b - 4.0 * a * c
         hit = disc >= 0
         sq = np.sqrt(np.where(hit, disc, 0.0))
@@ -192,11 +182,43 @@ def render_numpy(
     return part_id, depth, full_area, visible_area
 
 
+def _dot3(x0, x1, x2, y):
+    """``(x0 y[0] + x1 y[1]) + x2 y[2]``, elementwise and each operation rounded (the
+    compiled loops' order)."""
+    return (x0 * y[0] + x1 * y[1]) + x2 * y[2]
+
+
+def sphere_offsets(A_all: np.ndarray, origin: np.ndarray, centers: np.ndarray):
+    """The projection centre in each ellipsoid's unit-sphere frame.
+
+    Parameters
+    ----------
+    A_all : ndarray, shape (E, 3, 3)
+        World to unit sphere, ``Rᵀ / r`` per ellipsoid.
+    origin : ndarray, shape (3,)
+        Projection centre, world metres.
+    centers : ndarray, shape (E, 3)
+        Ellipsoid centres, world metres.
+
+    Returns
+    -------
+    oc : ndarray, shape (E, 3)
+        ``A (o − c)``, unitless.
+    c : ndarray, shape (E,)
+        ``|A (o − c)|² − 1``: the constant term of the ray's quadratic.
+    """
+    y = origin - centers
+    oc = np.stack([_dot3(y[:, 0], y[:, 1], y[:, 2], A_all[:, i].T) for i in range(3)], axis=1)
+    return oc, _dot3(oc[:, 0], oc[:, 1], oc[:, 2], oc.T) - 1.0
+
+
 def _outer(origin, d, s, others, A_all, centers, shrink: float = SHRINK) -> np.ndarray:
     """Whether the points ``origin + s d`` (h, w) lie inside none of ``others``."""
     x = origin + np.where(np.isfinite(s), s, 0.0)[..., None] * d  # (h, w, 3)
-    q = np.einsum("oij,hwoj->hwoi", A_all[others], x[:, :, None, :] - centers[others])
-    return ~np.any(np.einsum("hwoi,hwoi->hwo", q, q) < shrink**2, axis=2) & (s > 0)
+    y = x[:, :, None, :] - centers[others]  # (h, w, O, 3)
+    Ao = A_all[others]  # (O, 3, 3)
+    q = [_dot3(y[..., 0], y[..., 1], y[..., 2], Ao[:, i].T) for i in range(3)]
+    return ~np.any(_dot3(*q, q) < shrink**2, axis=2) & (s > 0)
 
 
 def render_compiled(
@@ -251,11 +273,7 @@ def render_compiled(
     A_all = np.transpose(axes, (0, 2, 1)) / radii[:, :, None]  # world -> unit sphere
     uv, cam_z = _corners_uv(camera, centers, axes, radii)
     box = _boxes(uv, cam_z, w, h)
-    # A (o - c) and |A (o - c)|² - 1 by numpy's products, stacked: the reference's
-    # per-ellipsoid ``A @ (o - c)`` and ``oc @ oc`` run the same inner loops (BLAS gemv
-    # and dot) on matrices and vectors of the same strides
-    oc = np.ascontiguousarray((A_all @ (origin - centers)[:, :, None])[:, :, 0])
-    c = (oc[:, None, :] @ oc[:, :, None])[:, 0, 0] - 1.0
+    oc, c = sphere_offsets(A_all, origin, centers)
     if outer_only:
         reach = radii.max(axis=1)
         dist = np.linalg.norm(centers[:, None] - centers[None], axis=2)
@@ -310,7 +328,7 @@ def agrees() -> bool:
     Rendered once per process (then remembered): a small test body of overlapping,
     rotated ellipsoids of four parts, one straddling the image border and one the
     camera's plane, one behind the camera, plain and with ``outer_only``, in a 64 × 48
-    camera and in a one-pixel-wide one (numpy's one-pixel-wide products).  False (and
+    camera and in a one-pixel-wide one.  False (and
     the numpy path from then on) when numba is missing, fails to compile, or any array
     differs.
     """
@@ -357,43 +375,17 @@ def _test_body():
     return cameras, (centers, axes, radii, part, 4)
 
 
-if numba is not None:  # pragma: no branch
-    from llvmlite import ir as _ir
-    from numba.core import cgutils as _cgutils
-    from numba.core import types as _types
-    from numba.extending import intrinsic as _intrinsic
-
-    @_intrinsic
-    def _fma(typingctx, x, y, z):
-        """``x y + z`` rounded once (LLVM's ``fma``), as BLAS's fused multiply-adds."""
-        sig = _types.float64(_types.float64, _types.float64, _types.float64)
-
-        def codegen(context, builder, signature, args):
-            dbl = _ir.DoubleType()
-            fnty = _ir.FunctionType(dbl, [dbl, dbl, dbl])
-            fn = _cgutils.get_or_insert_function(builder.module, fnty, "llvm.fma.f64")
-            return builder.call(fn, args)
-
-        return sig, codegen
-
-else:
-
-    def _fma(x, y, z):
-        """``x y + z`` rounded once (plain Python: exact and slow; finite values only)."""
-        return float(Fraction(x) * Fraction(y) + Fraction(z))
-
-
 @_jit()
 def _norm2_in(x0, x1, x2, A, c):  # pragma: no cover - compiled
     """``|A (x − c)|²`` of a world point ``x`` for one ellipsoid (``A`` (3, 3) world to
-    unit sphere, ``c`` (3,) its centre) with the sums of :func:`_outer`'s einsums."""
+    unit sphere, ``c`` (3,) its centre) with the sums of :func:`_outer`."""
     y0 = x0 - c[0]
     y1 = x1 - c[1]
     y2 = x2 - c[2]
-    q0 = (A[0, 0] * y0 + A[0, 2] * y2) + A[0, 1] * y1
-    q1 = (A[1, 0] * y0 + A[1, 2] * y2) + A[1, 1] * y1
-    q2 = (A[2, 0] * y0 + A[2, 2] * y2) + A[2, 1] * y1
-    return (q0 * q0 + q2 * q2) + q1 * q1
+    q0 = (y0 * A[0, 0] + y1 * A[0, 1]) + y2 * A[0, 2]
+    q1 = (y0 * A[1, 0] + y1 * A[1, 1]) + y2 * A[1, 2]
+    q2 = (y0 * A[2, 0] + y1 * A[2, 1]) + y2 * A[2, 2]
+    return (q0 * q0 + q1 * q1) + q2 * q2
 
 
 @_jit()
@@ -460,7 +452,6 @@ def _render_loops(  # pragma: no cover - compiled
         u0, v0, u1, v1 = box[e, 0], box[e, 1], box[e, 2], box[e, 3]
         if u0 > u1 or v0 > v1:
             continue
-        narrow = u0 == u1  # numpy then multiplies without BLAS: plain sums
         p = part[e]
         bit = np.uint64(1) << np.uint64(p)
         j0, j1 = start[e], start[e + 1]
@@ -470,20 +461,11 @@ def _render_loops(  # pragma: no cover - compiled
         for v in range(v0, v1 + 1):
             for u in range(u0, u1 + 1):
                 d0, d1, d2 = d_all[v, u, 0], d_all[v, u, 1], d_all[v, u, 2]
-                if narrow:
-                    dl0 = (d0 * A[0, 0] + d1 * A[0, 1]) + d2 * A[0, 2]
-                    dl1 = (d0 * A[1, 0] + d1 * A[1, 1]) + d2 * A[1, 2]
-                    dl2 = (d0 * A[2, 0] + d1 * A[2, 1]) + d2 * A[2, 2]
-                else:
-                    dl0 = _fma(d2, A[0, 2], _fma(d1, A[0, 1], d0 * A[0, 0]))
-                    dl1 = _fma(d2, A[1, 2], _fma(d1, A[1, 1], d0 * A[1, 0]))
-                    dl2 = _fma(d2, A[2, 2], _fma(d1, A[2, 1], d0 * A[2, 0]))
-                a = (dl0 * dl0 + dl2 * dl2) + dl1 * dl1
-                t0, t1, t2 = 2.0 * dl0, 2.0 * dl1, 2.0 * dl2
-                if narrow:
-                    b = (t0 * oc0 + t1 * oc1) + t2 * oc2
-                else:
-                    b = _fma(t2, oc2, _fma(t0, oc0, t1 * oc1))
+                dl0 = (d0 * A[0, 0] + d1 * A[0, 1]) + d2 * A[0, 2]
+                dl1 = (d0 * A[1, 0] + d1 * A[1, 1]) + d2 * A[1, 2]
+                dl2 = (d0 * A[2, 0] + d1 * A[2, 1]) + d2 * A[2, 2]
+                a = (dl0 * dl0 + dl1 * dl1) + dl2 * dl2
+                b = (2.0 * dl0 * oc0 + 2.0 * dl1 * oc1) + 2.0 * dl2 * oc2
                 disc = b * b - 4.0 * a * ce
                 if not disc >= 0:
                     continue

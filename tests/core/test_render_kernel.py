@@ -18,7 +18,7 @@ from core.model_render import camera_rays, neighbour_parts, render_parts
 
 CALIBRATION = Path(__file__).parents[2] / "sample_scenes" / "walk_line3" / "calibration.toml"
 
-#: the compiled path is on only where this machine's numpy sums as it does
+#: the compiled path is on where numba is and its first render agrees with numpy's
 #: (:func:`core.render_kernel.agrees`); elsewhere ``render_parts`` runs numpy (tested
 #: below regardless)
 needs_compiled = pytest.mark.skipif(
@@ -119,8 +119,8 @@ def test_more_than_64_parts():
 @needs_compiled
 @pytest.mark.parametrize("size", [(1, 384), (512, 1)])
 def test_one_pixel_wide_or_high_image(size):
-    """A one-pixel-wide image: every box is one pixel wide, where numpy's products
-    leave BLAS (other sums); one pixel high: one row per box."""
+    """A one-pixel-wide image: every box is one pixel wide; one pixel high: one row per
+    box (edge cases of the box loops)."""
     full = _cameras()[0]
     K = full.K.copy()
     K[:2, 2] = [0.0 if size[0] == 1 else K[0, 2], 0.0 if size[1] == 1 else K[1, 2]]
@@ -220,18 +220,20 @@ def test_boxes_are_the_reference_boxes():
 
 
 @needs_compiled
-def test_buried_test_sums_are_einsums():
-    """The compiled buried-surface test sums ``|A (x − c)|²`` as ``_outer``'s einsums do,
-    to the last bit (a last-bit difference flips its ``< shrink²`` only rarely, so the
-    renders above would not show it)."""
+def test_buried_test_sums_as_outer():
+    """The compiled buried-surface test sums ``|A (x − c)|²`` as ``_outer`` does, to the
+    last bit (a last-bit difference flips its ``< shrink²`` only rarely, so the renders
+    above would not show it)."""
     rng = np.random.default_rng(9)
     A_all = rng.normal(size=(7, 3, 3)) * 8.0
     centers = rng.normal(size=(7, 3))
     others = np.array([0, 2, 3, 6])
     x = rng.normal(size=(13, 17, 3))
     # as render_kernel._outer
-    q = np.einsum("oij,hwoj->hwoi", A_all[others], x[:, :, None, :] - centers[others])
-    ref = np.einsum("hwoi,hwoi->hwo", q, q)
+    y = x[:, :, None, :] - centers[others]
+    dot3 = render_kernel._dot3
+    q = [dot3(y[..., 0], y[..., 1], y[..., 2], A_all[others][:, i].T) for i in range(3)]
+    ref = dot3(*q, q)
     got = np.array(
         [
             [
@@ -242,6 +244,30 @@ def test_buried_test_sums_are_einsums():
         ]
     )
     assert np.array_equal(got, ref)
+
+
+def test_compiled_path_is_on_wherever_numba_is():
+    """The reference sums elementwise, in the compiled loops' order, so the compiled
+    path agrees with it on every CPU (with numpy's BLAS products it was off on AVX-512
+    machines, whose ``dgemv`` sums in another order)."""
+    if not field_kernel.enabled():
+        pytest.skip("numba missing or switched off")
+    assert render_kernel.agrees()
+
+
+def test_reference_does_not_depend_on_alignment():
+    """The same rays in a buffer shifted by one float64 (another alignment for SIMD and
+    BLAS kernels) render to the same bits."""
+    cam = _cameras()[2]
+    body = _body(cam, seed=4, n=30)
+    rays = camera_rays(cam)
+    buf = np.empty(rays.size + 1)
+    shifted = buf[1:].reshape(rays.shape)
+    shifted[...] = rays
+    for outer_only in (False, True):
+        ref = render_kernel.render_numpy(cam, *body, 8, rays=rays, outer_only=outer_only)
+        got = render_kernel.render_numpy(cam, *body, 8, rays=shifted, outer_only=outer_only)
+        _assert_same(got, ref)
 
 
 @needs_compiled

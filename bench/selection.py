@@ -1,7 +1,8 @@
 """Per-part camera selection against all cameras fused, on self-occluding studio scenes.
 
 ``python -m bench.selection [--scenes dance_line3,dance_ortho3,pirouette_line3,pirouette_ortho3]
-[--frames N] [--fps F] [--tracker ekf|fit] [--cues contours|both] [--click-draw N]``
+[--frames N] [--fps F] [--tracker ekf|fit] [--cues contours|both] [--click-draw N]
+[--rows 2,4]``
 
 The second paper's claim (issue 7): tracking each body part only from the cameras that see
 it (visibility index ≥ 0.2) and observe its motion survives self-occlusion better than
@@ -25,9 +26,11 @@ see ≥ 20 % of the part in the true mesh, :func:`truth_visibility`, every 5th f
 "contours"``: the weighted least squares of each frame with contour observations, the
 silhouette limb search, the constant-velocity prediction) instead of the EKF, with the
 same three camera choices (:class:`core.fit_contours.ContourSettings` ``select`` and
-``rank_motion``, without ``wide_view_deg``) and a fourth row, its default: the paper's
-selection plus a view across a part's kept views where those all look from one side
-(:data:`FIT_WIDE`); its own shape comes from the first frame's silhouettes.  With
+``rank_motion``, without ``wide_view_deg``) and two more rows (:data:`FIT_ROWS`): the
+paper's selection plus a view across a part's kept views where those all look from one
+side, and that with the views the selection leaves out paired too at twice the σ (the
+fit's default); its own shape comes from the first frame's silhouettes.  ``--rows``
+picks rows by number.  With
 ``--cues both`` the fit also takes the scene's tracked texture points (``core track``,
 run first where ``tracks.npz`` is missing), as ``core fit --cues both`` does.
 ``--click-draw N`` moves every click by N(0, 0.5 px) per axis with seed N, as
@@ -216,9 +219,11 @@ def _joints_like_truth(skel, theta, root, s, names):
     return xyz[:, order]
 
 
-def _fit_rows(scene, nf: int, lost_mm: float, vis_frames, ref_vi, cues: str = "contours"):
+def _fit_rows(
+    scene, nf: int, lost_mm: float, vis_frames, ref_vi, cues: str = "contours", which=None
+):
     """The sequence fit (``cues``: contours alone, or ``"both"`` with the tracked points),
-    once per camera choice of :data:`METHODS` and :data:`FIT_WIDE`."""
+    once per camera choice of :data:`FIT_ROWS` (``which``: their indices; None: all)."""
     from core.evaluate import evaluate_state
     from core.fit_contours import ContourSettings
     from core.fit_scene import run_scene as fit_run
@@ -229,15 +234,16 @@ def _fit_rows(scene, nf: int, lost_mm: float, vis_frames, ref_vi, cues: str = "c
     }
     cams = [c.name for c in scene.calibration()]
     rows = []
-    for k, (select, ranked, label) in enumerate(METHODS + (FIT_WIDE,)):
+    for k, (label, fields) in enumerate(FIT_ROWS):
+        if which is not None and k not in which:
+            continue
         t0 = time.process_time()
-        wide = ContourSettings().wide_view_deg if k == len(METHODS) else None
         res = fit_run(
             scene,
             observations="tracks",
             cues=cues,
             frames=nf,
-            contour_settings=ContourSettings(select=select, rank_motion=ranked, wide_view_deg=wide),
+            contour_settings=ContourSettings(**fields),
         )
         dt = (time.process_time() - t0) / nf
         st = res.state
@@ -279,6 +285,7 @@ def run_scene(
     tracker: str = "ekf",
     cues: str = "contours",
     click_draw: int = 0,
+    rows=None,
 ):
     """Track one scene with selection and fused; returns a list of result dicts.
 
@@ -287,6 +294,7 @@ def run_scene(
     contours alone; its MPJPE leaves out the frames it marked diverged).  ``cues``: with
     the fit, ``"contours"`` alone or ``"both"`` (the tracked points too).
     ``click_draw``: the clicks moved as ``bench.fit_spread``'s run of that number.
+    ``rows``: with the fit, the indices of :data:`FIT_ROWS` to run (None: all).
     """
     from core.contour_track import ContourTrackSettings, fit_shape_to_contours, track_contours
     from core.evaluate import evaluate, truth_joints
@@ -309,7 +317,7 @@ def run_scene(
         print(
             f"\n{name}: {len(cams)} cameras, {nf} frames; the sequence fit with {what}", flush=True
         )
-        return _fit_rows(scene, nf, lost_mm, vis_frames, ref_vi, cues)
+        return _fit_rows(scene, nf, lost_mm, vis_frames, ref_vi, cues, rows)
     t0 = time.process_time()
     contours = scene_contours(scene, nf)
     t_seg = time.process_time() - t0
@@ -384,10 +392,18 @@ METHODS = (
     (True, False, "selection, VI only"),
     (False, False, "all fused"),
 )
-#: ``--tracker fit`` also runs the sequence fit's default: the paper's selection plus a
-#: view across where a part's kept views all look from one side
-#: (``ContourSettings.wide_view_deg``; the rows above run without it).
-FIT_WIDE = (True, True, "selection + wide view")
+#: ``--tracker fit``'s rows, as (label, :class:`core.fit_contours.ContourSettings`
+#: fields): the three above, the paper's selection plus a view across where a part's
+#: kept views all look from one side (``wide_view_deg``), and that with the views the
+#: selection leaves out paired too at twice the σ (``unselected_sigma_scale``).
+FIT_ROWS = (
+    ("per-part selection", {"wide_view_deg": None, "unselected_sigma_scale": None}),
+    ("selection, VI only", {"rank_motion": False, "wide_view_deg": None,
+                            "unselected_sigma_scale": None}),
+    ("all fused", {"select": False, "unselected_sigma_scale": None}),
+    ("selection + wide view", {"wide_view_deg": 60.0, "unselected_sigma_scale": None}),
+    ("+ left out at 2 sigma", {"wide_view_deg": 60.0, "unselected_sigma_scale": 2.0}),
+)  # fmt: skip
 
 
 def print_rows(rows, lost_mm: float) -> None:
@@ -446,9 +462,23 @@ def main(argv=None) -> int:
         help="move every click by N(0, 0.5 px) with this seed, as bench.fit_spread's run "
         "of that number (0: the scene's clicks)",
     )
+    ap.add_argument(
+        "--rows",
+        default=None,
+        help="with --tracker fit: comma-separated indices of the rows to run, 0-4 in the "
+        "order printed (default all)",
+    )
     args = ap.parse_args(argv)
     if args.cues != "contours" and args.tracker != "fit":
         ap.error("--cues both needs --tracker fit")
+    which = None
+    if args.rows is not None:
+        try:
+            which = {int(k) for k in args.rows.split(",")}
+        except ValueError:
+            ap.error(f"--rows {args.rows!r}: give comma-separated row numbers, e.g. 2,4")
+        if args.tracker != "fit" or not which <= set(range(len(FIT_ROWS))):
+            ap.error(f"--rows needs --tracker fit and numbers 0-{len(FIT_ROWS) - 1}")
     rows = []
     for name in args.scenes.split(","):
         rows += run_scene(
@@ -459,8 +489,10 @@ def main(argv=None) -> int:
             tracker=args.tracker,
             cues=args.cues,
             click_draw=args.click_draw,
+            rows=which,
         )
-        print_rows(rows[-len(METHODS) - (args.tracker == "fit") :], args.lost_mm)
+        n = len(METHODS) if args.tracker == "ekf" else len(which or FIT_ROWS)
+        print_rows(rows[-n:], args.lost_mm)
     load = " ".join(f"{x:.2f}" for x in os.getloadavg())
     print(f"\nAll scenes (load average {load}):")
     print_rows(rows, args.lost_mm)

@@ -41,6 +41,8 @@ class ContourPairs:
     p_unit : (M, 3) the rim point in its metaball's unit-sphere frame
     z : (M, 2) image contour points, pixels
     normal : (M, 2) their outward unit image normals
+    sigma_scale : (M,) factor on each pair's σ (1 for the views the part's camera
+        selection chose; :attr:`ContourSettings.unselected_sigma_scale` for the others)
     """
 
     camera: np.ndarray
@@ -49,6 +51,7 @@ class ContourPairs:
     p_unit: np.ndarray
     z: np.ndarray
     normal: np.ndarray
+    sigma_scale: np.ndarray
 
     def __len__(self) -> int:
         return len(self.camera)
@@ -62,6 +65,7 @@ def _empty_pairs() -> ContourPairs:
         np.zeros((0, 3)),
         np.zeros((0, 2)),
         np.zeros((0, 2)),
+        np.zeros(0),
     )
 
 
@@ -147,9 +151,16 @@ def match_frame(
         )
     if cfg.skip_parts:
         sel.use[[skel.bone_index(b) for b in cfg.skip_parts]] = False
+    pair = sel.use.copy()
+    soft = cfg.select and cfg.unselected_sigma_scale is not None
+    if soft:  # the views left out too, less trusted
+        pair |= np.isfinite(vis)
+        pair[:, [not contours[c] for c in range(len(cameras))]] = False
+        if cfg.skip_parts:
+            pair[[skel.bone_index(b) for b in cfg.skip_parts]] = False
     out = []
     for c, (cam, rim) in enumerate(zip(cameras, rims, strict=True)):
-        use_parts = np.flatnonzero(sel.use[:, c])
+        use_parts = np.flatnonzero(pair[:, c])
         if len(use_parts) == 0 or len(rim) == 0 or not contours[c]:
             continue
         m = match_contours(cam, contours[c], rim, max_dist_px=cfg.max_dist_px, parts=use_parts)
@@ -158,17 +169,17 @@ def match_frame(
         e = rim.ellipsoid[m.rim_index]
         x = rim.xyz[m.rim_index]
         p_unit = np.einsum("mji,mj->mi", axes[e], x - centers[e]) / radii[e]
+        bone = balls.bone[e]
+        scale = np.where(sel.use[bone, c], 1.0, cfg.unselected_sigma_scale if soft else 1.0)
         out.append(
-            ContourPairs(
-                np.full(len(m), c), e, balls.bone[e], p_unit, m.contour_uv, m.contour_normal
-            )
+            ContourPairs(np.full(len(m), c), e, bone, p_unit, m.contour_uv, m.contour_normal, scale)
         )
     if not out:
         return _empty_pairs(), sel
     return ContourPairs(
         *(
             np.concatenate([getattr(p, k) for p in out])
-            for k in ("camera", "ellipsoid", "bone", "p_unit", "z", "normal")
+            for k in ("camera", "ellipsoid", "bone", "p_unit", "z", "normal", "sigma_scale")
         )
     ), sel
 

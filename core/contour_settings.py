@@ -81,6 +81,17 @@ class ContourSettings:
     #: segments median 24.6 deg (23.7); dance_ortho3 46.8 mm over 41 frames, 9 diverged
     #: (64.6 over 50, none) -- no clearer than the spread: off
     wide_view_outline: int = 0
+    #: with selection: the views the selection leaves out are paired too, their pairs'
+    #: σ times this (None: left out, the paper's selection; 1: every view alike, as
+    #: fused).  A part the model misplaces is the one whose visibility it misjudges;
+    #: left out of the views that would pull it back, it stays lost.  None -> 2 (cues
+    #: both, in-process, MPJPE mm): dance_ortho3 27.7 -> 23.5 and 35.5 -> 28.3 (exact
+    #: clicks, click draw 1; fused 25.1, 29.7), pirouette_ortho3 25.2 -> 28.6 and 40.1
+    #: -> 27.1 (fused 36.7, 27.5), pirouette_line3 50.6 -> 46.5 (fused 59.1); make
+    #: demo's walk, runs 0-3 of bench.fit_spread, 9.87 / 13.59 / 17.13 / 13.22 -> 9.60
+    #: / 13.62 / 15.05 / 13.08; walk_ortho3 13.25 / 12.57 / 12.62 / 13.06 -> 11.77 /
+    #: 13.32 / 13.10 / 13.06; jumps_line3 13.78 -> 13.38 (docs/design.md)
+    unselected_sigma_scale: float | None = 2.0
     textured_scale: float = 1.0  # σ of the pairs of parts that texture points observe, × this
     spacing_px: float = 2.0  # sampling of the image contours [px]
     rim_samples: int = 32  # model rim samples per metaball

@@ -164,6 +164,7 @@ class ContourFrame:
         sig = np.full(len(r), self.cfg.sigma_px)
         if self.part_scale is not None and len(r):
             sig = sig * np.asarray(self.part_scale, float)[self.pairs.bone]
+        sig = sig * self.pairs.sigma_scale
         self.weights = _huber_sqrt(r / (sig / self.cfg.sigma_px), self.cfg.huber_px) / sig
         self._key = key
 

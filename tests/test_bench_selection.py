@@ -123,3 +123,38 @@ def test_click_draw_moves_the_clicks_as_fit_spread_does(monkeypatch):
     want = perturbed_clicks(clicks, 0.5, 2)["joints"]["head"]["cam1"]
     np.testing.assert_array_equal(got[1]["joints"]["head"]["cam1"], want)
     assert not np.allclose(want, clicks["joints"]["head"]["cam1"])
+
+
+def test_rows_pick_the_fit_rows_by_number(monkeypatch):
+    """``--rows 2,4``: only the fused row and the default's (left-out views at 2 σ) run;
+    numbers outside the rows, or rows without the fit, are refused up front."""
+    import pytest
+
+    import bench.selection as sel
+
+    for bad in (["--rows", "9", "--tracker", "fit"], ["--rows", "2"], ["--rows", "a,b"]):
+        with pytest.raises(SystemExit):
+            sel.main(bad + ["--scenes", "x"])
+    seen = []
+
+    class _Stop(Exception):
+        pass
+
+    def fake_fit(scene, **kw):
+        cs = kw["contour_settings"]
+        seen.append((cs.select, cs.wide_view_deg, cs.unselected_sigma_scale))
+        raise _Stop
+
+    monkeypatch.setattr("core.fit_scene.run_scene", fake_fit)
+
+    class _Scene:
+        truth = {}
+        n_frames = 3
+
+        def calibration(self):
+            return []
+
+    for k in (2, 4):
+        with pytest.raises(_Stop):
+            sel._fit_rows(_Scene(), 3, 100.0, [0], None, cues="both", which={k})
+    assert seen == [(False, 60.0, None), (True, 60.0, 2.0)]

@@ -151,6 +151,41 @@ def test_selection_by_visibility_alone_ignores_the_predicted_motion(body):
     assert np.any(by_motion.observability > 0)
 
 
+def test_views_left_out_paired_with_a_larger_sigma(body):
+    """unselected_sigma_scale: the views the selection leaves out are paired too, with
+    their σ times the scale.  The selection itself (what the frame records) is
+    unchanged; a contour point still pairs with the nearest rim point, now among more
+    parts, so the selected views keep the hard selection's pairs but for those an
+    extra part's rim is nearer to."""
+    skel, balls, s, theta, root, cams, observed = body
+    rate = np.zeros(skel.n_dof)
+    rate[skel.dof_index("l_hip_x")] = 0.2
+    paper = ContourSettings(unselected_sigma_scale=None)
+    hard, sel = match_frame(skel, balls, theta, root, s, cams, observed, paper, theta_rate=rate)
+    cfg = ContourSettings(unselected_sigma_scale=3.0)
+    soft, sel2 = match_frame(skel, balls, theta, root, s, cams, observed, cfg, theta_rate=rate)
+    np.testing.assert_array_equal(sel.use, sel2.use)
+    assert np.all(hard.sigma_scale == 1.0)
+    chosen = sel.use[soft.bone, soft.camera]
+    assert np.all(soft.sigma_scale[chosen] == 1.0) and np.all(soft.sigma_scale[~chosen] == 3.0)
+    assert (~chosen).sum() > 50  # left-out views do show those parts' outlines
+
+    def key(p, k):  # (camera, contour point, metaball) of the pairs k
+        return set(zip(p.camera[k], *p.z[k].T, p.ellipsoid[k], strict=True))
+
+    kept = key(soft, chosen)
+    assert kept <= key(hard, slice(None)) and len(kept) >= 0.95 * len(hard)
+    # each pair's weight: Huber of its residual in its own σ units, over its σ
+    frame = ContourFrame(cams, observed, cfg, theta_rate=rate)
+    frame.freeze(skel, balls, theta, root, s)
+    r = contour_block(skel, balls, theta, root, s, cams, frame.pairs, shape=False)[0]
+    sig = cfg.sigma_px * frame.pairs.sigma_scale
+    a = np.abs(r) / frame.pairs.sigma_scale
+    want = np.where(a <= cfg.huber_px, 1.0, np.sqrt(cfg.huber_px / np.maximum(a, 1e-300))) / sig
+    np.testing.assert_allclose(frame.weights, want, rtol=1e-12)
+    assert (frame.weights[frame.pairs.sigma_scale > 1] < 1 / cfg.sigma_px).all()
+
+
 def test_wide_view_joins_a_part_whose_ranked_views_look_alike(body):
     """wide_view_deg: the motion ranking keeps the views that see a limb swing; a part
     left with views within depth_spread_deg of each other also gets, of the visible
@@ -305,7 +340,9 @@ def test_containment_jacobians_match_finite_differences(body):
 def test_containment_brings_back_an_arm_beyond_the_pairing_reach(body):
     """An arm swung 1.2 rad out of the silhouettes is beyond the contour pairing's reach
     (12 px): the contours alone leave it out there; with the containment term the
-    weighted LM pulls it back inside every camera's foreground."""
+    weighted LM pulls it back inside every camera's foreground.  The paper's selection
+    (the left-out views unpaired): the views the selection leaves out here reach the
+    arm and bring it back by themselves (wrist 58 mm off without the term)."""
     skel, balls, s, theta, root, cams, observed = body
     th0 = theta.copy()
     arm = [skel.dof_index(n) for n in ("r_shoulder_x", "r_shoulder_y", "r_shoulder_z", "r_elbow_x")]
@@ -316,7 +353,8 @@ def test_containment_brings_back_an_arm_beyond_the_pairing_reach(body):
     sig[arm] = 1.0
     err = {}
     for px in (0.0, 3.0):
-        cf = ContourFrame(cams, observed, ContourSettings(containment_px=px))
+        cfg = ContourSettings(containment_px=px, unselected_sigma_scale=None)
+        cf = ContourFrame(cams, observed, cfg)
         obs = Observations(theta_pred=th0, sigma_pred=sig, contours=cf)
         r = fit(
             skel,

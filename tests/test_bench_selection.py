@@ -61,6 +61,31 @@ def test_camera_agreement_counts_hidden_used_and_seen_unused():
     assert np.isclose(seen_unused, 1 / 3)
 
 
+class _Stop(Exception):
+    """Raised by the stand-in fit once it has recorded its call."""
+
+
+class _Scene:
+    truth = {}
+    n_frames = 3
+
+    def calibration(self):
+        return []
+
+
+def _stop_at_the_fit(monkeypatch, what):
+    """Replace core's ``run_scene`` by a stand-in that records ``what(kwargs)`` and
+    stops; returns the list it records into."""
+    seen = []
+
+    def fake_fit(scene, **kw):
+        seen.append(what(kw))
+        raise _Stop
+
+    monkeypatch.setattr("core.fit_scene.run_scene", fake_fit)
+    return seen
+
+
 def test_fit_rows_pass_the_cues_to_the_fit(monkeypatch):
     """``--cues both`` fits with the tracked points as well; the EKF cannot take them."""
     import pytest
@@ -70,24 +95,9 @@ def test_fit_rows_pass_the_cues_to_the_fit(monkeypatch):
     with pytest.raises(SystemExit):
         sel.main(["--cues", "both", "--scenes", "x"])  # the EKF rows: refused up front
 
-    seen = []
-
-    class _Stop(Exception):
-        pass
-
-    def fake_fit(scene, **kw):
-        seen.append((kw["cues"], kw["observations"], kw["contour_settings"].select))
-        raise _Stop
-
-    monkeypatch.setattr("core.fit_scene.run_scene", fake_fit)
-
-    class _Scene:
-        truth = {}
-        n_frames = 3
-
-        def calibration(self):
-            return []
-
+    seen = _stop_at_the_fit(
+        monkeypatch, lambda kw: (kw["cues"], kw["observations"], kw["contour_settings"].select)
+    )
     with pytest.raises(_Stop):
         sel._fit_rows(_Scene(), 3, 100.0, [0], None, cues="both")
     assert seen == [("both", "tracks", True)]
@@ -135,25 +145,14 @@ def test_rows_pick_the_fit_rows_by_number(monkeypatch):
     for bad in (["--rows", "9", "--tracker", "fit"], ["--rows", "2"], ["--rows", "a,b"]):
         with pytest.raises(SystemExit):
             sel.main(bad + ["--scenes", "x"])
-    seen = []
-
-    class _Stop(Exception):
-        pass
-
-    def fake_fit(scene, **kw):
-        cs = kw["contour_settings"]
-        seen.append((cs.select, cs.wide_view_deg, cs.unselected_sigma_scale))
-        raise _Stop
-
-    monkeypatch.setattr("core.fit_scene.run_scene", fake_fit)
-
-    class _Scene:
-        truth = {}
-        n_frames = 3
-
-        def calibration(self):
-            return []
-
+    seen = _stop_at_the_fit(
+        monkeypatch,
+        lambda kw: (
+            kw["contour_settings"].select,
+            kw["contour_settings"].wide_view_deg,
+            kw["contour_settings"].unselected_sigma_scale,
+        ),
+    )
     for k in (2, 4):
         with pytest.raises(_Stop):
             sel._fit_rows(_Scene(), 3, 100.0, [0], None, cues="both", which={k})

@@ -83,6 +83,10 @@ def match_frame(
 ) -> tuple[ContourPairs, Selection]:
     """Pair one frame's image contours with the model's visible rim at a pose.
 
+    Each part pairs in the cameras its selection chose (:func:`select_cameras`, plus
+    :func:`add_wide_views`) and, with ``cfg.unselected_sigma_scale``, also in the others
+    that see any of it, those pairs' σ times the scale (``ContourPairs.sigma_scale``).
+
     Parameters
     ----------
     skel, balls, theta (n,), root (3,), s (G,)

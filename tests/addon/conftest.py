@@ -2,10 +2,16 @@
 
 from __future__ import annotations
 
+import inspect
 import os
 import sys
 
 import pytest
+
+from core.state import write_state
+
+from .fit_fixtures import OPTIONS
+from .state_fixtures import synthetic_state
 
 
 @pytest.fixture(scope="session")
@@ -32,6 +38,67 @@ def makehuman(shared_data, bpy_module):
             f"unreadable by Blender {bpy_module.app.version_string}"
         )
     return shared_data / "characters" / "makehuman_cmu_mb.blend"
+
+
+# -- the fit options' tests (test_fit_cues.py, test_fit_starts.py) --------------------
+
+
+@pytest.fixture
+def fake_run_fit(bpy_module, monkeypatch):
+    """Replace ``addon.pipeline.run_fit``: record ``(scene, cues, *options that are on)``
+    (e.g. ``("walk", "both", "smooth_motion")``, and ``"prediction_start_only"`` last
+    when ``contour_starts`` is off), write a 4-frame state."""
+    from addon import pipeline
+
+    calls = []
+
+    def run_fit(
+        scene_dir,
+        out_json,
+        progress=None,
+        cues="texture",
+        clicks_xyz=None,
+        feet_from_points=False,
+        smooth_motion=False,
+        contour_starts=True,
+    ):
+        on = {"feet_from_points": feet_from_points, "smooth_motion": smooth_motion}
+        off = () if contour_starts else ("prediction_start_only",)
+        calls.append((scene_dir.name, cues, *(name for name in OPTIONS if on[name]), *off))
+        write_state(out_json, synthetic_state(4, seed=len(calls)))
+        return out_json
+
+    # the stand-in takes what the real one takes
+    assert inspect.signature(run_fit).parameters.keys() == (
+        inspect.signature(pipeline.run_fit).parameters.keys()
+    )
+    monkeypatch.setattr(pipeline, "run_fit", run_fit)
+    return calls
+
+
+@pytest.fixture
+def fake_fit_scene(bpy_module, monkeypatch):
+    """Replace core's scene loading and ``fit_scene``: record each call's keywords."""
+    from core import fit_scene, scene
+
+    calls = []
+
+    def fit(sc, progress=None, **kwargs):
+        calls.append(kwargs)
+        return synthetic_state(5, seed=11)
+
+    monkeypatch.setattr(scene, "load_scene", lambda path, **kw: ("scene", path))
+    monkeypatch.setattr(fit_scene, "fit_scene", fit)
+    return calls
+
+
+@pytest.fixture
+def registered(empty_blend):
+    import addon
+
+    addon.register()
+    yield empty_blend
+    addon.unregister()
 
 
 def pytest_sessionfinish(session, exitstatus):

@@ -1,119 +1,26 @@
 """The fit's cue choice (texture / contours / both), its opt-in options, feet from
 points (``SequenceSettings(foot_heading=True)``) and smooth motion
 (``SequenceSettings(smooth_motion=True)``), and its opt-out of the extra starts of a
-frame fitted from contours alone (``SequenceSettings(contour_starts=False)``), from the
-pipeline, CLI, panel and operator down to core's ``fit_scene``; core's fit is replaced
-by a recorder (seconds)."""
+frame fitted from contours alone (``test_fit_starts.py``), from the pipeline, CLI,
+panel and operator down to core's ``fit_scene``; core's fit is replaced by a recorder
+(seconds)."""
 
 from __future__ import annotations
 
 import inspect
 from dataclasses import replace
-from typing import NamedTuple
 
-import numpy as np
 import pytest
 
-from core.calibration_io import write_calibration
-from core.camera import Camera, rodrigues_to_matrix
 from core.errors import InputError
 from core.state import write_state
 
+from .fit_fixtures import OPTIONS, cli, make_scene
 from .state_fixtures import synthetic_state
 
 pytestmark = [pytest.mark.blender]
 
 CUES = ("texture", "contours", "both")
-
-
-class Option(NamedTuple):
-    """One of the fit's opt-in options, by its keyword of ``pipeline.run_fit`` (and
-    property of the panel)."""
-
-    field: str  # core's SequenceSettings field it turns on
-    flag: str  # the CLI flag of `fit` and `batch`
-    label: str  # the panel's check box
-    help: tuple  # words the flag's help holds
-    description: tuple  # words the property's tooltip holds
-
-
-OPTIONS = {
-    "feet_from_points": Option(
-        "foot_heading",
-        "--feet-from-points",
-        "Feet from points",
-        (
-            "--feet-from-points turn each foot about its shin at the clicked frame",
-            "contours give no points",
-        ),
-        ("heading of the surface points", "Texture or Both"),
-    ),
-    "smooth_motion": Option(
-        "smooth_motion",
-        "--smooth",
-        "Smooth motion",
-        (
-            "--smooth smooth the fitted motion over the take",
-            "less jitter on walks and jumps",
-            "a sudden kick of one limb",
-        ),
-        ("over the take", "less jitter on walks and jumps", "sudden kick of one limb", "fit anew"),
-    ),
-}
-
-
-def make_scene(root, with_fit=False):
-    """A scene folder with a 2-camera calibration (and a fit.json of 3 frames)."""
-    root.mkdir(parents=True)
-    cams = [
-        Camera(
-            f"cam{i}",
-            (64, 48),
-            [[80, 0, 32], [0, 80, 24], [0, 0, 1]],
-            np.zeros(5),
-            rodrigues_to_matrix([1.6, 0, 0.5 * i]),
-            [0, -1, 5],
-        )
-        for i in range(2)
-    ]
-    write_calibration(root / "calibration.toml", cams)
-    (root / "scene.toml").write_text("# stand-in: core's fit is replaced in these tests\n")
-    if with_fit:
-        write_state(root / "fit.json", synthetic_state(3, seed=3))
-    return root
-
-
-@pytest.fixture
-def fake_run_fit(bpy_module, monkeypatch):
-    """Replace ``addon.pipeline.run_fit``: record ``(scene, cues, *options that are on)``
-    (e.g. ``("walk", "both", "smooth_motion")``, and ``"prediction_start_only"`` last
-    when ``contour_starts`` is off), write a 4-frame state."""
-    from addon import pipeline
-
-    calls = []
-
-    def run_fit(
-        scene_dir,
-        out_json,
-        progress=None,
-        cues="texture",
-        clicks_xyz=None,
-        feet_from_points=False,
-        smooth_motion=False,
-        contour_starts=True,
-    ):
-        on = {"feet_from_points": feet_from_points, "smooth_motion": smooth_motion}
-        off = () if contour_starts else ("prediction_start_only",)
-        calls.append((scene_dir.name, cues, *(name for name in OPTIONS if on[name]), *off))
-        write_state(out_json, synthetic_state(4, seed=len(calls)))
-        return out_json
-
-    # the stand-in takes what the real one takes
-    assert inspect.signature(run_fit).parameters.keys() == (
-        inspect.signature(pipeline.run_fit).parameters.keys()
-    )
-    monkeypatch.setattr(pipeline, "run_fit", run_fit)
-    return calls
 
 
 def test_cue_names_match_core():
@@ -153,22 +60,6 @@ def test_run_fit_rejects_unknown_cues_before_fitting(bpy_module, tmp_path, monke
     ):
         pipeline.run_fit(tmp_path, tmp_path / "fit.json", cues="skin")
     assert not (tmp_path / "fit.json").exists()
-
-
-@pytest.fixture
-def fake_fit_scene(bpy_module, monkeypatch):
-    """Replace core's scene loading and ``fit_scene``: record each call's keywords."""
-    from core import fit_scene, scene
-
-    calls = []
-
-    def fit(sc, progress=None, **kwargs):
-        calls.append(kwargs)
-        return synthetic_state(5, seed=11)
-
-    monkeypatch.setattr(scene, "load_scene", lambda path, **kw: ("scene", path))
-    monkeypatch.setattr(fit_scene, "fit_scene", fit)
-    return calls
 
 
 @pytest.mark.parametrize("cues", CUES)
@@ -254,12 +145,6 @@ def test_state_for_scene_cached_unless_refit(tmp_path, fake_run_fit):
     assert pipeline.state_for_scene(scene, cues="both", refit=True).n_frames == 4
     assert fake_run_fit == [("walk", "both")]
     assert (scene / "fit.json").read_bytes() == before  # not overwritten
-
-
-def cli(argv):
-    from addon.cli_command import main
-
-    return main([str(a) for a in argv])
 
 
 def test_cli_fit_cues(tmp_path, fake_run_fit, empty_blend, capsys):
@@ -398,15 +283,6 @@ def test_cli_help_explains_each_cue(capsys):
             assert f"{name}: {' '.join(line.split())}" in text
 
 
-@pytest.fixture
-def registered(empty_blend):
-    import addon
-
-    addon.register()
-    yield empty_blend
-    addon.unregister()
-
-
 def test_panel_property_and_operator(registered, tmp_path, fake_run_fit):
     bpy = registered
     s = bpy.context.scene.somacap
@@ -522,151 +398,3 @@ def test_fit_button_uses_the_key_joints_the_user_moved(registered, monkeypatch, 
     if not (DEFAULT_SCENE / "fit.json").is_file():
         assert bpy.ops.somacap.fit() == {"FINISHED"}
         assert got[-1] == {}
-
-
-# The extra starts of a frame fitted from contours alone: on by default (core's default
-# too), so it is the switch off that reaches core, as SequenceSettings(contour_starts=False).
-
-
-def contour_starts_of(kw):
-    """The ``contour_starts`` that one recorded ``fit_scene`` call fits with (core's
-    default when no settings are passed)."""
-    from core.fit import SequenceSettings
-
-    assert set(kw) <= {"cues", "settings"}
-    return kw.get("settings", SequenceSettings()).contour_starts
-
-
-@pytest.mark.parametrize("contour_starts", [True, False])
-def test_run_fit_contour_starts_passes_sequence_settings(tmp_path, fake_fit_scene, contour_starts):
-    from addon import pipeline
-    from core.fit import SequenceSettings
-
-    assert SequenceSettings().contour_starts is True  # on is core's default
-    pipeline.run_fit(
-        tmp_path / "sc", tmp_path / "fit.json", cues="contours", contour_starts=contour_starts
-    )
-    (kw,) = fake_fit_scene
-    if contour_starts:
-        assert kw == {"cues": "contours"}  # core's own default
-    else:
-        assert kw["settings"] == replace(SequenceSettings(), contour_starts=False)
-    assert contour_starts_of(kw) is contour_starts
-    # with an opt-in option: one SequenceSettings with both
-    pipeline.run_fit(
-        tmp_path / "sc", tmp_path / "b.json", smooth_motion=True, contour_starts=contour_starts
-    )
-    want = replace(SequenceSettings(), smooth_motion=True, contour_starts=contour_starts)
-    assert fake_fit_scene[-1]["settings"] == want
-
-
-def test_state_for_scene_without_contour_starts_refits_down_to_core(tmp_path, fake_fit_scene):
-    from addon import pipeline
-
-    scene = make_scene(tmp_path / "walk", with_fit=True)
-    before = (scene / "fit.json").read_bytes()
-    assert pipeline.state_for_scene(scene, contour_starts=True).n_frames == 3  # cached
-    assert fake_fit_scene == []
-    assert pipeline.state_for_scene(scene, cues="contours", contour_starts=False).n_frames == 5
-    (kw,) = fake_fit_scene
-    assert kw["cues"] == "contours" and contour_starts_of(kw) is False
-    assert (scene / "fit.json").read_bytes() == before  # not overwritten
-    assert pipeline.state_for_scene(scene, scene / "fit.json", contour_starts=False).n_frames == 3
-    assert len(fake_fit_scene) == 1
-
-
-@pytest.mark.parametrize("flag", [False, True])
-def test_cli_fit_prediction_start_only(tmp_path, fake_fit_scene, empty_blend, capsys, flag):
-    """``--prediction-start-only`` reaches core as ``contour_starts=False``; without
-    it the fit keeps core's three starts."""
-    scene = make_scene(tmp_path / "walk")  # no fit.json: fitted either way
-    extra = ["--prediction-start-only"] if flag else []
-    assert cli(["fit", scene, "--out", tmp_path / "a.blend", "--cues", "contours", *extra]) == 0
-    (kw,) = fake_fit_scene
-    assert kw["cues"] == "contours" and contour_starts_of(kw) is (not flag)
-    assert "walk: 5 frames" in capsys.readouterr().out
-
-    takes = tmp_path / "takes"
-    make_scene(takes / "run")
-    assert cli(["batch", takes, "--out", tmp_path / "out", *extra]) == 0
-    assert len(fake_fit_scene) == 2 and contour_starts_of(fake_fit_scene[-1]) is (not flag)
-
-
-def test_cli_prediction_start_only_refits_and_conflicts_with_fit(
-    tmp_path, fake_run_fit, empty_blend, capsys
-):
-    scene = make_scene(tmp_path / "walk", with_fit=True)
-    before = (scene / "fit.json").read_bytes()
-    assert cli(["fit", scene, "--out", tmp_path / "a.blend", "--prediction-start-only"]) == 0
-    assert fake_run_fit == [("walk", "texture", "prediction_start_only")]  # not the cached fit
-    assert (scene / "fit.json").read_bytes() == before
-    argv = ["fit", scene, "--out", tmp_path / "b.blend", "--fit", scene / "fit.json"]
-    assert cli([*argv, "--smooth", "--prediction-start-only"]) == 2
-    err = capsys.readouterr().err.strip().splitlines()[-1]
-    assert err.endswith(
-        "--fit uses a fitted state and --smooth and --prediction-start-only ask for a new "
-        "fit: give one of them"
-    )
-    assert len(fake_run_fit) == 1 and not (tmp_path / "b.blend").exists()
-
-
-def test_cli_help_explains_prediction_start_only(capsys):
-    from addon.cli_command import build_parser
-
-    for cmd in ("fit", "batch"):
-        with pytest.raises(SystemExit):
-            build_parser().parse_args([cmd, "--help"])
-        text = " ".join(capsys.readouterr().out.split())
-        for words in ("--prediction-start-only", "contours alone", "from the prediction only"):
-            assert words in text
-        args = build_parser().parse_args([cmd, "x", "--out", "o"])
-        assert args.prediction_start_only is False  # the three starts by default
-    with pytest.raises(SystemExit):
-        build_parser().parse_args(["retarget", "--help"])
-    assert "--prediction-start-only" not in capsys.readouterr().out
-
-
-def test_panel_contour_starts(registered, tmp_path, fake_fit_scene, capfd):
-    """The check box under the other options, on by default; unticked, Fit refits with
-    ``contour_starts=False`` although the scene has a fit.json; ticked, it uses that
-    fit.json, and a scene without one is fitted with the three starts."""
-    bpy = registered
-    s = bpy.context.scene.somacap
-    prop = s.bl_rna.properties["contour_starts"]
-    assert prop.type == "BOOLEAN" and prop.default is True and s.contour_starts is True
-    assert prop.name == "Extra starts (contours alone)"
-    for words in ("without texture points", "three starts", "about 2x", "fast limbs"):
-        assert words in prop.description
-    assert prop.name in s.bl_rna.properties["fit_cues"].description  # refits
-
-    from .user_scenario import panel_dump
-
-    log = panel_dump(bpy.context)
-    i = log.index("button somacap.fit")
-    assert log[i - 1 : i + 4] == [
-        "field fit_cues",
-        "button somacap.fit",
-        "field feet_from_points",
-        "field smooth_motion",
-        "field contour_starts",
-    ]
-
-    scene = make_scene(tmp_path / "walk", with_fit=True)
-    s.scene_dir = str(scene)
-    s.take = "walk"
-    s.fit_cues = "contours"
-    capfd.readouterr()
-    assert bpy.ops.somacap.fit() == {"FINISHED"}  # ticked: the scene's fit.json
-    assert fake_fit_scene == []
-    assert "Used the scene's existing fit.json" in capfd.readouterr().out
-    s.contour_starts = False
-    assert bpy.ops.somacap.fit() == {"FINISHED"}
-    (kw,) = fake_fit_scene
-    assert kw["cues"] == "contours" and contour_starts_of(kw) is False
-    assert "existing fit.json" not in capfd.readouterr().out
-    assert len(s.body["somacap_rmse_mm"]) == 5  # the new fit was built
-
-    s.contour_starts = True
-    s.scene_dir = str(make_scene(tmp_path / "run"))  # no fit.json: fitted
-    assert bpy.ops.somacap.fit() == {"FINISHED"}
-    assert len(fake_fit_scene) == 2 and contour_starts_of(fake_fit_scene[-1]) is True

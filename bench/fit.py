@@ -558,6 +558,12 @@ def print_row(r: dict, scene: Path, render_wall: float | None, name: str | None 
         "    per segment RMSE deg: "
         + ", ".join(f"{k} {v:.1f}" for k, v in m["per_segment_rmse_deg"].items())
     )
+    if m.get("segment_direction_rmse_deg") is not None:
+        print(
+            f"    limb segments' long axes alone (no twist): "
+            f"{m['segment_direction_rmse_deg']:.1f} deg RMSE; per segment: "
+            + ", ".join(f"{k} {v:.1f}" for k, v in m["per_segment_direction_rmse_deg"].items())
+        )
     if m.get("accel_error_mm") is not None:
         print(
             "    acceleration error (jitter against the truth): "

@@ -129,6 +129,7 @@ def fit_once(
         "mpjpe_mm": ev.mpjpe_mm,
         "diverged": ev.diverged_frames,
         "segments_deg": ev.segment_orientation_rmse_deg,
+        "segment_axes_deg": ev.segment_direction_rmse_deg,
         "within_1pct": ev.frames_within_1pct,
         "per_joint_mm": ev.per_joint_mm,
         "per_segment_deg": ev.per_segment_rmse_deg,
@@ -251,7 +252,7 @@ def main(argv: list[str] | None = None) -> int:
         flush=True,
     )
     print(
-        f"{'run':>3}  {'MPJPE mm':>8}  {'diverged':>8}  {'segments °':>10}  "
+        f"{'run':>3}  {'MPJPE mm':>8}  {'diverged':>8}  {'segments °':>10}  {'axes °':>6}  "
         f"{'≤1 % height':>11}  {'accel mm/f²':>11}  {'s':>5}",
         flush=True,
     )
@@ -276,7 +277,8 @@ def main(argv: list[str] | None = None) -> int:
             rows.append(r)
             print(
                 f"{r['seed']:>3}  {r['mpjpe_mm']:8.1f}  {r['diverged']:8d}  "
-                f"{r['segments_deg']:10.1f}  {100 * r['within_1pct']:10.0f}%  "
+                f"{r['segments_deg']:10.1f}  {r['segment_axes_deg']:6.1f}  "
+                f"{100 * r['within_1pct']:10.0f}%  "
                 f"{r['accel_mm']:11.2f}  {r['wall_s']:5.0f}",
                 flush=True,
             )

@@ -16,6 +16,13 @@
   twist is not observable from the joint set: its reference is the shoulder line.
   ``segment_orientation_rmse_deg`` is the RMSE over frames and the eight limb segments
   (upper/lower arms and legs); trunk and head are reported per segment.
+* **Segment direction error** (degrees, ``segment_direction_rmse_deg``): the angle
+  between the truth's and the fit's proximal → distal lines alone, RMSE over frames and
+  the eight limb segments — the orientation without the twist about the segment's own
+  axis.  Where a limb is straight the twist comes from the next segment (the forearm's
+  from the hand), and the truth's ``hand`` joint is not the visible hand's direction
+  (``docs/design.md``, "Fingers on the template hand"); this figure is free of that, and
+  it is what a retarget that aims each bone at its child joint takes from the fit.
 * **Acceleration error** (mm/frame², ``accel_error_mm``): the mean over the metric
   joints of ``‖Δ²x_fit − Δ²x_truth‖``, ``Δ²x = x(t+1) − 2 x(t) + x(t−1)``, over the
   frames whose two neighbours and itself are fitted (the jitter a viewer sees, as in the
@@ -82,6 +89,8 @@ class Evaluation:
     per_segment_rmse_deg: dict
     per_segment_max_deg: dict
     height_m: float
+    segment_direction_rmse_deg: float = float("nan")  # the long axes alone (see above)
+    per_segment_direction_rmse_deg: dict = field(default_factory=dict)
     curves: dict = field(repr=False, default_factory=dict)
     surface_mm: float = float("nan")  # the metaball surface to the true mesh (see above)
     accel_error_mm: float = float("nan")  # mm per frame², see the module text
@@ -93,11 +102,13 @@ class Evaluation:
             "max_joint_error_pct_height": self.max_joint_error_pct_height,
             "frames_within_1pct_height": self.frames_within_1pct,
             "segment_orientation_rmse_deg": self.segment_orientation_rmse_deg,
+            "segment_direction_rmse_deg": self.segment_direction_rmse_deg,
             "frames": self.frames,
             "diverged_frames": self.diverged_frames,
             "per_joint_mm": self.per_joint_mm,
             "per_segment_rmse_deg": self.per_segment_rmse_deg,
             "per_segment_max_deg": self.per_segment_max_deg,
+            "per_segment_direction_rmse_deg": self.per_segment_direction_rmse_deg,
             "height_m": self.height_m,
             "surface_mm": self.surface_mm,
             "accel_error_mm": self.accel_error_mm,
@@ -146,6 +157,14 @@ def geodesic_deg(Ra: np.ndarray, Rb: np.ndarray) -> np.ndarray:
     """Angle (degrees) of ``Raᵀ Rb`` for stacks of rotations (..., 3, 3)."""
     d = np.linalg.norm(Ra - Rb, axis=(-2, -1)) / (2.0 * np.sqrt(2.0))
     return np.rad2deg(2.0 * np.arcsin(np.clip(d, 0.0, 1.0)))
+
+
+def axis_angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> np.ndarray:
+    """Angle (degrees) between the first columns (the segments' long axes, unit) of two
+    stacks of segment frames (..., 3, 3): the orientation error without the twist."""
+    c = np.sum(Ra[..., :, 0] * Rb[..., :, 0], axis=-1)
+    s = np.linalg.norm(np.cross(Ra[..., :, 0], Rb[..., :, 0]), axis=-1)
+    return np.rad2deg(np.arctan2(s, c))
 
 
 def truth_joints(truth: dict, path: str | Path = "truth.npz") -> tuple[np.ndarray, list]:
@@ -201,6 +220,7 @@ def evaluate(
     ft, choice = segment_frames(truth_xyz, names)
     ff, _ = segment_frames(fit_xyz, names, choice)
     seg_curves = {seg: np.where(ok, geodesic_deg(ft[seg], ff[seg]), np.nan) for seg in SEGMENTS}
+    dir_curves = {seg: np.where(ok, axis_angle_deg(ft[seg], ff[seg]), np.nan) for seg in SEGMENTS}
     n_ok = int(ok.sum())
     d2 = (fit_xyz - truth_xyz)[:, mj]
     d2 = d2[2:] - 2.0 * d2[1:-1] + d2[:-2]  # Δ² of the fit minus Δ² of the truth
@@ -227,12 +247,15 @@ def evaluate(
         per_segment_rmse_deg={s: _rms(c) for s, c in seg_curves.items()},
         per_segment_max_deg={s: _max(c) for s, c in seg_curves.items()},
         height_m=float(height_m),
+        segment_direction_rmse_deg=_rms(np.stack([dir_curves[s] for s in LIMB_SEGMENTS])),
+        per_segment_direction_rmse_deg={s: _rms(c) for s, c in dir_curves.items()},
         accel_error_mm=float(accel.mean()) if accel.size else float("nan"),
         curves={
             "mpjpe_mm": per_frame_mpjpe,
             "max_pct_height": per_frame_max_pct,
             "joint_mm": err_mm,
             **{f"seg_{s}": c for s, c in seg_curves.items()},
+            **{f"dir_{s}": c for s, c in dir_curves.items()},
         },
     )
 

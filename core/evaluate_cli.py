@@ -2,8 +2,8 @@
 
 Prints a readable table; ``--json`` adds one JSON object as the last line of stdout
 (keys: ``mpjpe_mm``, ``max_joint_error_pct_height``, ``segment_orientation_rmse_deg``,
-``frames``, ``diverged_frames``, ``per_joint_mm``, ...); ``--plot`` writes PNG error
-curves.  Metric definitions: :mod:`core.evaluate`.
+``segment_direction_rmse_deg``, ``frames``, ``diverged_frames``, ``per_joint_mm``, ...);
+``--plot`` writes PNG error curves.  Metric definitions: :mod:`core.evaluate`.
 """
 
 from __future__ import annotations
@@ -35,6 +35,8 @@ def format_table(ev) -> str:
         f"({ev.height_m:.3f} m); frames within 1 %: {100 * ev.frames_within_1pct:.1f} %",
         f"segment orientation RMSE     {_fmt(ev.segment_orientation_rmse_deg)} deg "
         "(upper/lower arms and legs)",
+        f"segment direction RMSE       {_fmt(ev.segment_direction_rmse_deg)} deg "
+        "(their long axes alone, without the twist)",
         f"metaball surface             {_fmt(ev.surface_mm, 1)} mm from the true mesh "
         "(mean, by area)",
         f"acceleration error           {_fmt(ev.accel_error_mm, 2)} mm/frame² "
@@ -43,9 +45,10 @@ def format_table(ev) -> str:
         f"{'joint':<14}{'mean mm':>10}",
     ]
     lines += [f"{j:<14}{_fmt(v):>10}" for j, v in ev.per_joint_mm.items()]
-    lines += ["", f"{'segment':<14}{'RMSE deg':>10}{'max deg':>10}"]
+    lines += ["", f"{'segment':<14}{'RMSE deg':>10}{'max deg':>10}{'axis deg':>10}"]
     lines += [
         f"{s:<14}{_fmt(ev.per_segment_rmse_deg[s]):>10}{_fmt(ev.per_segment_max_deg[s]):>10}"
+        f"{_fmt(ev.per_segment_direction_rmse_deg.get(s, math.nan)):>10}"
         for s in ev.per_segment_rmse_deg
     ]
     return "\n".join(lines)

@@ -119,6 +119,31 @@ def test_knee_angle_gives_that_shin_rotation(truth, truth_state):
     )
 
 
+def test_a_twist_counts_in_orientation_but_not_in_direction(truth, truth_state):
+    """The bent left knee turned 5° about the thigh's own axis: the thigh's frame (its
+    twist read from the shin) turns 5°, its long axis not at all; the shin's axis swings
+    round the thigh's and so counts in both figures, never more in direction."""
+    state, _ = truth_state
+    k = state.skeleton.dof_index("l_hip_z")
+    state.theta[:, k] += np.deg2rad(5.0)
+    ev = evaluate_state(state, truth)
+    assert ev.per_segment_rmse_deg["l_thigh"] == pytest.approx(5.0, abs=1e-6)
+    assert ev.per_segment_direction_rmse_deg["l_thigh"] < 1e-6
+    shin_dir = ev.per_segment_direction_rmse_deg["l_shin"]
+    assert 0.5 < shin_dir <= ev.per_segment_rmse_deg["l_shin"] + 1e-9
+    assert ev.to_json()["segment_direction_rmse_deg"] == ev.segment_direction_rmse_deg
+    assert ev.segment_direction_rmse_deg < ev.segment_orientation_rmse_deg
+
+
+def test_a_bend_is_its_angle_in_direction_too(truth, truth_state):
+    state, _ = truth_state
+    state.theta[:, state.skeleton.dof_index("l_knee_x")] += np.deg2rad(2.0)
+    ev = evaluate_state(state, truth)
+    assert ev.per_segment_direction_rmse_deg["l_shin"] == pytest.approx(2.0, abs=1e-6)
+    others = [v for s, v in ev.per_segment_direction_rmse_deg.items() if s != "l_shin"]
+    assert max(others) < 1e-6
+
+
 def test_diverged_frames_are_counted_and_left_out(truth):
     xyz = truth["joints_xyz"]
     fit = xyz.copy()
@@ -156,7 +181,9 @@ def test_cli_json_and_plot(truth, truth_state, tmp_path, capsys):
     assert res["frames"] == 8 and res["diverged_frames"] == 0
     assert set(res["per_joint_mm"]) == set(METRIC_JOINTS)
     assert res["segment_orientation_rmse_deg"] < 1e-4
+    assert res["segment_direction_rmse_deg"] < 1e-4
     assert any("MPJPE" in line and "10.000 mm" in line for line in out)
+    assert any(line.startswith("segment direction RMSE") for line in out)
     assert png.read_bytes()[:4] == b"\x89PNG"
 
 

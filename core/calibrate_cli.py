@@ -8,7 +8,7 @@ from pathlib import Path
 from .bundle import DEFAULT_FREE
 from .calibration_io import read_calibration, write_calibration
 from .camera import INTRINSIC_NAMES
-from .errors import InputError
+from .errors import InputError, check_output
 from .progress import Progress
 
 
@@ -50,7 +50,10 @@ def run(args: argparse.Namespace) -> int:
     from .calibrate import calibrate_scene, compare_to_reference
     from .scene import load_wand
 
-    out = args.output if args.output is not None else args.scene / "calibration.toml"
+    out = check_output(
+        args.output if args.output is not None else args.scene / "calibration.toml",
+        "the calibration",
+    )
     if out.exists() and not args.force:
         raise InputError(
             f"{out}: exists already; pass -o with another file or --force to replace it"

@@ -1,4 +1,6 @@
-"""The one exception type for bad user input."""
+"""The one exception type for bad user input, and the output-path check of the commands."""
+
+from pathlib import Path
 
 
 class InputError(ValueError):
@@ -7,3 +9,32 @@ class InputError(ValueError):
     The message is one plain sentence that names the file and the problem; the
     command line prints it as ``somacap: error: <message>`` and exits with status 2.
     """
+
+
+def check_output(path, what: str, suffix: str | None = None):
+    """Check, before any long work, that a command's output file can be written.
+
+    Parameters
+    ----------
+    path : str or Path, the output file
+    what : what the file holds, for the message (e.g. "the tracks")
+    suffix : the extension it must carry (e.g. ``".npz"``, which numpy would otherwise
+        append to a name without it), or None
+
+    Returns
+    -------
+    Path
+
+    Raises
+    ------
+    InputError
+        when ``path`` is a folder, its folder does not exist, or it lacks ``suffix``.
+    """
+    p = Path(path)
+    if p.is_dir():
+        raise InputError(f"{p}: is a folder; give a file name for {what}")
+    if not p.parent.is_dir():
+        raise InputError(f"{p}: its folder {p.parent} does not exist")
+    if suffix is not None and p.suffix.lower() != suffix:
+        raise InputError(f"{p}: {what} are written as {suffix}; name the file *{suffix}")
+    return p

@@ -119,7 +119,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .errors import InputError
+    from .errors import InputError, check_output
     from .fit import SequenceSettings
     from .fit_scene import run_scene
     from .progress import Progress
@@ -141,7 +141,9 @@ def run(args: argparse.Namespace) -> int:
         from .fit_contours import ContourSettings
 
         csettings = ContourSettings(sigma_px=args.contour_sigma)
-    out = args.output if args.output is not None else scene.root / "fit.json"
+    out = check_output(
+        args.output if args.output is not None else scene.root / "fit.json", "the fitted state"
+    )
     res = run_scene(
         scene,
         observations=args.observations,

@@ -18,11 +18,10 @@ from __future__ import annotations
 
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, check_output
 from .progress import Progress
 from .scene import load_scene
 from .surface import concat, measure_surface, seeds_from_clicks
@@ -78,6 +77,7 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
+    out = check_output(args.output, "the tracks", ".npz")
     scene = load_scene(args.scene)
     cams = scene.calibration()
     if len(cams) < 2:
@@ -128,7 +128,6 @@ def run(args) -> int:
     )
     dt = time.perf_counter() - t1
     flt = filter_trajectories(tr.xyz, scene.fps)
-    out = Path(args.output)
     np.savez_compressed(
         out,
         xyz=flt.xyz,

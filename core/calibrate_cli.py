@@ -53,6 +53,7 @@ def run(args: argparse.Namespace) -> int:
     out = check_output(
         args.output if args.output is not None else args.scene / "calibration.toml",
         "the calibration",
+        makes_folder=True,  # write_calibration creates it
     )
     if out.exists() and not args.force:
         raise InputError(

@@ -11,7 +11,7 @@ class InputError(ValueError):
     """
 
 
-def check_output(path, what: str, suffix: str | None = None):
+def check_output(path, what: str, suffix: str | None = None, makes_folder: bool = False):
     """Check, before any long work, that a command's output file can be written.
 
     Parameters
@@ -20,6 +20,8 @@ def check_output(path, what: str, suffix: str | None = None):
     what : what the file holds, for the message (e.g. "the tracks")
     suffix : the extension it must carry (e.g. ``".npz"``, which numpy would otherwise
         append to a name without it), or None
+    makes_folder : the writer creates a missing folder (then only a folder given as the
+        file is refused)
 
     Returns
     -------
@@ -28,12 +30,13 @@ def check_output(path, what: str, suffix: str | None = None):
     Raises
     ------
     InputError
-        when ``path`` is a folder, its folder does not exist, or it lacks ``suffix``.
+        when ``path`` is a folder, its folder does not exist (unless ``makes_folder``),
+        or it lacks ``suffix``.
     """
     p = Path(path)
     if p.is_dir():
         raise InputError(f"{p}: is a folder; give a file name for {what}")
-    if not p.parent.is_dir():
+    if not makes_folder and not p.parent.is_dir():
         raise InputError(f"{p}: its folder {p.parent} does not exist")
     if suffix is not None and p.suffix.lower() != suffix:
         raise InputError(f"{p}: {what} are written as {suffix}; name the file *{suffix}")

@@ -13,6 +13,8 @@ from tests.conftest import DEFAULT_SCENE
 def test_check_output_accepts_a_file_in_an_existing_folder(tmp_path):
     assert check_output(tmp_path / "tracks.npz", "the tracks", ".npz") == tmp_path / "tracks.npz"
     assert check_output(tmp_path / "fit.json", "the fitted state").name == "fit.json"
+    # a writer that makes its folder (the calibration's) may be given a new one
+    assert check_output(tmp_path / "new" / "c.toml", "the calibration", makes_folder=True)
 
 
 @pytest.mark.parametrize(

@@ -45,6 +45,7 @@ import numpy as np
 
 from .errors import InputError
 from .landmarks import METRIC_JOINTS, SEGMENTS
+from .retarget import angle_between
 
 #: Segment -> reference directions (from joint, to joint), tried in order.
 SEGMENT_REFS = {
@@ -160,11 +161,9 @@ def geodesic_deg(Ra: np.ndarray, Rb: np.ndarray) -> np.ndarray:
 
 
 def axis_angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> np.ndarray:
-    """Angle (degrees) between the first columns (the segments' long axes, unit) of two
-    stacks of segment frames (..., 3, 3): the orientation error without the twist."""
-    c = np.sum(Ra[..., :, 0] * Rb[..., :, 0], axis=-1)
-    s = np.linalg.norm(np.cross(Ra[..., :, 0], Rb[..., :, 0]), axis=-1)
-    return np.rad2deg(np.arctan2(s, c))
+    """Angle (degrees) between the first columns (the segments' long axes) of two stacks
+    of segment frames (..., 3, 3): the orientation error without the twist."""
+    return np.rad2deg(angle_between(Ra[..., :, 0], Rb[..., :, 0]))
 
 
 def truth_joints(truth: dict, path: str | Path = "truth.npz") -> tuple[np.ndarray, list]:

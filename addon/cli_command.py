@@ -186,9 +186,15 @@ def _fit_options(args) -> dict:
     }
 
 
+def _check_out(out: Path) -> None:
+    """Refuse an unusable ``--out`` before the fit's minutes (``_save`` makes its folder)."""
+    _core.errors.check_output(out, "the take", ".blend", makes_folder=True)
+
+
 def cmd_fit(args) -> int:
     from . import pipeline
 
+    _check_out(args.out)
     fresh = [
         name
         for name, on in (
@@ -226,6 +232,7 @@ def cmd_fit(args) -> int:
 def cmd_retarget(args) -> int:
     from . import pipeline
 
+    _check_out(args.out)
     state = pipeline.read_state(args.state)
     take = args.take or args.state.stem
     print(_take(state, take, args.target, args.out, args.export, foot_lock=args.foot_lock))

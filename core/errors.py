@@ -39,5 +39,5 @@ def check_output(path, what: str, suffix: str | None = None, makes_folder: bool 
     if not makes_folder and not p.parent.is_dir():
         raise InputError(f"{p}: its folder {p.parent} does not exist")
     if suffix is not None and p.suffix.lower() != suffix:
-        raise InputError(f"{p}: {what} are written as {suffix}; name the file *{suffix}")
+        raise InputError(f"{p}: the file for {what} must end in {suffix}")
     return p

@@ -22,8 +22,8 @@ def test_check_output_accepts_a_file_in_an_existing_folder(tmp_path):
     [
         (".", ".npz", "is a folder"),
         ("missing/tracks.npz", ".npz", "does not exist"),
-        ("tracks", ".npz", "*.npz"),
-        ("tracks.json", ".npz", "*.npz"),
+        ("tracks", ".npz", "must end in .npz"),
+        ("tracks.json", ".npz", "must end in .npz"),
     ],
 )
 def test_check_output_names_the_path_and_the_problem(tmp_path, name, suffix, words):

@@ -1,7 +1,7 @@
 """How far one fit's figures move when its input moves a little.
 
 ``python -m bench.fit_spread [SCENE] [--runs N] [--click-noise PX] [--cues C] [--jobs J]
-[--flow-sigma PX] [--setting NAME=VALUE ...]``
+[--flow-sigma PX] [--flow NAME=VALUE ...] [--setting NAME=VALUE ...]``
 
 The sequence fit makes discrete choices — which camera a part uses, whether a limb
 search's move is kept, which corners the texture flow lifts — so on a scene where a limb
@@ -14,8 +14,9 @@ under what a person clicking reaches).  It prints each run's MPJPE, diverged fra
 limb-segment RMSE and share of frames within 1 % of the height, then the median and
 range over the runs, overall and per joint.  ``--flow-sigma`` sets the texture flow's
 a-priori σ (:class:`core.fit_flow.FlowSettings` ``sigma_px``), so that two settings can
-be compared by their medians rather than by one run each; ``--setting`` likewise sets a
-field of :class:`core.fit_types.SequenceSettings` (VALUE in JSON: ``shape_scales=true``).
+be compared by their medians rather than by one run each; ``--flow`` sets any field of
+:class:`core.fit_flow.FlowSettings` (VALUE in JSON: ``reference=false``) and
+``--setting`` one of :class:`core.fit_types.SequenceSettings` (``shape_scales=true``).
 
 ``--drag JOINT,...`` does, before each fit, what a user dragging those joints' empties
 in a side view of Blender's viewport does at best (:func:`dragged_clicks`): each joint's
@@ -95,10 +96,12 @@ def fit_once(
     flow_sigma_px: float | None = None,
     settings: dict | None = None,
     drag: tuple = (),
+    flow: dict | None = None,
 ) -> dict:
     """One in-process fit of the scene's tracks with perturbed clicks; its figures.
     ``flow_sigma_px``: the texture flow's σ (None: ``FlowSettings``' default);
-    ``settings``: :class:`SequenceSettings` fields (None: its defaults)."""
+    ``settings``: :class:`SequenceSettings` fields (None: its defaults); ``flow``:
+    :class:`core.fit_flow.FlowSettings` fields (None: its defaults)."""
     from core.blas_threads import single_blas_thread
     from core.evaluate import evaluate_state
     from core.fit_flow import FlowSettings
@@ -111,7 +114,10 @@ def fit_once(
     if drag:
         clicks = dragged_clicks(clicks, scene.calibration(), scene.truth, drag)
     scene.clicks = lambda: clicks  # the fit's initialisation reads them from here
-    flow = "auto" if flow_sigma_px is None else FlowSettings(sigma_px=flow_sigma_px)
+    flow = dict(flow or {})
+    if flow_sigma_px is not None:
+        flow["sigma_px"] = flow_sigma_px
+    flow = FlowSettings(**flow) if flow else "auto"
     t0 = time.perf_counter()
     with single_blas_thread():
         res = run_scene(
@@ -138,26 +144,32 @@ def fit_once(
     }
 
 
-def parse_settings(items: list[str], error) -> dict:
-    """``["name=json", ...]`` -> ``{name: value}`` of :class:`SequenceSettings` fields
-    (scalar values); ``error(message)`` on a malformed item, an unknown field or a
-    list or object value."""
+def parse_settings(items: list[str], error, kind=None, flag: str = "--setting") -> dict:
+    """``["name=json", ...]`` -> ``{name: value}`` of the fields of the dataclass
+    ``kind`` (default :class:`core.fit_types.SequenceSettings`; scalar values, or a list
+    of them for a tuple field); ``error(message)`` on a malformed item, an unknown field
+    or an object value.  ``flag`` names the option in the messages."""
     from dataclasses import fields
 
     from core.fit_types import SequenceSettings
 
-    known = {f.name for f in fields(SequenceSettings)}
+    kind = SequenceSettings if kind is None else kind
+    known = {f.name: f for f in fields(kind)}
     out = {}
     for item in items:
         name, sep, value = item.partition("=")
         if not sep or name not in known:
-            error(f"--setting {item!r}: expected NAME=VALUE with NAME a SequenceSettings field")
+            error(f"{flag} {item!r}: expected NAME=VALUE with NAME a {kind.__name__} field")
         try:
             out[name] = json.loads(value)
         except json.JSONDecodeError:
-            error(f'--setting {item!r}: VALUE is not JSON (true, 0.5, "fit")')
-        if isinstance(out.get(name), (list, dict)):
-            error(f"--setting {item!r}: only a number, true/false, null or a string")
+            error(f'{flag} {item!r}: VALUE is not JSON (true, 0.5, "fit")')
+        v = out.get(name)
+        listed = isinstance(v, list) and "tuple" in str(known[name].type)
+        if isinstance(v, dict) or (isinstance(v, list) and not listed):
+            error(f"{flag} {item!r}: only a number, true/false, null or a string")
+        if listed:
+            out[name] = tuple(v)
     return out
 
 
@@ -227,6 +239,13 @@ def main(argv: list[str] | None = None) -> int:
         help="a SequenceSettings field, VALUE in JSON (repeatable)",
     )
     ap.add_argument(
+        "--flow",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="a FlowSettings field, VALUE in JSON (repeatable): reference=false",
+    )
+    ap.add_argument(
         "--drag",
         default="",
         metavar="JOINT,...",
@@ -237,10 +256,13 @@ def main(argv: list[str] | None = None) -> int:
     drag = tuple(j for j in args.drag.split(",") if j)
     if args.runs < 1 or args.jobs < 1:
         ap.error("--runs and --jobs must be at least 1")
-    if args.flow_sigma is not None and args.cues != "both":
-        ap.error("--flow-sigma needs --cues both (the flow runs only with both cues)")
+    if (args.flow_sigma is not None or args.flow) and args.cues != "both":
+        ap.error("--flow-sigma and --flow need --cues both (the flow runs only with both cues)")
+
+    from core.fit_flow import FlowSettings
 
     settings = parse_settings(args.setting, ap.error)
+    flow = parse_settings(args.flow, ap.error, FlowSettings, "--flow")
     scene, _ = _resolve(args.scene, RENDERS)
     tracks = scene_tracks(scene)
     print(
@@ -248,6 +270,7 @@ def main(argv: list[str] | None = None) -> int:
         f"N(0, {args.click_noise} px) in runs 1..{args.runs - 1}"
         + ("" if args.flow_sigma is None else f", flow σ {args.flow_sigma} px")
         + "".join(f", {k} = {v!r}" for k, v in settings.items())
+        + "".join(f", flow {k} = {v!r}" for k, v in flow.items())
         + (f", dragged in depth onto the truth: {', '.join(drag)}" if drag else ""),
         flush=True,
     )
@@ -269,6 +292,7 @@ def main(argv: list[str] | None = None) -> int:
                 args.flow_sigma,
                 settings,
                 drag,
+                flow,
             )
             for k in range(args.runs)
         ]

@@ -306,6 +306,17 @@ def fit_sequence(
         )
         fx.balls, fx.radii = fitted_balls, fitted_balls.radii.copy()
         refit_shape_frames()
+    if fx.flow is not None and fx.flow.cfg.reference and not fx.div[f0]:
+        cf = fx.cframe(f0)
+        fx.flow.set_reference(
+            skel,
+            fx.balls.copy(radii=fx.radii),
+            fx.theta[f0],
+            fx.root[f0],
+            fx.s,
+            f0,
+            None if cf is None else cf.masks(),
+        )
     # 2) motion forwards and backwards from the clicked frame ----------------------
     done = len(shape_range)
     for direction, order in ((1, range(shape_range[-1] + 1, nf)), (-1, range(f0 - 1, -1, -1))):

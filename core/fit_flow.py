@@ -28,6 +28,20 @@ lifted depth carries that error, which moves the projection little for the rotat
 corner lives through.  By default the flow is used only in frames without enough 3-D
 points (``without_points_only``).
 
+Corners lost and lifted again carry the pose error of the frame they are lifted at,
+so on a rig without 3-D points an error, once made, stays.  The *texture reference*
+(``reference``) holds the clicked frame's texture: its corners are lifted onto the
+clicked pose (:meth:`FlowAnchors.set_reference`) and, in every later frame where the
+last fitted pose shows them, matched by least squares (:func:`core.lsm.match`, affine +
+radiometric) from the clicked frame's image into the new one.  Each starts at its own
+last match (else at its projection on the last fitted pose), moved by the image's
+motion between the neighbouring frames (Lucas–Kanade), with the affine part the model
+predicts from the surface's tangents (:func:`surface_tangents`,
+:func:`local_affine`) or its last match's.  A matched reference corner is an
+observation of the same form as a followed one.  A corner whose match lies more than
+``reference_drop_px`` from its projection on a frame's accepted fit (a false lock on
+like texture, or a point hidden behind a part the model misplaces) is not matched again.
+
 Frames: world Z up, metres; image pixels with integer coordinates at pixel centres.
 """
 
@@ -75,6 +89,23 @@ class FlowSettings:
     #: lie on whatever the image shows there and move the limb with it (make demo's
     #: walk 10.93 -> 13.63 mm when used in every frame)
     without_points_only: bool = True
+    #: a texture reference from the clicked frame: its corners, lifted onto the clicked
+    #: (most trusted) pose, are matched by least squares straight from the clicked
+    #: frame's image into each later frame's, so their surface points carry no error the
+    #: fit made since (docs/design.md, "A texture reference from the clicked frame";
+    #: bench.fit_spread, off -> on, MPJPE mm): walk_ortho3 runs 0-3 11.77 / 13.32 /
+    #: 13.10 / 13.06 -> 10.3 / 11.0 / 11.2 / 12.3; dance_ortho3 median of 4 27.1 -> 27.7
+    reference: bool = True
+    reference_sigma_px: float = 1.5
+    reference_depth_m: float = 0.03  # a point deeper than the rendered surface is hidden
+    reference_search_px: float = 3.0  # LSM's largest move from its start, pixels
+    reference_max_sigma_px: float = 0.3  # LSM's largest σ of a matched point, pixels
+    #: a reference corner whose match lies farther than this from its projection on
+    #: the frame's accepted fit is dropped for good (a false lock, or hidden behind a
+    #: part the model misplaces), pixels; None: kept
+    reference_drop_px: float | None = 4.0
+    #: the parts (bone names) the reference is kept on; None: all
+    reference_parts: tuple | None = None
 
 
 @dataclass
@@ -163,6 +194,7 @@ def lift_corners(
     cfg: FlowSettings,
     rays: np.ndarray | None = None,
     keep=None,
+    ren=None,
 ):
     """Corners of one camera's image on the fitted body, lifted onto its surface.
 
@@ -178,6 +210,7 @@ def lift_corners(
         that keep their surface points: those still on their part's visible region and
         within ``cfg.keep_px`` of their point's projection stay, and new corners only
         fill their parts up to ``cfg.per_part``, ``cfg.min_distance_px`` from them
+    ren : PartRender of this pose in this camera, or None (rendered here)
 
     Returns
     -------
@@ -185,10 +218,9 @@ def lift_corners(
     corners first
     """
     pose = forward(skel, np.asarray(theta, float)[None], np.asarray(root, float)[None], s)
-    Rw, cw = world_frames(skel, pose, balls, s)
     n_parts = len(skel.bone_names)
-    rays = camera_rays(camera) if rays is None else rays
-    ren = render_parts(camera, cw[0], Rw[0], balls.visible, balls.bone, n_parts, rays=rays)
+    if ren is None:
+        ren = render_body(skel, balls, pose, s, camera, rays)
     vis = ren.visibility_index
     kernel = np.ones((2 * cfg.erode_px + 1,) * 2, np.uint8)
     fg = None
@@ -245,9 +277,82 @@ def lift_corners(
     return (np.concatenate([k_uv, uv[ok]]), np.concatenate([k_bone, b]), np.concatenate([k_q0, q0]))
 
 
-def follow_corners(img0: np.ndarray, img1: np.ndarray, uv: np.ndarray, cfg: FlowSettings):
+def render_body(skel: Skeleton, balls: Metaballs, pose, s, camera: Camera, rays=None):
+    """The part render (:class:`core.model_render.PartRender`) of the body in ``pose``
+    (:func:`core.skeleton.forward` of one frame) seen by ``camera``."""
+    Rw, cw = world_frames(skel, pose, balls, s)
+    rays = camera_rays(camera) if rays is None else rays
+    n_parts = len(skel.bone_names)
+    return render_parts(camera, cw[0], Rw[0], balls.visible, balls.bone, n_parts, rays=rays)
+
+
+def visible_points(skel: Skeleton, pose, camera: Camera, ren, bone, q0, depth_tol: float):
+    """Which bone-fixed points (``bone`` (K,), ``q0`` (K, 3) metres) are seen in a
+    render: ``(uv (K, 2) pixels, seen (K,) bool)`` — projected inside the image onto
+    their own part, no more than ``depth_tol`` metres behind its rendered surface."""
+    Rb, pb = bone_frames(skel, pose)
+    x = pb[0, bone] + np.einsum("nij,nj->ni", Rb[0, bone], q0)
+    uv = camera.project(x)
+    w, h = camera.size
+    inside = np.all(np.isfinite(uv), axis=1)
+    inside &= (uv[:, 0] >= 0) & (uv[:, 0] <= w - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= h - 1)
+    seen = np.zeros(len(bone), bool)
+    if inside.any():
+        iu = np.rint(uv[inside, 0]).astype(int)
+        iv = np.rint(uv[inside, 1]).astype(int)
+        dist = np.linalg.norm(x[inside] - camera.center, axis=1)
+        seen[inside] = (ren.part_id[iv, iu] == bone[inside]) & (
+            dist <= ren.depth[iv, iu] + depth_tol
+        )
+    return uv, seen
+
+
+def surface_tangents(skel: Skeleton, pose, camera: Camera, ren, uv, bone):
+    """The rendered surface's offsets (K, 2, 3), metres in the bone's frame, that a
+    step of one pixel along u and along v from ``uv`` (K, 2) covers (central
+    differences of the z-buffer's surface points; where a neighbour is not on the
+    same part, the step perpendicular to the ray at the point's depth)."""
+    Rb, pb = bone_frames(skel, pose)
+    w, h = camera.size
+    iu = np.clip(np.rint(uv[:, 0]).astype(int), 1, w - 2)
+    iv = np.clip(np.rint(uv[:, 1]).astype(int), 1, h - 2)
+    out = np.zeros((len(uv), 2, 3))
+    for a, (du, dv) in enumerate(((1, 0), (0, 1))):
+        ends = []
+        for sgn in (-1, 1):
+            ju, jv = iu + sgn * du, iv + sgn * dv
+            z = ren.depth[jv, ju]
+            flat = ~np.isfinite(z) | (ren.part_id[jv, ju] != bone)
+            z = np.where(flat, ren.depth[iv, iu], z)
+            _, d = camera.rays(np.stack([ju, jv], 1).astype(float))
+            ends.append(camera.center + z[:, None] * d)
+        out[:, a] = np.einsum("nji,nj->ni", Rb[0, bone], (ends[1] - ends[0]) / 2.0)
+    return out
+
+
+def local_affine(skel: Skeleton, pose, camera: Camera, bone, q0, tangents):
+    """The image of a template pixel step (K, 2, 2): columns the projected moves of
+    the bone-fixed points ``q0`` (K, 3) along ``tangents`` (K, 2, 3) in ``pose``
+    (central differences, pixels per pixel) — LSM's start of the affine part."""
+    Rb, pb = bone_frames(skel, pose)
+    A = np.zeros((len(bone), 2, 2))
+    for a in range(2):
+        ends = [
+            camera.project(
+                pb[0, bone] + np.einsum("nij,nj->ni", Rb[0, bone], q0 + sgn * tangents[:, a])
+            )
+            for sgn in (-1, 1)
+        ]
+        A[:, :, a] = (ends[1] - ends[0]) / 2.0
+    return A
+
+
+def follow_corners(
+    img0: np.ndarray, img1: np.ndarray, uv: np.ndarray, cfg: FlowSettings, guess=None
+):
     """Pyramidal Lucas–Kanade from ``img0`` to ``img1`` (uint8 (H, W)) of corners
-    ``uv`` (K, 2) pixels, checked backwards: ``(uv1 (K, 2), ok (K,) bool)``."""
+    ``uv`` (K, 2) pixels, started at ``guess`` (K, 2) pixels when given, checked
+    backwards: ``(uv1 (K, 2), ok (K,) bool)``."""
     if not len(uv):
         return np.zeros((0, 2)), np.zeros(0, bool)
     p0 = uv.astype(np.float32).reshape(-1, 1, 2)
@@ -256,8 +361,15 @@ def follow_corners(img0: np.ndarray, img1: np.ndarray, uv: np.ndarray, cfg: Flow
         maxLevel=cfg.levels,
         criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01),
     )
-    p1, st1, _ = cv2.calcOpticalFlowPyrLK(img0, img1, p0, None, **lk)
-    pb, st2, _ = cv2.calcOpticalFlowPyrLK(img1, img0, p1, None, **lk)
+    if guess is None:
+        p1, st1, _ = cv2.calcOpticalFlowPyrLK(img0, img1, p0, None, **lk)
+        pb, st2, _ = cv2.calcOpticalFlowPyrLK(img1, img0, p1, None, **lk)
+    else:  # started at the guess; backwards from the start the forward pass corrected
+        start = cv2.OPTFLOW_USE_INITIAL_FLOW
+        g = guess.astype(np.float32).reshape(-1, 1, 2)
+        p1, st1, _ = cv2.calcOpticalFlowPyrLK(img0, img1, p0, g.copy(), flags=start, **lk)
+        back = p0 - (p1 - g)
+        pb, st2, _ = cv2.calcOpticalFlowPyrLK(img1, img0, p1, back, flags=start, **lk)
     fb = np.linalg.norm((pb - p0).reshape(-1, 2), axis=1)
     h, w = img0.shape
     uv1 = p1.reshape(-1, 2).astype(float)
@@ -275,6 +387,10 @@ def follow_corners(img0: np.ndarray, img1: np.ndarray, uv: np.ndarray, cfg: Flow
 
 class FlowAnchors:
     """Corners lifted onto the last fitted frame, followed into the next on request.
+
+    With ``settings.reference``, corners lifted onto the clicked frame
+    (:meth:`set_reference`) are also matched from that frame's image straight into
+    each frame asked for.
 
     Parameters
     ----------
@@ -299,12 +415,48 @@ class FlowAnchors:
         self._lifted: list = []
         self._cache: dict = {}
         self._followed: dict = {}  # frame -> per camera (uv, bone, q0) followed there
+        #: per camera (image, uv, bone, q0, tangents) of the reference frame
+        self._ref: list = []
+        self._ref_alive: list = []  # per camera (M,) bool: not dropped
+        #: per camera (index into _ref, uv and affine part at self.frame)
+        self._ref_seen: list = []
+        self._ref_matched: dict = {}  # frame -> per camera (index, uv, affine) matched
 
     def clear(self) -> None:
         self.frame = None
         self._lifted = []
         self._cache = {}
         self._followed = {}
+        self._ref_seen = []
+        self._ref_matched = {}
+
+    def set_reference(
+        self,
+        skel: Skeleton,
+        balls: Metaballs,
+        theta,
+        root,
+        s,
+        frame: int,
+        foreground: list | None = None,
+    ) -> None:
+        """Lift every camera's corners of ``frame`` (the clicked one) onto the fitted
+        body and keep them, with the images, as the texture reference."""
+        self._ref, self._ref_alive = [], []
+        pose = forward(skel, np.asarray(theta, float)[None], np.asarray(root, float)[None], s)
+        for c, cam in enumerate(self.cameras):
+            fg = None if foreground is None else foreground[c]
+            img = np.array(self.image(c, frame))
+            ren = render_body(skel, balls, pose, s, cam, self.rays[c])
+            uv, bone, q0 = lift_corners(
+                skel, balls, theta, root, s, cam, img, fg, self.cfg, self.rays[c], ren=ren
+            )
+            if self.cfg.reference_parts is not None:
+                on = np.isin(np.asarray(skel.bone_names)[bone], self.cfg.reference_parts)
+                uv, bone, q0 = uv[on], bone[on], q0[on]
+            tan = surface_tangents(skel, pose, cam, ren, uv, bone)
+            self._ref.append((img, uv, bone, q0, tan))
+            self._ref_alive.append(np.ones(len(bone), bool))
 
     def set(
         self,
@@ -320,10 +472,13 @@ class FlowAnchors:
         (``foreground`` (C) of (H, W) bool or None per camera); with
         ``settings.persist`` the corners followed into ``frame`` keep their points."""
         followed = self._followed.get(frame) if self.cfg.persist else None
+        matched = self._ref_matched.get(frame)
         self.clear()
         self.frame = frame
+        pose = forward(skel, np.asarray(theta, float)[None], np.asarray(root, float)[None], s)
         for c, cam in enumerate(self.cameras):
             fg = None if foreground is None else foreground[c]
+            ren = render_body(skel, balls, pose, s, cam, self.rays[c])
             self._lifted.append(
                 lift_corners(
                     skel,
@@ -337,16 +492,72 @@ class FlowAnchors:
                     self.cfg,
                     self.rays[c],
                     None if followed is None else followed[c],
+                    ren,
                 )
             )
+            if self.cfg.reference and c < len(self._ref):
+                _, _, bone, q0, tan = self._ref[c]
+                uv, seen = visible_points(
+                    skel, pose, cam, ren, bone, q0, self.cfg.reference_depth_m
+                )
+                i = np.flatnonzero(seen & self._ref_alive[c])
+                A = local_affine(skel, pose, cam, bone[i], q0[i], tan[i])
+                uv = uv[i]
+                if matched is not None and len(matched[c][0]):  # start where matched
+                    mi, muv, mA = matched[c]
+                    at = np.searchsorted(mi, i)
+                    hit = (at < len(mi)) & (mi[np.minimum(at, len(mi) - 1)] == i)
+                    drop = self.cfg.reference_drop_px
+                    if drop is not None:
+                        off = np.zeros(len(i), bool)
+                        off[hit] = np.linalg.norm(uv[hit] - muv[at[hit]], axis=1) > drop
+                        self._ref_alive[c][i[off]] = False
+                        keep = ~off
+                        i, uv, A, hit, at = i[keep], uv[keep], A[keep], hit[keep], at[keep]
+                    uv[hit], A[hit] = muv[at[hit]], mA[at[hit]]
+                self._ref_seen.append((i, uv, A))
+
+    def _reference_matches(self, frame: int):
+        """The reference corners seen at the stored frame, matched into ``frame``:
+        per camera ``(camera, bone (K,), q0 (K, 3), uv (K, 2))``.  Each starts at its
+        match in the stored frame (else its projection on the stored pose) moved as the
+        image moved there (Lucas–Kanade between the neighbouring frames), with that
+        match's affine part (else the model's), and is matched by least squares from
+        the reference frame's image."""
+        from .lsm import match
+
+        out, matched = [], []
+        for c, (idx, guess, A) in enumerate(self._ref_seen):
+            matched.append((np.zeros(0, int), np.zeros((0, 2)), np.zeros((0, 2, 2))))
+            if not len(idx):
+                continue
+            img0, uv0, bone, q0, _ = self._ref[c]
+            img1 = self.image(c, frame)
+            moved, ok = follow_corners(self.image(c, self.frame), img1, guess, self.cfg)
+            start = np.where(ok[:, None], moved, guess)
+            res = match(
+                img0,
+                img1,
+                uv0[idx],
+                start,
+                affine=A,
+                max_shift_px=self.cfg.reference_search_px,
+                max_sigma_px=self.cfg.reference_max_sigma_px,
+            )
+            k = res.status == 0
+            out.append((c, bone[idx[k]], q0[idx[k]], res.uv[k]))
+            matched[c] = (idx[k], res.uv[k], res.affine[k])
+        self._ref_matched[frame] = matched
+        return out
 
     def observations(self, frame: int) -> FlowObs | None:
-        """The lifted corners followed into ``frame`` (the stored frame ± 1), or None."""
+        """The lifted corners followed into ``frame`` (the stored frame ± 1), and the
+        reference's matched there, or None."""
         if self.frame is None or abs(frame - self.frame) != 1:
             return None
         if frame in self._cache:
             return self._cache[frame]
-        bone, q0, cam, uv = [], [], [], []
+        bone, q0, cam, uv, sig = [], [], [], [], []
         followed = []
         for c, (uv0, b, q) in enumerate(self._lifted):
             if not len(uv0):
@@ -358,16 +569,22 @@ class FlowAnchors:
             q0.append(q[ok])
             uv.append(uv1[ok])
             cam.append(np.full(int(ok.sum()), c))
+            sig.append(np.full(int(ok.sum()), self.cfg.sigma_px))
+        for c, b, q, u in self._reference_matches(frame):
+            bone.append(b)
+            q0.append(q)
+            uv.append(u)
+            cam.append(np.full(len(b), c))
+            sig.append(np.full(len(b), self.cfg.reference_sigma_px))
         obs = None
         if bone and sum(len(b) for b in bone):
-            K = sum(len(b) for b in bone)
             obs = FlowObs(
                 self.cameras,
                 np.concatenate(bone),
                 np.concatenate(q0),
                 np.concatenate(cam),
                 np.concatenate(uv),
-                np.full(K, self.cfg.sigma_px),
+                np.concatenate(sig),
                 self.cfg.robust_scale,
             )
         self._cache[frame] = obs

@@ -117,6 +117,44 @@ def test_settings_are_sequence_settings_fields_in_json():
         parse_settings(['fit={"max_nfev": 3}'], error)
 
 
+def test_flow_settings_are_flow_settings_fields_a_tuple_from_a_list():
+    from core.fit_flow import FlowSettings
+
+    def error(msg):
+        raise ValueError(msg)
+
+    got = parse_settings(
+        ["reference=false", 'reference_parts=["pelvis", "spine"]'], error, FlowSettings, "--flow"
+    )
+    assert got == {"reference": False, "reference_parts": ("pelvis", "spine")}
+    FlowSettings(**got)
+    with pytest.raises(ValueError, match="--flow 'sigma=1': expected NAME=VALUE with NAME a Flow"):
+        parse_settings(["sigma=1"], error, FlowSettings, "--flow")
+    with pytest.raises(ValueError, match="only a number"):
+        parse_settings(["sigma_px=[1, 2]"], error, FlowSettings, "--flow")
+
+
+def test_the_flow_settings_reach_the_pipeline(monkeypatch):
+    seen = {}
+
+    class Stop(Exception):
+        pass
+
+    def fake_run_scene(scene, **kw):
+        seen.update(kw)
+        raise Stop
+
+    import core.fit_scene
+
+    monkeypatch.setattr(core.fit_scene, "run_scene", fake_run_scene)
+    with pytest.raises(Stop):
+        fit_once(SCENE, "unused.npz", "both", 0.5, 0, 3.0, flow={"reference": False})
+    assert seen["flow"].sigma_px == 3.0 and seen["flow"].reference is False
+    with pytest.raises(Stop):
+        fit_once(SCENE, "unused.npz", "both", 0.5, 0)
+    assert seen["flow"] == "auto"
+
+
 def test_dragged_clicks_move_only_the_depth_onto_the_truth():
     """A knee clicked 2 px apart in the outer cameras: its intersection is off in depth;
     dragged, it moves along its long axis only, to where no error is left along it, and

@@ -272,3 +272,79 @@ def test_foreground_at_another_resolution_is_resized():
     every, _, _ = lift_corners(skel, balls, theta, root, s, cam, img, None, FlowSettings(), rays)
     assert 0 < len(uv) < len(every)
     assert uv[:, 0].max() < w / 2
+
+
+def test_reference_corners_keep_the_clicked_frames_points_where_the_fit_drifted():
+    """With ``reference``, the corners lifted onto the clicked frame are matched from
+    its image into a later frame: they land on their points' true projections even
+    when the pose the flow was last set to is turned 0.12 rad away from the truth,
+    while the corners lifted onto that pose carry its error (the texture's
+    wavelengths, 4–7 cm, bound the matches' precision here)."""
+    skel, s, balls, theta0, root0 = _body()
+    cams = cameras()
+    rays = [camera_rays(c) for c in cams]
+    yaw = skel.dof_index("pelvis_z")
+    thetas = [theta0.copy() for _ in range(3)]
+    for f, th in enumerate(thetas):
+        th[yaw] += 0.12 * f  # the body turns 0.12 rad a frame
+        th[skel.dof_index("r_knee_x")] += 0.05 * f
+    roots = [root0 + np.array([0.01 * f, 0.0, 0.0]) for f in range(3)]
+    imgs = {
+        (c, f): _textured(skel, balls, thetas[f], roots[f], s, cam, rays[c])
+        for c, cam in enumerate(cams)
+        for f in range(3)
+    }
+    drifted = thetas[1].copy()
+    drifted[yaw] += 0.12  # the fit of frame 1 turned as far again
+
+    def residual_px(obs, ref):
+        rows = np.isclose(obs.sigma, 2.5) == ref
+        sub = FlowObs(
+            cams, obs.bone[rows], obs.q0[rows], obs.camera[rows], obs.uv[rows], obs.sigma[rows]
+        )
+        r = sub.residuals(skel, thetas[2], roots[2], s, jacobians=False)[0]
+        return np.linalg.norm(r, axis=1)
+
+    cfg = FlowSettings(reference=True, reference_sigma_px=2.5)
+    a = FlowAnchors(cams, lambda c, f: imgs[c, f], cfg, rays=rays)
+    a.set_reference(skel, balls, thetas[0], roots[0], s, 0)
+    a.set(skel, balls, drifted, roots[1], s, 1)
+    obs = a.observations(2)
+    ref, chain = residual_px(obs, True), residual_px(obs, False)
+    assert len(ref) > 100, len(ref)
+    # 0.33 / 0.82 px at the median / 90th percentile, against 1.41 / 2.23 px
+    assert np.median(ref) < 0.5 and np.percentile(ref, 90) < 1.2, np.percentile(ref, [50, 90])
+    assert np.median(chain) > 3 * np.median(ref), np.median(chain)  # lifted when drifted
+    off = FlowSettings(reference=False, reference_sigma_px=2.5)
+    plain = FlowAnchors(cams, lambda c, f: imgs[c, f], off, rays=rays)
+    plain.set_reference(skel, balls, thetas[0], roots[0], s, 0)
+    plain.set(skel, balls, drifted, roots[1], s, 1)
+    assert not np.isclose(plain.observations(2).sigma, 2.5).any()  # switched off
+
+
+def test_a_reference_corner_far_from_the_accepted_fit_is_dropped_for_good():
+    """A reference corner matched into a frame whose accepted fit projects its point
+    more than ``reference_drop_px`` away is not matched again."""
+    skel, s, balls, theta0, root0 = _body()
+    cams = cameras()[1:2]
+    rays = [camera_rays(c) for c in cams]
+    yaw = skel.dof_index("pelvis_z")
+    thetas = [theta0.copy() for _ in range(3)]
+    for f, th in enumerate(thetas):
+        th[yaw] += 0.05 * f
+    imgs = {(0, f): _textured(skel, balls, thetas[f], root0, s, cams[0], rays[0]) for f in range(3)}
+    cfg = FlowSettings(reference_drop_px=4.0)
+    alive = {}
+    for turn in (0.0, 0.4):
+        a = FlowAnchors(cams, lambda c, f: imgs[c, f], cfg, rays=rays)
+        a.set_reference(skel, balls, thetas[0], root0, s, 0)
+        a.set(skel, balls, thetas[0], root0, s, 0)
+        matched = a.observations(1)
+        assert np.isclose(matched.sigma, cfg.reference_sigma_px).sum() > 50
+        accepted = thetas[1].copy()
+        accepted[yaw] += turn  # the frame's fit, right or turned away
+        a.set(skel, balls, accepted, root0, s, 1)
+        alive[turn] = a._ref_alive[0].copy()
+        assert not np.isin(np.flatnonzero(~alive[turn]), a._ref_seen[0][0]).any()
+    assert alive[0.0].all()
+    assert (~alive[0.4]).sum() > 50, (~alive[0.4]).sum()

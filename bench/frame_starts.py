@@ -1,6 +1,6 @@
 """Where each frame's fit lands from other starts, and whether its criteria could choose.
 
-``python -m bench.frame_starts [SCENE] [--frames N]``
+``python -m bench.frame_starts [SCENE] [--frames N] [--probe A-B] [--click-draw K]``
 
 A frame's fit starts from the motion model's prediction.  This probe fits every frame
 with points (after the shape frames) also from three other starts — the previous
@@ -12,9 +12,13 @@ a copy of the fitter's state; the sequence goes on from the prediction's fit, as
 default fit does.  Per frame and start it prints the fit's MPJPE against the truth, its
 explain cost (m², the frame's criterion with points), the share of points it leaves
 unexplained and the pixels where its body and the foreground disagree (the criterion of
-frames fitted from contours alone), and the truth's pose's own disagreement.  If no
-start keeps a lost scene, or the criteria cannot tell the truth's fit from the others,
-the starts are not the fix.
+frames fitted from contours alone), the two joints furthest off, and the truth's pose's
+own disagreement.  If no start keeps a lost scene, or the criteria cannot tell the
+truth's fit from the others, the starts are not the fix.  A frame fitted from contours
+alone (the orthogonal rig) already tries the previous pose and the extrapolation
+(``contour_starts``), so the probe adds only the truth's pose there.  ``--probe A-B``
+limits the probe to those frames (the rest run as the default fit), ``--click-draw K``
+moves the clicks as :mod:`bench.fit_spread`'s run K does.
 
 A SCENE is a :data:`bench.fit.STUDIO_SCENES` name with its tracks under ``out/bench_fit``
 (default ``dance_line3``, fitted on its first ``--frames`` frames, default 10).
@@ -29,6 +33,7 @@ from contextlib import contextmanager
 import numpy as np
 
 from bench.fit import ROOT
+from bench.fit_spread import perturbed_clicks
 from core import fit_frame as ff
 from core.blas_threads import single_blas_thread
 from core.evaluate import truth_joints
@@ -55,18 +60,21 @@ def truth_pose(skel, s, q, joints, iterations: int = 30) -> np.ndarray:
 
 
 @contextmanager
-def probed(truth_xyz, names, out):
-    """Patch :class:`core.fit_frame.FrameFitter` so that each frame with points is also
-    fitted from the other starts; rows (frame, start, ok, mpjpe_mm, cost, unexplained,
-    pixels) go to ``out``."""
+def probed(truth_xyz, names, out, frames=None):
+    """Patch :class:`core.fit_frame.FrameFitter` so that each frame (of ``frames``, a
+    set, or all) is also fitted from the other starts: a frame with points from the
+    previous pose, the extrapolation and the truth's pose, one from contours alone from
+    the truth's pose (its fit already tries the other two); rows (frame, start, ok,
+    per-joint errors (mm, :data:`METRIC_JOINTS`), cost, unexplained, pixels) go to
+    ``out``."""
     fit_frame, record = ff.FrameFitter.fit_frame, ff.FrameFitter.record
     last = {}
     cols = [names.index(j) for j in METRIC_JOINTS]
 
-    def mpjpe(fx, q, f):
+    def mpjpe(fx, q, f):  # per metric joint, mm
         x = joint_positions(fx.skel, q[None, : fx.n], q[None, fx.n :], fx.s)[0]
         idx = [fx.skel.joint_index(j) for j in METRIC_JOINTS]
-        return 1000 * np.linalg.norm(x[idx] - truth_xyz[f, cols], axis=1).mean()
+        return 1000 * np.linalg.norm(x[idx] - truth_xyz[f, cols], axis=1)
 
     def rec(fx, f, res, ok, why, stats):
         last["cost"] = np.nan if stats is None else stats["cost"]
@@ -81,13 +89,21 @@ def probed(truth_xyz, names, out):
 
     def probe(fx, f, q_pred, sig_pred, alternatives=(), **kw):
         starts = []
-        if len(fx.frames[f].xyz) >= fx.cfg.min_points and len(alternatives):
+        if frames is not None and f not in frames:
+            pass
+        elif len(fx.frames[f].xyz) >= fx.cfg.min_points and len(alternatives):
             q_prev = alternatives[0]
             starts.append(("previous pose", q_prev))
             if f >= 2 and not fx.div[f - 2]:
                 starts.append(
                     ("extrapolation", 2 * q_prev - np.r_[fx.theta[f - 2], fx.root[f - 2]])
                 )
+            q_true = truth_pose(fx.skel, fx.s, q_prev, truth_xyz[f, cols])
+            starts.append(("truth's pose", q_true))
+        elif f > 0 and not fx.div[f - 1]:
+            # contours alone: the fit already starts from the previous pose and the
+            # extrapolation too (``contour_starts``); the truth's pose is the one to add
+            q_prev = np.r_[fx.theta[f - 1], fx.root[f - 1]]
             q_true = truth_pose(fx.skel, fx.s, q_prev, truth_xyz[f, cols])
             starts.append(("truth's pose", q_true))
         for name, q0 in starts:
@@ -115,12 +131,34 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("scene", nargs="?", default="dance_line3")
     ap.add_argument("--frames", type=int, default=10)
+    ap.add_argument(
+        "--probe",
+        default=None,
+        metavar="A-B",
+        help="probe only frames A to B (default every frame fitted)",
+    )
+    ap.add_argument(
+        "--click-draw",
+        type=int,
+        default=0,
+        help="the clicks moved by N(0, 0.5 px) with this seed, as bench.fit_spread's run",
+    )
     args = ap.parse_args(argv)
+    frames = None
+    if args.probe:
+        try:
+            a, b = (int(x) for x in args.probe.split("-"))
+        except ValueError:
+            ap.error(f"--probe: expected A-B, got {args.probe!r}")
+        frames = set(range(a, b + 1))
     folder = ROOT / "out" / "bench_fit" / args.scene
     scene = load_scene(folder, check_images=False)
+    if args.click_draw:
+        clicks = perturbed_clicks(scene.clicks(), 0.5, args.click_draw)
+        scene.clicks = lambda: clicks
     truth_xyz, names = truth_joints(scene.truth)
     rows = []
-    with probed(truth_xyz, names, rows), single_blas_thread():
+    with probed(truth_xyz, names, rows, frames), single_blas_thread():
         run_scene(
             scene,
             observations="tracks",
@@ -129,15 +167,17 @@ def main(argv=None) -> int:
             tracks=folder / "tracks.npz",
             frames=args.frames,
         )
-    print(f"{args.scene}: first {args.frames} frames, exact clicks, cues both")
+    draw = f"click draw {args.click_draw}" if args.click_draw else "exact clicks"
+    print(f"{args.scene}: first {args.frames} frames, {draw}, cues both")
     print(f"{'frame':>5}  {'start':<22}{'accepted':>9}{'MPJPE mm':>10}{'cost m²':>10}"
-          f"{'unexpl.':>9}{'pixels':>8}")  # fmt: skip
+          f"{'unexpl.':>9}{'pixels':>8}  worst joints, mm")  # fmt: skip
     last_f = None
-    for f, name, ok, mp, cost, unex, px in sorted(rows, key=lambda r: r[0]):
+    for f, name, ok, err, cost, unex, px in sorted(rows, key=lambda r: r[0]):
         lead = f"{f:>5}" if f != last_f else " " * 5
         last_f = f
-        print(f"{lead}  {name:<22}{'yes' if ok else 'no':>9}{mp:>10.1f}{cost:>10.4f}"
-              f"{unex:>9.3f}{px:>8.0f}")  # fmt: skip
+        worst = ", ".join(f"{METRIC_JOINTS[j]} {err[j]:.0f}" for j in np.argsort(-err)[:2])
+        print(f"{lead}  {name:<22}{'yes' if ok else 'no':>9}{err.mean():>10.1f}{cost:>10.4f}"
+              f"{unex:>9.3f}{px:>8.0f}  {worst}")  # fmt: skip
     return 0
 
 

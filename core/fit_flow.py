@@ -54,6 +54,7 @@ import numpy as np
 
 from .camera import Camera, camera_project_jacobians
 from .fit_trajectory import cauchy_row_weights
+from .image_stack import ImageStack
 from .metaballs import Metaballs, world_frames
 from .model_render import camera_rays, render_parts
 from .skeleton import Skeleton, bone_frames, forward, point_jacobians
@@ -106,6 +107,30 @@ class FlowSettings:
     reference_drop_px: float | None = 4.0
     #: the parts (bone names) the reference is kept on; None: all
     reference_parts: tuple | None = None
+    #: match each reference corner in the other cameras too, wherever the fitted body
+    #: shows it from a like direction there (a turned body shows one camera what
+    #: another saw at the clicked frame): the model's affine from the clicked image to
+    #: the camera, its singular values within a factor ``reference_across_stretch``
+    #: of each other and of 1, and the point seen within ``reference_across_deg`` of
+    #: its clicked ray (its depth error, from the metaball surface, shows across that
+    #: angle's sine).  Off: the matches are right (dance_ortho3 run 0: 845, median
+    #: 0.36 px from the truth's points), but the fit does not gain (walk_ortho3 runs
+    #: 0 / 1 10.3 / 11.0 -> 10.50 / 10.71 mm; the dance trades one lost limb for
+    #: another; docs/design.md, "Reference corners matched in the other cameras")
+    reference_across: bool = False
+    reference_across_stretch: float = 1.5
+    reference_across_deg: float = 30.0
+    #: each reference corner's depth along its clicked ray, refined from its matches
+    #: over the frames (a 1-D least squares at each accepted fit; a match farther than
+    #: ``reference_depth_gate_px`` from its projection does not count): lifted onto
+    #: the metaball surface, the point is off the true surface by up to a centimetre
+    #: along that ray, which a camera 30-50° off it sees.  Off: the refined depths take
+    #: up the accepted poses' errors (with across, run 0: walk_ortho3 10.68 -> 11.03 mm,
+    #: dance_ortho3 25.05 -> 34.77)
+    reference_depth: bool = False
+    reference_depth_prior_m: float = 0.04  # σ of its prior towards 0, a match σ 1 px
+    reference_depth_max_m: float = 0.04  # the largest refinement, metres
+    reference_depth_gate_px: float = 3.0
 
 
 @dataclass
@@ -417,10 +442,17 @@ class FlowAnchors:
         self._followed: dict = {}  # frame -> per camera (uv, bone, q0) followed there
         #: per camera (image, uv, bone, q0, tangents) of the reference frame
         self._ref: list = []
-        self._ref_alive: list = []  # per camera (M,) bool: not dropped
-        #: per camera (index into _ref, uv and affine part at self.frame)
+        self._ref_stack: ImageStack | None = None
+        #: (reference camera, camera) -> (M,) bool: not dropped
+        self._ref_alive: dict = {}
+        #: per (reference camera, camera) pair: (c, d, index into _ref[c], uv and
+        #: affine part at self.frame)
         self._ref_seen: list = []
-        self._ref_matched: dict = {}  # frame -> per camera (index, uv, affine) matched
+        #: frame -> {(c, d): (index, uv, affine)} matched there
+        self._ref_matched: dict = {}
+        #: per reference camera: (ray (M, 3) in the bone's frame, Σ JᵀJ (M,),
+        #: Σ Jᵀ(r + J t) (M,), depth t (M,) metres) of its corners
+        self._ref_depth: list = []
 
     def clear(self) -> None:
         self.frame = None
@@ -442,7 +474,7 @@ class FlowAnchors:
     ) -> None:
         """Lift every camera's corners of ``frame`` (the clicked one) onto the fitted
         body and keep them, with the images, as the texture reference."""
-        self._ref, self._ref_alive = [], []
+        self._ref, self._ref_alive, self._ref_depth = [], {}, []
         pose = forward(skel, np.asarray(theta, float)[None], np.asarray(root, float)[None], s)
         for c, cam in enumerate(self.cameras):
             fg = None if foreground is None else foreground[c]
@@ -456,7 +488,16 @@ class FlowAnchors:
                 uv, bone, q0 = uv[on], bone[on], q0[on]
             tan = surface_tangents(skel, pose, cam, ren, uv, bone)
             self._ref.append((img, uv, bone, q0, tan))
-            self._ref_alive.append(np.ones(len(bone), bool))
+            _, ray = cam.rays(uv)
+            Rb, _ = bone_frames(skel, pose)
+            ray = np.einsum("nji,nj->ni", Rb[0, bone], ray.reshape(-1, 3))
+            m = len(bone)
+            self._ref_depth.append((ray, np.zeros(m), np.zeros(m), np.zeros(m)))
+        self._ref_stack = ImageStack([r[0] for r in self._ref])  # its upsampled copy kept
+        for c, ref in enumerate(self._ref):
+            for d in range(len(self.cameras)):
+                if d == c or self.cfg.reference_across:
+                    self._ref_alive[c, d] = np.ones(len(ref[2]), bool)
 
     def set(
         self,
@@ -476,9 +517,11 @@ class FlowAnchors:
         self.clear()
         self.frame = frame
         pose = forward(skel, np.asarray(theta, float)[None], np.asarray(root, float)[None], s)
+        rens = []
         for c, cam in enumerate(self.cameras):
             fg = None if foreground is None else foreground[c]
             ren = render_body(skel, balls, pose, s, cam, self.rays[c])
+            rens.append(ren)
             self._lifted.append(
                 lift_corners(
                     skel,
@@ -495,27 +538,85 @@ class FlowAnchors:
                     ren,
                 )
             )
-            if self.cfg.reference and c < len(self._ref):
-                _, _, bone, q0, tan = self._ref[c]
-                uv, seen = visible_points(
-                    skel, pose, cam, ren, bone, q0, self.cfg.reference_depth_m
-                )
-                i = np.flatnonzero(seen & self._ref_alive[c])
-                A = local_affine(skel, pose, cam, bone[i], q0[i], tan[i])
-                uv = uv[i]
-                if matched is not None and len(matched[c][0]):  # start where matched
-                    mi, muv, mA = matched[c]
-                    at = np.searchsorted(mi, i)
-                    hit = (at < len(mi)) & (mi[np.minimum(at, len(mi) - 1)] == i)
-                    drop = self.cfg.reference_drop_px
-                    if drop is not None:
-                        off = np.zeros(len(i), bool)
-                        off[hit] = np.linalg.norm(uv[hit] - muv[at[hit]], axis=1) > drop
-                        self._ref_alive[c][i[off]] = False
-                        keep = ~off
-                        i, uv, A, hit, at = i[keep], uv[keep], A[keep], hit[keep], at[keep]
-                    uv[hit], A[hit] = muv[at[hit]], mA[at[hit]]
-                self._ref_seen.append((i, uv, A))
+        if self.cfg.reference:
+            if self.cfg.reference_depth and matched is not None:
+                self._refine_depths(skel, pose, matched)
+            for c, d in self._ref_alive:
+                self._see_reference(skel, pose, rens[d], c, d, matched)
+
+    def _ref_points(self, c: int) -> np.ndarray:
+        """Reference camera c's surface points (M, 3) in their bones' frames, metres,
+        moved along their clicked rays by the refined depths."""
+        q0 = self._ref[c][3]
+        if not self._ref_depth:
+            return q0
+        ray, _, _, t = self._ref_depth[c]
+        return q0 + t[:, None] * ray
+
+    def _refine_depths(self, skel: Skeleton, pose, matched: dict) -> None:
+        """Add the frame's matches (``matched`` {(c, d): (index, uv, affine)}) at the
+        accepted ``pose`` to each corner's 1-D normal equation for its depth along its
+        clicked ray, and solve it (a prior of σ ``reference_depth_prior_m`` towards
+        the lifted depth)."""
+        Rb, pb = bone_frames(skel, pose)
+        gate = self.cfg.reference_depth_gate_px
+        lam = 1.0 / self.cfg.reference_depth_prior_m**2  # px² / m² for a 1 px match
+        for (c, d), (idx, muv, _) in matched.items():
+            if not len(idx):
+                continue
+            ray, N, B, t = self._ref_depth[c]
+            bone = self._ref[c][2][idx]
+            x = pb[0, bone] + np.einsum("nij,nj->ni", Rb[0, bone], self._ref_points(c)[idx])
+            uv, _, Jx = camera_project_jacobians(self.cameras[d], x)
+            J = np.einsum("nij,nj->ni", Jx, np.einsum("nij,nj->ni", Rb[0, bone], ray[idx]))
+            r = muv - uv
+            ok = np.all(np.isfinite(r), axis=1) & (np.linalg.norm(r, axis=1) <= gate)
+            i, J, r = idx[ok], J[ok], r[ok]
+            np.add.at(N, i, np.sum(J * J, axis=1))
+            np.add.at(B, i, np.sum(J * (r + J * t[i, None]), axis=1))
+        lim = self.cfg.reference_depth_max_m
+        for _, N, B, t in self._ref_depth:
+            t[:] = np.clip(B / (N + lam), -lim, lim)
+
+    def _see_reference(self, skel, pose, ren, c, d, matched) -> None:
+        """Keep the reference corners of camera c that the fitted ``pose`` shows camera
+        d (``ren`` its part render) for matching into the next frame, each with its
+        start: its match in this frame (``matched``) where there is one, else its
+        projection; corners matched too far from the projection are dropped for good."""
+        cam = self.cameras[d]
+        _, _, bone, _, tan = self._ref[c]
+        q0 = self._ref_points(c)
+        alive = self._ref_alive[c, d]
+        uv, seen = visible_points(skel, pose, cam, ren, bone, q0, self.cfg.reference_depth_m)
+        i = np.flatnonzero(seen & alive)
+        A = local_affine(skel, pose, cam, bone[i], q0[i], tan[i])
+        uv = uv[i]
+        if d != c:  # another camera: only where it sees the surface as c did
+            sv = np.linalg.svd(A, compute_uv=False)
+            k = self.cfg.reference_across_stretch
+            like = (sv[:, 0] <= k) & (sv[:, 1] >= 1.0 / k) & (sv[:, 0] <= k * sv[:, 1])
+            Rb, pb = bone_frames(skel, pose)
+            b = bone[i]
+            ray = np.einsum("nij,nj->ni", Rb[0, b], self._ref_depth[c][0][i])  # clicked
+            x = pb[0, b] + np.einsum("nij,nj->ni", Rb[0, b], q0[i])
+            view = x - cam.center
+            cos = np.sum(ray * view, axis=1) / np.linalg.norm(view, axis=1)
+            like &= cos >= np.cos(np.radians(self.cfg.reference_across_deg))
+            i, uv, A = i[like], uv[like], A[like]
+        prev = None if matched is None else matched.get((c, d))
+        if prev is not None and len(prev[0]):  # start where matched
+            mi, muv, mA = prev
+            at = np.searchsorted(mi, i)
+            hit = (at < len(mi)) & (mi[np.minimum(at, len(mi) - 1)] == i)
+            drop = self.cfg.reference_drop_px
+            if drop is not None:
+                off = np.zeros(len(i), bool)
+                off[hit] = np.linalg.norm(uv[hit] - muv[at[hit]], axis=1) > drop
+                alive[i[off]] = False
+                keep = ~off
+                i, uv, A, hit, at = i[keep], uv[keep], A[keep], hit[keep], at[keep]
+            uv[hit], A[hit] = muv[at[hit]], mA[at[hit]]
+        self._ref_seen.append((c, d, i, uv, A))
 
     def _reference_matches(self, frame: int):
         """The reference corners seen at the stored frame, matched into ``frame``:
@@ -523,31 +624,45 @@ class FlowAnchors:
         match in the stored frame (else its projection on the stored pose) moved as the
         image moved there (Lucas–Kanade between the neighbouring frames), with that
         match's affine part (else the model's), and is matched by least squares from
-        the reference frame's image."""
+        the reference frame's image (of its own camera or, ``reference_across``,
+        another's)."""
         from .lsm import match
 
-        out, matched = [], []
-        for c, (idx, guess, A) in enumerate(self._ref_seen):
-            matched.append((np.zeros(0, int), np.zeros((0, 2)), np.zeros((0, 2, 2))))
-            if not len(idx):
-                continue
-            img0, uv0, bone, q0, _ = self._ref[c]
-            img1 = self.image(c, frame)
-            moved, ok = follow_corners(self.image(c, self.frame), img1, guess, self.cfg)
-            start = np.where(ok[:, None], moved, guess)
-            res = match(
-                img0,
-                img1,
-                uv0[idx],
-                start,
-                affine=A,
-                max_shift_px=self.cfg.reference_search_px,
-                max_sigma_px=self.cfg.reference_max_sigma_px,
+        pairs = [p for p in self._ref_seen if len(p[2])]
+        self._ref_matched[frame] = matched = {}
+        if not pairs:
+            return []
+        cams = sorted({p[1] for p in pairs})
+        starts = [None] * len(pairs)
+        for d in cams:  # one Lucas–Kanade call per camera
+            mine = [k for k, p in enumerate(pairs) if p[1] == d]
+            guess = np.concatenate([pairs[k][3] for k in mine])
+            moved, ok = follow_corners(
+                self.image(d, self.frame), self.image(d, frame), guess, self.cfg
             )
-            k = res.status == 0
-            out.append((c, bone[idx[k]], q0[idx[k]], res.uv[k]))
-            matched[c] = (idx[k], res.uv[k], res.affine[k])
-        self._ref_matched[frame] = matched
+            moved = np.where(ok[:, None], moved, guess)
+            at = np.cumsum([0] + [len(pairs[k][3]) for k in mine])
+            for n, k in enumerate(mine):
+                starts[k] = moved[at[n] : at[n + 1]]
+        res = match(
+            self._ref_stack,
+            ImageStack([self.image(d, frame) for d in cams]),
+            np.concatenate([self._ref[c][1][idx] for c, _, idx, _, _ in pairs]),
+            np.concatenate(starts),
+            affine=np.concatenate([A for *_, A in pairs]),
+            template_index=np.concatenate([np.full(len(p[2]), p[0]) for p in pairs]),
+            search_index=np.concatenate([np.full(len(p[2]), cams.index(p[1])) for p in pairs]),
+            max_shift_px=self.cfg.reference_search_px,
+            max_sigma_px=self.cfg.reference_max_sigma_px,
+        )
+        out, at = [], 0
+        for c, d, idx, _, _ in pairs:
+            sl = slice(at, at + len(idx))
+            at += len(idx)
+            k = res.status[sl] == 0
+            bone, q0 = self._ref[c][2], self._ref_points(c)
+            out.append((d, bone[idx[k]], q0[idx[k]], res.uv[sl][k]))
+            matched[c, d] = (idx[k], res.uv[sl][k], res.affine[sl][k])
         return out
 
     def observations(self, frame: int) -> FlowObs | None:

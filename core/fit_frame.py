@@ -375,12 +375,14 @@ class FrameFitter:
                 return res2, ok2, why2, st2
         return res, ok, why, st
 
-    def silhouette_retry(self, f, res, st, sig_pred, joints, q_hold):
+    def silhouette_retry(self, f, res, st, sig_pred, joints, q_hold, unfold=False):
         """Every limb placed where it best explains the frame's foreground
         (:func:`search_limbs_silhouette`; with points, a move vetoed by ``keeps_points``)
         and the frame refitted from there, the moved DOFs' hold and prior following the
         search; the refit is kept when it is accepted and the body's projection disagrees
-        with the foreground at fewer pixels.  Returns ``(res, ok, why, stats)``."""
+        with the foreground at fewer pixels.  ``unfold``: a folded knee or elbow is also
+        tried straightened (:func:`search_limbs_silhouette`).  Returns
+        ``(res, ok, why, stats)``."""
         cf = self.cframe(f)
         q = res[0]
         body = self.balls.copy(radii=self.radii)
@@ -400,7 +402,15 @@ class FrameFitter:
             else None
         )
         sr = search_limbs_silhouette(
-            self.skel, body, self.s, q[: self.n], q[self.n :], cf.cameras, cf.masks(), allowed=veto
+            self.skel,
+            body,
+            self.s,
+            q[: self.n],
+            q[self.n :],
+            cf.cameras,
+            cf.masks(),
+            allowed=veto,
+            unfold=unfold,
         )
         if not sr.moved:
             return res, True, "", st
@@ -434,14 +444,17 @@ class FrameFitter:
     def contour_fit(self, f, res, ok, why, st, q_start, sig_pred, joints, q_hold):
         """The silhouette retries of a frame without points, after its plain fit from
         ``q_start``: recentred (:meth:`recentre_retry`) when it failed, then every limb
-        placed on the foreground (:meth:`silhouette_retry`).  Returns
+        placed on the foreground (:meth:`silhouette_retry`, a folded hinge unfolded with
+        ``cfg.contour_unfold``).  Returns
         ``(res, ok, why, stats)``."""
         if not ok:
             res, ok, why, st = self.recentre_retry(
                 f, res, ok, why, st, q_start, sig_pred, joints, q_hold
             )
         if ok:
-            res, ok, why, st = self.silhouette_retry(f, res, st, sig_pred, joints, q_hold)
+            res, ok, why, st = self.silhouette_retry(
+                f, res, st, sig_pred, joints, q_hold, self.cfg.contour_unfold
+            )
         return res, ok, why, st
 
     def disagreement(self, f, q):

@@ -316,9 +316,16 @@ def explain_distance(
 
 def _grid(skel: Skeleton, theta0: np.ndarray, grid) -> tuple[np.ndarray, np.ndarray]:
     """Hypotheses (H, n) around ``theta0`` over the grid's DOFs, clipped to the limits;
-    returns them and the DOF indices."""
-    idx = np.array([skel.dof_index(d) for d, _ in grid])
-    offs = np.meshgrid(*[np.radians(g) for _, g in grid], indexing="ij")
+    returns them and the DOF indices.  A grid entry ``(DOF, offsets, values)`` adds
+    the absolute ``values`` (degrees) to that DOF's offsets."""
+    idx = np.array([skel.dof_index(e[0]) for e in grid])
+    axes = []
+    for k, (_, g, *values) in zip(idx, grid, strict=True):
+        o = np.radians(np.asarray(g, float))
+        if values:
+            o = np.union1d(o, np.radians(np.asarray(values[0], float)) - theta0[k])
+        axes.append(o)
+    offs = np.meshgrid(*axes, indexing="ij")
     offs = np.stack([o.ravel() for o in offs], axis=1)  # (H, k)
     th = np.repeat(theta0[None], len(offs), axis=0)
     th[:, idx] = np.clip(theta0[idx][None] + offs, skel.dof_lo[idx], skel.dof_hi[idx])
@@ -339,7 +346,8 @@ def grid_search(
     Parameters
     ----------
     theta : (n,) start pose, radians
-    grid : ((DOF name, offsets in degrees), ...) — see :data:`LIMBS`
+    grid : ((DOF name, offsets in degrees[, absolute values in degrees]), ...) — see
+        :data:`LIMBS`
     cost : callable, poses (H, n) -> (H,) costs
     cost0 : the cost of ``theta`` itself
     prior_weight : weight of the prior towards the start, ``prior_weight · Σ Δθ²``
@@ -356,9 +364,9 @@ def grid_search(
         if level == 0:
             th, idx = _grid(skel, best, grid)
         else:
-            step = [np.diff(g).min() / 2**level for _, g in grid]
+            step = [np.diff(e[1]).min() / 2**level for e in grid]
             th, idx = _grid(
-                skel, best, [(d, (-st, 0.0, st)) for (d, _), st in zip(grid, step, strict=True)]
+                skel, best, [(e[0], (-st, 0.0, st)) for e, st in zip(grid, step, strict=True)]
             )
         c = cost(th) + prior_weight * np.sum((th[:, idx] - theta[idx][None]) ** 2, axis=1)
         k = int(np.argmin(c))

@@ -184,6 +184,12 @@ class SequenceSettings:
     #: dance_line3 (cues both) 264.2 mm over 21 accepted frames, 29 diverged -> 76.0 mm
     #: over 36, 14 diverged; make demo 11.6 -> 11.7, jumps_line3 14.0 -> 14.7 mm
     silhouette_search_points: bool = True
+    #: contours alone: the silhouette search also tries a knee or elbow folded beyond
+    #: 120° at a few absolute flexions (core.silhouette_search.UNFOLD_DEG), not only
+    #: within ±60° of the fit: a shin or forearm folded onto its parent hides inside the
+    #: parent's outline, costs nothing there, and the offsets cannot unfold it
+    #: (docs/design.md, "A folded limb the silhouette search could not unfold")
+    contour_unfold: bool = True
     #: contours alone: a frame whose body overlaps the foreground less (mean IoU over the
     #: cameras with one) is diverged.  Walk, skin look, a 29 mm fit: 0.81-0.90; the dance
     #: (orthogonal3) lost by 600 mm and more: below 0.45, down to 0 with the body 25 m away

@@ -73,6 +73,32 @@ SILHOUETTE_LIMBS = {
     for name, (bones, root_joint, tail_joint, grid) in LIMBS.items()
 }
 
+#: Absolute flexions (degrees) the search tries for the hinges with ``unfold``, beside
+#: the offsets around the fit: straight, half and right-angled.  A shin or forearm
+#: folded onto its parent (knee 164°, elbow -151° in dance_ortho3's lost draws) lies
+#: inside the parent's outline, where it costs nothing, and the true segment's
+#: foreground is more than the ±60° offsets (two rounds: 120°) away.
+UNFOLD_DEG = {"knee_x": (0.0, 45.0, 90.0), "elbow_x": (0.0, -45.0, -90.0)}
+
+
+#: A hinge flexed further than this (degrees) counts as folded for ``unfold``.
+FOLDED_DEG = 120.0
+
+
+def unfolded(skel: Skeleton, limb: tuple, theta: np.ndarray) -> tuple:
+    """A :data:`SILHOUETTE_LIMBS` entry with :data:`UNFOLD_DEG`'s absolute flexions
+    added to the grid of its hinge where ``theta`` (n,) has it folded (beyond
+    :data:`FOLDED_DEG`); the search then also looks for the limb's foreground as far as
+    the straightened limb reaches.  Unchanged when the hinge is not folded."""
+    bones, root_joint, tail_joint, grid = limb
+    grid = tuple(
+        (d, g, UNFOLD_DEG[d[2:]])
+        if d[2:] in UNFOLD_DEG and abs(theta[skel.dof_index(d)]) > np.radians(FOLDED_DEG)
+        else (d, g)
+        for d, g in grid
+    )
+    return bones, root_joint, tail_joint, grid
+
 
 @dataclass
 class MaskGrid:
@@ -295,7 +321,16 @@ def _limb_gain(
     centers, axes, radii, _ = body_ellipsoids(skel, theta, root, s, balls)
     jx = joint_positions(skel, theta, root, s)
     base = jx[skel.joint_index(root_joint)]
-    reach = np.linalg.norm(jx[skel.joint_index(tail_joint)] - base) * 1.15 + 0.1
+    jr = jx
+    hinges = [skel.dof_index(e[0]) for e in grid if len(e) > 2]
+    if hinges:  # unfolding: the reach of the limb straightened, not of the folded one
+        straight = np.asarray(theta, float).copy()
+        straight[hinges] = 0.0
+        jr = joint_positions(skel, straight, root, s)
+    reach = (
+        np.linalg.norm(jr[skel.joint_index(tail_joint)] - jr[skel.joint_index(root_joint)]) * 1.15
+        + 0.1
+    )
     views = []
     for cam, mask in zip(cameras, masks, strict=True):
         if mask is None:
@@ -363,6 +398,7 @@ def search_limbs_silhouette(
     rounds: int = 2,
     step: int = 2,
     allowed=None,
+    unfold: bool = False,
 ) -> SilhouetteSearch:
     """Place each limb at the grid pose that best explains the foreground near it.
 
@@ -401,7 +437,7 @@ def search_limbs_silhouette(
                 s,
                 theta,
                 root,
-                SILHOUETTE_LIMBS[name],
+                unfolded(skel, SILHOUETTE_LIMBS[name], theta) if unfold else SILHOUETTE_LIMBS[name],
                 cameras,
                 masks,
                 sigma_prior,

@@ -7,13 +7,21 @@ motion.
 
 import numpy as np
 
-from core.fit_flow import FlowAnchors, FlowObs, FlowSettings, follow_corners, lift_corners
+from core.fit_flow import (
+    FlowAnchors,
+    FlowObs,
+    FlowSettings,
+    follow_corners,
+    lift_corners,
+    render_body,
+    visible_points,
+)
 from core.fitting import FitSettings, Observations, fit
 from core.metaballs import make_metaballs, world_frames
 from core.model_render import camera_rays, render_parts
-from core.skeleton import forward, joint_positions, make_skeleton, points_world
+from core.skeleton import bone_frames, forward, joint_positions, make_skeleton, points_world
 
-from ._bodyscene import cameras, clicks_of
+from ._bodyscene import cameras, clicks_of, look_at
 from ._bodyscene import textured_render as _textured
 
 
@@ -344,7 +352,80 @@ def test_a_reference_corner_far_from_the_accepted_fit_is_dropped_for_good():
         accepted = thetas[1].copy()
         accepted[yaw] += turn  # the frame's fit, right or turned away
         a.set(skel, balls, accepted, root0, s, 1)
-        alive[turn] = a._ref_alive[0].copy()
-        assert not np.isin(np.flatnonzero(~alive[turn]), a._ref_seen[0][0]).any()
+        alive[turn] = a._ref_alive[0, 0].copy()
+        assert not np.isin(np.flatnonzero(~alive[turn]), a._ref_seen[0][2]).any()
     assert alive[0.0].all()
     assert (~alive[0.4]).sum() > 50, (~alive[0.4]).sum()
+
+
+def test_reference_corners_are_matched_in_the_camera_a_turned_body_shows_them_to():
+    """With ``reference_across``, a corner of one camera's clicked image is matched in
+    another camera once the body has turned its surface towards that one (here 90°, a
+    front camera and a side camera): on its point's true projection there.  Without it
+    the side camera's own reference has turned away and gives almost nothing."""
+    skel, s, balls, theta0, root0 = _body()
+    cams = [look_at("front", (0.0, -4.0, 1.2)), look_at("side", (4.0, 0.0, 1.2))]
+    rays = [camera_rays(c) for c in cams]
+    yaw = skel.dof_index("pelvis_z")
+    thetas = [theta0.copy() for _ in range(3)]
+    for f, turn in enumerate((0.0, 1.45, 1.55)):  # radians
+        thetas[f][yaw] += turn
+    imgs = {
+        (c, f): _textured(skel, balls, thetas[f], root0, s, cam, rays[c])
+        for c, cam in enumerate(cams)
+        for f in range(3)
+    }
+    rows = {}
+    for across in (True, False):
+        cfg = FlowSettings(reference_sigma_px=2.5, reference_across=across)
+        a = FlowAnchors(cams, lambda c, f: imgs[c, f], cfg, rays=rays)
+        a.set_reference(skel, balls, thetas[0], root0, s, 0)
+        a.set(skel, balls, thetas[1], root0, s, 1)
+        obs = a.observations(2)
+        ref = np.isclose(obs.sigma, 2.5) & (obs.camera == 1)
+        sub = FlowObs(
+            cams, obs.bone[ref], obs.q0[ref], obs.camera[ref], obs.uv[ref], obs.sigma[ref]
+        )
+        rows[across] = np.linalg.norm(
+            sub.residuals(skel, thetas[2], root0, s, jacobians=False)[0], axis=1
+        )
+    assert len(rows[True]) > 50 + 3 * len(rows[False]), (len(rows[True]), len(rows[False]))
+    # 155 rows against 5, median 0.04 px
+    assert np.median(rows[True]) < 0.5, np.percentile(rows[True], [50, 90])
+
+
+def test_a_reference_corners_depth_along_its_clicked_ray_is_refined_from_its_matches():
+    """A reference point lifted 1.5 cm too deep along its clicked ray projects right in
+    its own camera but 1–2 px off in a camera that sees it 30–40° off that ray.  Its
+    matches there (here at the true points' projections) at accepted poses move it
+    back along the ray to within a millimetre; with ``reference_depth`` off it stays."""
+    skel, s, balls, theta0, root0 = _body()
+    cams = [look_at("front", (0.0, -4.0, 1.2)), look_at("side", (4.0, 0.0, 1.2))]
+    rays = [camera_rays(c) for c in cams]
+    yaw = skel.dof_index("pelvis_z")
+    imgs = [_textured(skel, balls, theta0, root0, s, cam, rays[c]) for c, cam in enumerate(cams)]
+    err = 0.015  # metres, away from the camera
+    t = {}
+    for refine in (True, False):
+        cfg = FlowSettings(reference_depth=refine)
+        a = FlowAnchors(cams, lambda c, f: imgs[c], cfg, rays=rays)
+        a.set_reference(skel, balls, theta0, root0, s, 0)
+        img, uv, bone, q0, tan = a._ref[0]
+        a._ref[0] = (img, uv, bone, q0 + err * a._ref_depth[0][0], tan)
+        for f, turn in ((1, 0.9), (2, 1.0)):  # radians: the side camera sees the
+            th = theta0.copy()  # front 30–40° off its clicked rays
+            th[yaw] += turn
+            pose = forward(skel, th[None], root0[None], s)
+            Rb, pb = bone_frames(skel, pose)
+            x = pb[0, bone] + np.einsum("nij,nj->ni", Rb[0, bone], q0)  # the true points
+            ren = render_body(skel, balls, pose, s, cams[1])
+            _, seen = visible_points(skel, pose, cams[1], ren, bone, q0, 0.03)
+            idx = np.flatnonzero(seen)
+            # the frame's matches, at the true points' projections, then its accepted fit
+            a._ref_matched[f] = {(0, 1): (idx, cams[1].project(x[idx]), np.zeros((len(idx), 2, 2)))}
+            a.set(skel, balls, th, root0, s, f)
+        t[refine] = a._ref_depth[0][3][idx]
+    assert len(idx) > 50, len(idx)
+    # median 0.0x mm off
+    assert np.median(np.abs(t[True] + err)) < 0.001, np.percentile(t[True], [10, 50, 90])
+    assert np.all(t[False] == 0.0)

@@ -8,12 +8,14 @@ from core import skeleton as sk
 from core.contour_obs import body_ellipsoids
 from core.model_render import render_parts
 from core.silhouette_search import (
+    SILHOUETTE_LIMBS,
     image_ellipses,
     mask_grid,
     recentre_root,
     search_limbs_silhouette,
     silhouette_disagreement,
     silhouette_iou,
+    unfolded,
 )
 from tests.core._bodyscene import cameras, look_at
 
@@ -164,3 +166,34 @@ def test_a_bent_arm_twisted_out_of_place_is_turned_back(body):
     after = np.linalg.norm(sk.joint_positions(skel, res.theta, root, s)[wrist] - want)
     assert before > 0.15 and after < 0.05, (before, after)
     assert res.moved == ["l_arm"]
+
+
+def test_a_shin_folded_onto_its_thigh_is_unfolded_only_with_the_absolute_flexions(body):
+    """A fit that folded the shin onto the thigh (knee 2.8 rad) hides it inside the
+    thigh's outline, where it costs nothing; the true leg is straight.  The offsets
+    (±60°, two rounds) cannot reach it; ``unfold`` tries the folded knee straight
+    too, and looks as far as the straightened leg reaches."""
+    skel, s, balls = body
+    cams = [look_at("front", (0.0, -4.0, 1.0)), look_at("side", (4.0, 0.0, 1.0))]
+    root = np.array([0.0, 0.0, 1.0])
+    true = np.zeros(skel.n_dof)
+    true[skel.dof_index("r_hip_x")] = -0.5  # the right thigh forward, its shin straight
+    masks = _masks(skel, balls, true, root, s, cams)
+    start = true.copy()
+    start[skel.dof_index("r_knee_x")] = 2.8  # folded: the heel at the buttock
+    ankle = skel.joint_index("r_ankle")
+    x_true = sk.joint_positions(skel, true, root, s)[ankle]
+
+    def off(theta):
+        return np.linalg.norm(sk.joint_positions(skel, theta, root, s)[ankle] - x_true)
+
+    plain = search_limbs_silhouette(skel, balls, s, start, root, cams, masks)
+    found = search_limbs_silhouette(skel, balls, s, start, root, cams, masks, unfold=True)
+    assert off(start) > 0.5
+    assert off(plain.theta) > 0.25, off(plain.theta)
+    assert off(found.theta) < 0.05, off(found.theta)
+    # a knee bent but not folded keeps the plain grid: the search is the default one
+    bent = start.copy()
+    bent[skel.dof_index("r_knee_x")] = 1.5
+    assert unfolded(skel, SILHOUETTE_LIMBS["r_leg"], bent) == SILHOUETTE_LIMBS["r_leg"]
+    assert unfolded(skel, SILHOUETTE_LIMBS["r_leg"], start) != SILHOUETTE_LIMBS["r_leg"]

@@ -1,6 +1,7 @@
 """Where each frame's fit lands from other starts, and whether its criteria could choose.
 
-``python -m bench.frame_starts [SCENE] [--frames N] [--probe A-B] [--click-draw K]``
+``python -m bench.frame_starts [SCENE] [--frames N] [--probe A-B] [--click-draw K]
+[--setting NAME=VALUE ...]``
 
 A frame's fit starts from the motion model's prediction.  This probe fits every frame
 with points (after the shape frames) also from three other starts — the previous
@@ -29,15 +30,17 @@ from __future__ import annotations
 import argparse
 import copy
 from contextlib import contextmanager
+from dataclasses import replace
 
 import numpy as np
 
 from bench.fit import ROOT
-from bench.fit_spread import perturbed_clicks
+from bench.fit_spread import parse_settings, perturbed_clicks
 from core import fit_frame as ff
 from core.blas_threads import single_blas_thread
 from core.evaluate import truth_joints
 from core.fit_scene import run_scene
+from core.fit_types import SequenceSettings
 from core.landmarks import METRIC_JOINTS
 from core.scene import load_scene
 from core.skeleton import joint_jacobians, joint_positions
@@ -143,7 +146,15 @@ def main(argv=None) -> int:
         default=0,
         help="the clicks moved by N(0, 0.5 px) with this seed, as bench.fit_spread's run",
     )
+    ap.add_argument(
+        "--setting",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="a SequenceSettings field for the fit (JSON value), e.g. contour_unfold=false",
+    )
     args = ap.parse_args(argv)
+    settings = replace(SequenceSettings(), **parse_settings(args.setting, ap.error))
     frames = None
     if args.probe:
         try:
@@ -166,17 +177,18 @@ def main(argv=None) -> int:
             cues="both",
             tracks=folder / "tracks.npz",
             frames=args.frames,
+            settings=settings,
         )
     draw = f"click draw {args.click_draw}" if args.click_draw else "exact clicks"
     print(f"{args.scene}: first {args.frames} frames, {draw}, cues both")
-    print(f"{'frame':>5}  {'start':<22}{'accepted':>9}{'MPJPE mm':>10}{'cost m²':>10}"
+    print(f"{'frame':>5}  {'start':<22}{'accepted':>9}{'MPJPE mm':>10}{'cost m²':>11}"
           f"{'unexpl.':>9}{'pixels':>8}  worst joints, mm")  # fmt: skip
     last_f = None
     for f, name, ok, err, cost, unex, px in sorted(rows, key=lambda r: r[0]):
         lead = f"{f:>5}" if f != last_f else " " * 5
         last_f = f
         worst = ", ".join(f"{METRIC_JOINTS[j]} {err[j]:.0f}" for j in np.argsort(-err)[:2])
-        print(f"{lead}  {name:<22}{'yes' if ok else 'no':>9}{err.mean():>10.1f}{cost:>10.4f}"
+        print(f"{lead}  {name:<22}{'yes' if ok else 'no':>9}{err.mean():>10.1f} {cost:>10.4f}"
               f"{unex:>9.3f}{px:>8.0f}  {worst}")  # fmt: skip
     return 0
 

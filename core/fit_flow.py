@@ -30,17 +30,10 @@ points (``without_points_only``).
 
 Corners lost and lifted again carry the pose error of the frame they are lifted at,
 so on a rig without 3-D points an error, once made, stays.  The *texture reference*
-(``reference``) holds the clicked frame's texture: its corners are lifted onto the
-clicked pose (:meth:`FlowAnchors.set_reference`) and, in every later frame where the
-last fitted pose shows them, matched by least squares (:func:`core.lsm.match`, affine +
-radiometric) from the clicked frame's image into the new one.  Each starts at its own
-last match (else at its projection on the last fitted pose), moved by the image's
-motion between the neighbouring frames (Lucas–Kanade), with the affine part the model
-predicts from the surface's tangents (:func:`surface_tangents`,
-:func:`local_affine`) or its last match's.  A matched reference corner is an
-observation of the same form as a followed one.  A corner whose match lies more than
-``reference_drop_px`` from its projection on a frame's accepted fit (a false lock on
-like texture, or a point hidden behind a part the model misplaces) is not matched again.
+(``reference``, :mod:`core.fit_reference`) holds the clicked frame's texture: its
+corners, lifted onto the clicked pose (:meth:`FlowAnchors.set_reference`), are matched
+by least squares from the clicked frame's image into every later frame, as
+observations of the same form as a followed corner's.
 
 Frames: world Z up, metres; image pixels with integer coordinates at pixel centres.
 """
@@ -53,8 +46,8 @@ import cv2
 import numpy as np
 
 from .camera import Camera, camera_project_jacobians
+from .fit_reference import TextureReference, surface_tangents
 from .fit_trajectory import cauchy_row_weights
-from .image_stack import ImageStack
 from .metaballs import Metaballs, world_frames
 from .model_render import camera_rays, render_parts
 from .skeleton import Skeleton, bone_frames, forward, point_jacobians
@@ -311,67 +304,6 @@ def render_body(skel: Skeleton, balls: Metaballs, pose, s, camera: Camera, rays=
     return render_parts(camera, cw[0], Rw[0], balls.visible, balls.bone, n_parts, rays=rays)
 
 
-def visible_points(skel: Skeleton, pose, camera: Camera, ren, bone, q0, depth_tol: float):
-    """Which bone-fixed points (``bone`` (K,), ``q0`` (K, 3) metres) are seen in a
-    render: ``(uv (K, 2) pixels, seen (K,) bool)`` — projected inside the image onto
-    their own part, no more than ``depth_tol`` metres behind its rendered surface."""
-    Rb, pb = bone_frames(skel, pose)
-    x = pb[0, bone] + np.einsum("nij,nj->ni", Rb[0, bone], q0)
-    uv = camera.project(x)
-    w, h = camera.size
-    inside = np.all(np.isfinite(uv), axis=1)
-    inside &= (uv[:, 0] >= 0) & (uv[:, 0] <= w - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= h - 1)
-    seen = np.zeros(len(bone), bool)
-    if inside.any():
-        iu = np.rint(uv[inside, 0]).astype(int)
-        iv = np.rint(uv[inside, 1]).astype(int)
-        dist = np.linalg.norm(x[inside] - camera.center, axis=1)
-        seen[inside] = (ren.part_id[iv, iu] == bone[inside]) & (
-            dist <= ren.depth[iv, iu] + depth_tol
-        )
-    return uv, seen
-
-
-def surface_tangents(skel: Skeleton, pose, camera: Camera, ren, uv, bone):
-    """The rendered surface's offsets (K, 2, 3), metres in the bone's frame, that a
-    step of one pixel along u and along v from ``uv`` (K, 2) covers (central
-    differences of the z-buffer's surface points; where a neighbour is not on the
-    same part, the step perpendicular to the ray at the point's depth)."""
-    Rb, pb = bone_frames(skel, pose)
-    w, h = camera.size
-    iu = np.clip(np.rint(uv[:, 0]).astype(int), 1, w - 2)
-    iv = np.clip(np.rint(uv[:, 1]).astype(int), 1, h - 2)
-    out = np.zeros((len(uv), 2, 3))
-    for a, (du, dv) in enumerate(((1, 0), (0, 1))):
-        ends = []
-        for sgn in (-1, 1):
-            ju, jv = iu + sgn * du, iv + sgn * dv
-            z = ren.depth[jv, ju]
-            flat = ~np.isfinite(z) | (ren.part_id[jv, ju] != bone)
-            z = np.where(flat, ren.depth[iv, iu], z)
-            _, d = camera.rays(np.stack([ju, jv], 1).astype(float))
-            ends.append(camera.center + z[:, None] * d)
-        out[:, a] = np.einsum("nji,nj->ni", Rb[0, bone], (ends[1] - ends[0]) / 2.0)
-    return out
-
-
-def local_affine(skel: Skeleton, pose, camera: Camera, bone, q0, tangents):
-    """The image of a template pixel step (K, 2, 2): columns the projected moves of
-    the bone-fixed points ``q0`` (K, 3) along ``tangents`` (K, 2, 3) in ``pose``
-    (central differences, pixels per pixel) — LSM's start of the affine part."""
-    Rb, pb = bone_frames(skel, pose)
-    A = np.zeros((len(bone), 2, 2))
-    for a in range(2):
-        ends = [
-            camera.project(
-                pb[0, bone] + np.einsum("nij,nj->ni", Rb[0, bone], q0 + sgn * tangents[:, a])
-            )
-            for sgn in (-1, 1)
-        ]
-        A[:, :, a] = (ends[1] - ends[0]) / 2.0
-    return A
-
-
 def follow_corners(
     img0: np.ndarray, img1: np.ndarray, uv: np.ndarray, cfg: FlowSettings, guess=None
 ):
@@ -440,27 +372,19 @@ class FlowAnchors:
         self._lifted: list = []
         self._cache: dict = {}
         self._followed: dict = {}  # frame -> per camera (uv, bone, q0) followed there
-        #: per camera (image, uv, bone, q0, tangents) of the reference frame
-        self._ref: list = []
-        self._ref_stack: ImageStack | None = None
-        #: (reference camera, camera) -> (M,) bool: not dropped
-        self._ref_alive: dict = {}
-        #: per (reference camera, camera) pair: (c, d, index into _ref[c], uv and
-        #: affine part at self.frame)
-        self._ref_seen: list = []
-        #: frame -> {(c, d): (index, uv, affine)} matched there
-        self._ref_matched: dict = {}
-        #: per reference camera: (ray (M, 3) in the bone's frame, Σ JᵀJ (M,),
-        #: Σ Jᵀ(r + J t) (M,), depth t (M,) metres) of its corners
-        self._ref_depth: list = []
+        self.reference = TextureReference(
+            self.cameras,
+            image,
+            self.cfg,
+            lambda img0, img1, uv: follow_corners(img0, img1, uv, self.cfg),
+        )
 
     def clear(self) -> None:
         self.frame = None
         self._lifted = []
         self._cache = {}
         self._followed = {}
-        self._ref_seen = []
-        self._ref_matched = {}
+        self.reference.clear()
 
     def set_reference(
         self,
@@ -474,8 +398,8 @@ class FlowAnchors:
     ) -> None:
         """Lift every camera's corners of ``frame`` (the clicked one) onto the fitted
         body and keep them, with the images, as the texture reference."""
-        self._ref, self._ref_alive, self._ref_depth = [], {}, []
         pose = forward(skel, np.asarray(theta, float)[None], np.asarray(root, float)[None], s)
+        lifted = []
         for c, cam in enumerate(self.cameras):
             fg = None if foreground is None else foreground[c]
             img = np.array(self.image(c, frame))
@@ -486,18 +410,8 @@ class FlowAnchors:
             if self.cfg.reference_parts is not None:
                 on = np.isin(np.asarray(skel.bone_names)[bone], self.cfg.reference_parts)
                 uv, bone, q0 = uv[on], bone[on], q0[on]
-            tan = surface_tangents(skel, pose, cam, ren, uv, bone)
-            self._ref.append((img, uv, bone, q0, tan))
-            _, ray = cam.rays(uv)
-            Rb, _ = bone_frames(skel, pose)
-            ray = np.einsum("nji,nj->ni", Rb[0, bone], ray.reshape(-1, 3))
-            m = len(bone)
-            self._ref_depth.append((ray, np.zeros(m), np.zeros(m), np.zeros(m)))
-        self._ref_stack = ImageStack([r[0] for r in self._ref])  # its upsampled copy kept
-        for c, ref in enumerate(self._ref):
-            for d in range(len(self.cameras)):
-                if d == c or self.cfg.reference_across:
-                    self._ref_alive[c, d] = np.ones(len(ref[2]), bool)
+            lifted.append((img, uv, bone, q0, surface_tangents(skel, pose, cam, ren, uv, bone)))
+        self.reference.start(skel, pose, lifted)
 
     def set(
         self,
@@ -513,7 +427,7 @@ class FlowAnchors:
         (``foreground`` (C) of (H, W) bool or None per camera); with
         ``settings.persist`` the corners followed into ``frame`` keep their points."""
         followed = self._followed.get(frame) if self.cfg.persist else None
-        matched = self._ref_matched.get(frame)
+        matched = self.reference.matched.get(frame)
         self.clear()
         self.frame = frame
         pose = forward(skel, np.asarray(theta, float)[None], np.asarray(root, float)[None], s)
@@ -539,131 +453,7 @@ class FlowAnchors:
                 )
             )
         if self.cfg.reference:
-            if self.cfg.reference_depth and matched is not None:
-                self._refine_depths(skel, pose, matched)
-            for c, d in self._ref_alive:
-                self._see_reference(skel, pose, rens[d], c, d, matched)
-
-    def _ref_points(self, c: int) -> np.ndarray:
-        """Reference camera c's surface points (M, 3) in their bones' frames, metres,
-        moved along their clicked rays by the refined depths."""
-        q0 = self._ref[c][3]
-        if not self._ref_depth:
-            return q0
-        ray, _, _, t = self._ref_depth[c]
-        return q0 + t[:, None] * ray
-
-    def _refine_depths(self, skel: Skeleton, pose, matched: dict) -> None:
-        """Add the frame's matches (``matched`` {(c, d): (index, uv, affine)}) at the
-        accepted ``pose`` to each corner's 1-D normal equation for its depth along its
-        clicked ray, and solve it (a prior of σ ``reference_depth_prior_m`` towards
-        the lifted depth)."""
-        Rb, pb = bone_frames(skel, pose)
-        gate = self.cfg.reference_depth_gate_px
-        lam = 1.0 / self.cfg.reference_depth_prior_m**2  # px² / m² for a 1 px match
-        for (c, d), (idx, muv, _) in matched.items():
-            if not len(idx):
-                continue
-            ray, N, B, t = self._ref_depth[c]
-            bone = self._ref[c][2][idx]
-            x = pb[0, bone] + np.einsum("nij,nj->ni", Rb[0, bone], self._ref_points(c)[idx])
-            uv, _, Jx = camera_project_jacobians(self.cameras[d], x)
-            J = np.einsum("nij,nj->ni", Jx, np.einsum("nij,nj->ni", Rb[0, bone], ray[idx]))
-            r = muv - uv
-            ok = np.all(np.isfinite(r), axis=1) & (np.linalg.norm(r, axis=1) <= gate)
-            i, J, r = idx[ok], J[ok], r[ok]
-            np.add.at(N, i, np.sum(J * J, axis=1))
-            np.add.at(B, i, np.sum(J * (r + J * t[i, None]), axis=1))
-        lim = self.cfg.reference_depth_max_m
-        for _, N, B, t in self._ref_depth:
-            t[:] = np.clip(B / (N + lam), -lim, lim)
-
-    def _see_reference(self, skel, pose, ren, c, d, matched) -> None:
-        """Keep the reference corners of camera c that the fitted ``pose`` shows camera
-        d (``ren`` its part render) for matching into the next frame, each with its
-        start: its match in this frame (``matched``) where there is one, else its
-        projection; corners matched too far from the projection are dropped for good."""
-        cam = self.cameras[d]
-        _, _, bone, _, tan = self._ref[c]
-        q0 = self._ref_points(c)
-        alive = self._ref_alive[c, d]
-        uv, seen = visible_points(skel, pose, cam, ren, bone, q0, self.cfg.reference_depth_m)
-        i = np.flatnonzero(seen & alive)
-        A = local_affine(skel, pose, cam, bone[i], q0[i], tan[i])
-        uv = uv[i]
-        if d != c:  # another camera: only where it sees the surface as c did
-            sv = np.linalg.svd(A, compute_uv=False)
-            k = self.cfg.reference_across_stretch
-            like = (sv[:, 0] <= k) & (sv[:, 1] >= 1.0 / k) & (sv[:, 0] <= k * sv[:, 1])
-            Rb, pb = bone_frames(skel, pose)
-            b = bone[i]
-            ray = np.einsum("nij,nj->ni", Rb[0, b], self._ref_depth[c][0][i])  # clicked
-            x = pb[0, b] + np.einsum("nij,nj->ni", Rb[0, b], q0[i])
-            view = x - cam.center
-            cos = np.sum(ray * view, axis=1) / np.linalg.norm(view, axis=1)
-            like &= cos >= np.cos(np.radians(self.cfg.reference_across_deg))
-            i, uv, A = i[like], uv[like], A[like]
-        prev = None if matched is None else matched.get((c, d))
-        if prev is not None and len(prev[0]):  # start where matched
-            mi, muv, mA = prev
-            at = np.searchsorted(mi, i)
-            hit = (at < len(mi)) & (mi[np.minimum(at, len(mi) - 1)] == i)
-            drop = self.cfg.reference_drop_px
-            if drop is not None:
-                off = np.zeros(len(i), bool)
-                off[hit] = np.linalg.norm(uv[hit] - muv[at[hit]], axis=1) > drop
-                alive[i[off]] = False
-                keep = ~off
-                i, uv, A, hit, at = i[keep], uv[keep], A[keep], hit[keep], at[keep]
-            uv[hit], A[hit] = muv[at[hit]], mA[at[hit]]
-        self._ref_seen.append((c, d, i, uv, A))
-
-    def _reference_matches(self, frame: int):
-        """The reference corners seen at the stored frame, matched into ``frame``:
-        per camera ``(camera, bone (K,), q0 (K, 3), uv (K, 2))``.  Each starts at its
-        match in the stored frame (else its projection on the stored pose) moved as the
-        image moved there (Lucas–Kanade between the neighbouring frames), with that
-        match's affine part (else the model's), and is matched by least squares from
-        the reference frame's image (of its own camera or, ``reference_across``,
-        another's)."""
-        from .lsm import match
-
-        pairs = [p for p in self._ref_seen if len(p[2])]
-        self._ref_matched[frame] = matched = {}
-        if not pairs:
-            return []
-        cams = sorted({p[1] for p in pairs})
-        starts = [None] * len(pairs)
-        for d in cams:  # one Lucas–Kanade call per camera
-            mine = [k for k, p in enumerate(pairs) if p[1] == d]
-            guess = np.concatenate([pairs[k][3] for k in mine])
-            moved, ok = follow_corners(
-                self.image(d, self.frame), self.image(d, frame), guess, self.cfg
-            )
-            moved = np.where(ok[:, None], moved, guess)
-            at = np.cumsum([0] + [len(pairs[k][3]) for k in mine])
-            for n, k in enumerate(mine):
-                starts[k] = moved[at[n] : at[n + 1]]
-        res = match(
-            self._ref_stack,
-            ImageStack([self.image(d, frame) for d in cams]),
-            np.concatenate([self._ref[c][1][idx] for c, _, idx, _, _ in pairs]),
-            np.concatenate(starts),
-            affine=np.concatenate([A for *_, A in pairs]),
-            template_index=np.concatenate([np.full(len(p[2]), p[0]) for p in pairs]),
-            search_index=np.concatenate([np.full(len(p[2]), cams.index(p[1])) for p in pairs]),
-            max_shift_px=self.cfg.reference_search_px,
-            max_sigma_px=self.cfg.reference_max_sigma_px,
-        )
-        out, at = [], 0
-        for c, d, idx, _, _ in pairs:
-            sl = slice(at, at + len(idx))
-            at += len(idx)
-            k = res.status[sl] == 0
-            bone, q0 = self._ref[c][2], self._ref_points(c)
-            out.append((d, bone[idx[k]], q0[idx[k]], res.uv[sl][k]))
-            matched[c, d] = (idx[k], res.uv[sl][k], res.affine[sl][k])
-        return out
+            self.reference.update(skel, pose, rens, matched)
 
     def observations(self, frame: int) -> FlowObs | None:
         """The lifted corners followed into ``frame`` (the stored frame ± 1), and the
@@ -685,7 +475,7 @@ class FlowAnchors:
             uv.append(uv1[ok])
             cam.append(np.full(int(ok.sum()), c))
             sig.append(np.full(int(ok.sum()), self.cfg.sigma_px))
-        for c, b, q, u in self._reference_matches(frame):
+        for c, b, q, u in self.reference.matches(self.frame, frame):
             bone.append(b)
             q0.append(q)
             uv.append(u)

@@ -14,8 +14,8 @@ from core.fit_flow import (
     follow_corners,
     lift_corners,
     render_body,
-    visible_points,
 )
+from core.fit_reference import visible_points
 from core.fitting import FitSettings, Observations, fit
 from core.metaballs import make_metaballs, world_frames
 from core.model_render import camera_rays, render_parts
@@ -352,8 +352,8 @@ def test_a_reference_corner_far_from_the_accepted_fit_is_dropped_for_good():
         accepted = thetas[1].copy()
         accepted[yaw] += turn  # the frame's fit, right or turned away
         a.set(skel, balls, accepted, root0, s, 1)
-        alive[turn] = a._ref_alive[0, 0].copy()
-        assert not np.isin(np.flatnonzero(~alive[turn]), a._ref_seen[0][2]).any()
+        alive[turn] = a.reference.alive[0, 0].copy()
+        assert not np.isin(np.flatnonzero(~alive[turn]), a.reference.seen[0][2]).any()
     assert alive[0.0].all()
     assert (~alive[0.4]).sum() > 50, (~alive[0.4]).sum()
 
@@ -410,8 +410,8 @@ def test_a_reference_corners_depth_along_its_clicked_ray_is_refined_from_its_mat
         cfg = FlowSettings(reference_depth=refine)
         a = FlowAnchors(cams, lambda c, f: imgs[c], cfg, rays=rays)
         a.set_reference(skel, balls, theta0, root0, s, 0)
-        img, uv, bone, q0, tan = a._ref[0]
-        a._ref[0] = (img, uv, bone, q0 + err * a._ref_depth[0][0], tan)
+        img, uv, bone, q0, tan = a.reference.ref[0]
+        a.reference.ref[0] = (img, uv, bone, q0 + err * a.reference.depth[0][0], tan)
         for f, turn in ((1, 0.9), (2, 1.0)):  # radians: the side camera sees the
             th = theta0.copy()  # front 30–40° off its clicked rays
             th[yaw] += turn
@@ -422,9 +422,11 @@ def test_a_reference_corners_depth_along_its_clicked_ray_is_refined_from_its_mat
             _, seen = visible_points(skel, pose, cams[1], ren, bone, q0, 0.03)
             idx = np.flatnonzero(seen)
             # the frame's matches, at the true points' projections, then its accepted fit
-            a._ref_matched[f] = {(0, 1): (idx, cams[1].project(x[idx]), np.zeros((len(idx), 2, 2)))}
+            a.reference.matched[f] = {
+                (0, 1): (idx, cams[1].project(x[idx]), np.zeros((len(idx), 2, 2)))
+            }
             a.set(skel, balls, th, root0, s, f)
-        t[refine] = a._ref_depth[0][3][idx]
+        t[refine] = a.reference.depth[0][3][idx]
     assert len(idx) > 50, len(idx)
     # median 0.0x mm off
     assert np.median(np.abs(t[True] + err)) < 0.001, np.percentile(t[True], [10, 50, 90])

@@ -36,6 +36,7 @@ from .fitting import FitSettings, fit
 from .free_space import FrameProbes
 from .segment import carry_labels, no_labels, segment_points
 from .silhouette_search import (
+    folds,
     recentre_root,
     search_limbs_silhouette,
     silhouette_disagreement,
@@ -381,11 +382,10 @@ class FrameFitter:
         and the frame refitted from there, the moved DOFs' hold and prior following the
         search; the refit is kept when it is accepted and the body's projection disagrees
         with the foreground at fewer pixels.  ``unfold``: a folded knee or elbow is also
-        tried straightened (:func:`search_limbs_silhouette`).  Returns
-        ``(res, ok, why, stats)``."""
-        cf = self.cframe(f)
+        tried straightened (:func:`search_limbs_silhouette`), and a search that folds
+        one (``cfg.contour_no_fold``) is refitted beside the search without the fold,
+        the one disagreeing at fewer pixels kept.  Returns ``(res, ok, why, stats)``."""
         q = res[0]
-        body = self.balls.copy(radii=self.radii)
         xyz = self.frames[f].xyz
         veto = (
             keeps_points(
@@ -401,45 +401,38 @@ class FrameFitter:
             if len(xyz) >= self.cfg.min_points
             else None
         )
-        sr = search_limbs_silhouette(
-            self.skel,
-            body,
-            self.s,
-            q[: self.n],
-            q[self.n :],
-            cf.cameras,
-            cf.masks(),
-            allowed=veto,
-            unfold=unfold,
-        )
-        if not sr.moved:
+        search = dict(allowed=veto, unfold=unfold)
+        found = [search_limbs_silhouette(*self._search_args(f, q), **search)]
+        if unfold and self.cfg.contour_no_fold and folds(self.skel, q[: self.n], found[0].theta):
+            # a fold the search made is weighed against the search without it
+            found.append(search_limbs_silhouette(*self._search_args(f, q), no_fold=True, **search))
+        best, best_dis = None, self.disagreement(f, q)
+        for sr in found:
+            if not sr.moved:
+                continue
+            q1 = q.copy()
+            q1[: self.n] = sr.theta
+            hold = None
+            if q_hold is not None:
+                hold = q_hold.copy()
+                moved = sr.theta != q[: self.n]
+                hold[: self.n][moved] = sr.theta[moved]
+            res2 = self.one_frame(f, q1, sig_pred, joints, hold)
+            ok2, why2, st2 = self.assess(f, res2)
+            dis = self.disagreement(f, res2[0]) if ok2 else np.inf
+            if dis < best_dis:
+                best, best_dis = (res2, ok2, why2, st2), dis
+        if best is None:
             return res, True, "", st
-        q1 = q.copy()
-        q1[: self.n] = sr.theta
-        hold = None
-        if q_hold is not None:
-            hold = q_hold.copy()
-            moved = sr.theta != q[: self.n]
-            hold[: self.n][moved] = sr.theta[moved]
-        res2 = self.one_frame(f, q1, sig_pred, joints, hold)
-        ok2, why2, st2 = self.assess(f, res2)
-        if ok2 and (
-            silhouette_disagreement(
-                self.skel,
-                body,
-                res2[0][: self.n],
-                res2[0][self.n :],
-                self.s,
-                cf.cameras,
-                cf.grids(),
-            )
-            < silhouette_disagreement(
-                self.skel, body, q[: self.n], q[self.n :], self.s, cf.cameras, cf.grids()
-            )
-        ):
-            self.retried[f] = True
-            return res2, ok2, why2, st2
-        return res, True, "", st
+        self.retried[f] = True
+        return best
+
+    def _search_args(self, f, q):
+        """The positional arguments of :func:`search_limbs_silhouette` for frame f from
+        pose q (n + 3,)."""
+        cf = self.cframe(f)
+        body = self.balls.copy(radii=self.radii)
+        return self.skel, body, self.s, q[: self.n], q[self.n :], cf.cameras, cf.masks()
 
     def contour_fit(self, f, res, ok, why, st, q_start, sig_pred, joints, q_hold):
         """The silhouette retries of a frame without points, after its plain fit from

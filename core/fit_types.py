@@ -190,6 +190,11 @@ class SequenceSettings:
     #: parent's outline, costs nothing there, and the offsets cannot unfold it
     #: (docs/design.md, "A folded limb the silhouette search could not unfold")
     contour_unfold: bool = True
+    #: contours alone: a search that folds a knee or elbow (beyond 120°) is weighed, after
+    #: the refit, against the search without that fold.  Measured, off: dance_ortho3 run
+    #: 3's fold is kept either way, run 2 went 25.1 -> 42.5 mm (docs/design.md, "A fold
+    #: the silhouette search makes")
+    contour_no_fold: bool = False
     #: contours alone: a frame whose body overlaps the foreground less (mean IoU over the
     #: cameras with one) is diverged.  Walk, skin look, a 29 mm fit: 0.81-0.90; the dance
     #: (orthogonal3) lost by 600 mm and more: below 0.45, down to 0 with the body 25 m away

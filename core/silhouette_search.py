@@ -100,6 +100,14 @@ def unfolded(skel: Skeleton, limb: tuple, theta: np.ndarray) -> tuple:
     return bones, root_joint, tail_joint, grid
 
 
+def folds(skel: Skeleton, theta0: np.ndarray, theta: np.ndarray) -> bool:
+    """Whether ``theta`` (n,) folds a knee or elbow (beyond :data:`FOLDED_DEG`) that
+    ``theta0`` (n,) has unfolded: a search's move worth weighing against the search
+    without it (``no_fold``)."""
+    grid = tuple((d, ()) for _, _, _, g in SILHOUETTE_LIMBS.values() for d, *_ in g)
+    return bool(_new_folds(skel, grid, np.asarray(theta0, float), np.asarray(theta)[None])[0])
+
+
 @dataclass
 class MaskGrid:
     """Pixels sampled from one camera's foreground mask around the person.
@@ -310,10 +318,36 @@ def _ellipse_background(mask: np.ndarray, mu: np.ndarray, inv: np.ndarray) -> np
     return np.where(live, area * (1.0 - fg.mean(axis=-1)), 0.0)
 
 
+def _new_folds(skel: Skeleton, grid, theta: np.ndarray, poses: np.ndarray) -> np.ndarray:
+    """(H,) bool: ``poses`` (H, n) that fold a hinge of the limb's ``grid`` (a knee or an
+    elbow flexed beyond :data:`FOLDED_DEG`) that ``theta`` (n,) has unfolded."""
+    hinges = [
+        k
+        for k in (skel.dof_index(e[0]) for e in grid if e[0][2:] in UNFOLD_DEG)
+        if abs(theta[k]) <= np.radians(FOLDED_DEG)
+    ]
+    if not hinges:
+        return np.zeros(len(poses), bool)
+    return np.any(np.abs(poses[:, hinges]) > np.radians(FOLDED_DEG), axis=1)
+
+
 def _limb_gain(
-    skel, balls, s, theta, root, limb, cameras, masks, sigma_prior, prior_px, w_background, step
+    skel,
+    balls,
+    s,
+    theta,
+    root,
+    limb,
+    cameras,
+    masks,
+    sigma_prior,
+    prior_px,
+    w_background,
+    step,
+    no_fold=False,
 ):
-    """Best grid pose of one limb against the masks: ``(gain px, theta)`` or (0, None)."""
+    """Best grid pose of one limb against the masks: ``(gain px, theta)`` or (0, None).
+    ``no_fold``: poses that fold one of its unfolded hinges are left out."""
     bones, root_joint, tail_joint, grid = limb
     on = np.isin(balls.bone, [skel.bone_index(b) for b in bones])
     if not on.any():
@@ -373,10 +407,12 @@ def _limb_gain(
             total -= w_background * _ellipse_background(mask, mu, inv).sum(axis=1)
         return total
 
+    def cost(th):
+        c = -score(th)
+        return np.where(_new_folds(skel, grid, theta, th), np.inf, c) if no_fold else c
+
     base_score = float(score(theta[None])[0])
-    best, best_cost = grid_search(
-        skel, theta, grid, lambda th: -score(th), -base_score, prior_px / sigma_prior**2
-    )
+    best, best_cost = grid_search(skel, theta, grid, cost, -base_score, prior_px / sigma_prior**2)
     if best is theta:
         return 0.0, None
     return -base_score - best_cost, best
@@ -399,6 +435,7 @@ def search_limbs_silhouette(
     step: int = 2,
     allowed=None,
     unfold: bool = False,
+    no_fold: bool = False,
 ) -> SilhouetteSearch:
     """Place each limb at the grid pose that best explains the foreground near it.
 
@@ -418,6 +455,9 @@ def search_limbs_silhouette(
     allowed : callable ``(theta, candidate) -> bool``, optional — a veto on a limb's move
         from the current pose ``theta`` (n,) to ``candidate`` (n,), e.g. when it would
         take the limb off the 3-D points that place it
+    unfold : a folded knee or elbow (:func:`unfolded`) is also tried straightened
+    no_fold : no move folds a knee or elbow the current pose has unfolded (beyond
+        :data:`FOLDED_DEG`); the alternative :func:`folds` asks for
 
     Returns
     -------
@@ -444,6 +484,7 @@ def search_limbs_silhouette(
                 prior_px,
                 w_background,
                 step,
+                no_fold,
             )
             if gain > best_gain and (allowed is None or allowed(theta, th)):
                 best_gain, best_theta, best_name = gain, th, name

@@ -8,7 +8,9 @@ from core import skeleton as sk
 from core.contour_obs import body_ellipsoids
 from core.model_render import render_parts
 from core.silhouette_search import (
+    FOLDED_DEG,
     SILHOUETTE_LIMBS,
+    folds,
     image_ellipses,
     mask_grid,
     recentre_root,
@@ -197,3 +199,32 @@ def test_a_shin_folded_onto_its_thigh_is_unfolded_only_with_the_absolute_flexion
     bent[skel.dof_index("r_knee_x")] = 1.5
     assert unfolded(skel, SILHOUETTE_LIMBS["r_leg"], bent) == SILHOUETTE_LIMBS["r_leg"]
     assert unfolded(skel, SILHOUETTE_LIMBS["r_leg"], start) != SILHOUETTE_LIMBS["r_leg"]
+
+
+def test_a_fold_the_search_makes_is_flagged_and_left_out_with_no_fold(body):
+    """The true shin folded onto its thigh (knee 2.6 rad), the start's knee nearly
+    straight: the search folds it — a move :func:`folds` flags, so that the sequence
+    fit weighs it against the search with ``no_fold``, which bends the knee no further
+    than :data:`FOLDED_DEG`.  A start already folded is not held by ``no_fold``."""
+    skel, s, balls = body
+    cams = [look_at("front", (0.0, -4.0, 1.0)), look_at("side", (4.0, 0.0, 1.0))]
+    root = np.array([0.0, 0.0, 1.0])
+    knee = skel.dof_index("r_knee_x")
+    true = np.zeros(skel.n_dof)
+    true[skel.dof_index("r_hip_x")] = -0.3
+    true[knee] = 2.6
+    masks = _masks(skel, balls, true, root, s, cams)
+    start = true.copy()
+    start[knee] = 0.3
+    limit = np.radians(FOLDED_DEG)
+
+    found = search_limbs_silhouette(skel, balls, s, start, root, cams, masks)
+    held = search_limbs_silhouette(skel, balls, s, start, root, cams, masks, no_fold=True)
+    assert found.theta[knee] > limit, np.degrees(found.theta[knee])
+    assert folds(skel, start, found.theta)
+    assert "r_leg" in held.moved and held.theta[knee] <= limit, np.degrees(held.theta[knee])
+    assert not folds(skel, start, held.theta)
+    # folding further a knee that is folded already is no new fold
+    assert not folds(skel, found.theta, true)
+    again = search_limbs_silhouette(skel, balls, s, true, root, cams, masks, no_fold=True)
+    assert again.theta[knee] > limit

@@ -376,7 +376,7 @@ class FrameFitter:
                 return res2, ok2, why2, st2
         return res, ok, why, st
 
-    def silhouette_retry(self, f, res, st, sig_pred, joints, q_hold, unfold=False):
+    def silhouette_retry(self, f, res, st, sig_pred, joints, q_hold, unfold=False, restore=False):
         """Every limb placed where it best explains the frame's foreground
         (:func:`search_limbs_silhouette`; with points, a move vetoed by ``keeps_points``)
         and the frame refitted from there, the moved DOFs' hold and prior following the
@@ -402,6 +402,8 @@ class FrameFitter:
             else None
         )
         search = dict(allowed=veto, unfold=unfold)
+        if veto is not None:
+            search["twist"] = self.cfg.silhouette_points_twist
         found = [search_limbs_silhouette(*self._search_args(f, q), **search)]
         if unfold and self.cfg.contour_no_fold and folds(self.skel, q[: self.n], found[0].theta):
             # a fold the search made is weighed against the search without it
@@ -421,9 +423,17 @@ class FrameFitter:
             ok2, why2, st2 = self.assess(f, res2)
             dis = self.disagreement(f, res2[0]) if ok2 else np.inf
             if dis < best_dis:
-                best, best_dis = (res2, ok2, why2, st2), dis
+                best, best_dis, best_moved = (res2, ok2, why2, st2), dis, sr.theta != q[: self.n]
         if best is None:
             return res, True, "", st
+        if restore:
+            # the moved limbs back at the start, on the rest of the body as refitted
+            q2 = best[0][0].copy()
+            q2[: self.n][best_moved] = q[: self.n][best_moved]
+            res3 = self.one_frame(f, q2, sig_pred, joints, q_hold)
+            ok3, why3, st3 = self.assess(f, res3)
+            if ok3 and self.disagreement(f, res3[0]) < best_dis:
+                best = (res3, ok3, why3, st3)
         self.retried[f] = True
         return best
 
@@ -446,9 +456,25 @@ class FrameFitter:
             )
         if ok:
             res, ok, why, st = self.silhouette_retry(
-                f, res, st, sig_pred, joints, q_hold, self.cfg.contour_unfold
+                f,
+                res,
+                st,
+                sig_pred,
+                joints,
+                q_hold,
+                self.cfg.contour_unfold,
+                self.cfg.contour_restore,
             )
         return res, ok, why, st
+
+    def outline_agrees(self, f, q_new, q_old):
+        """Whether pose ``q_new`` disagrees with frame f's foreground at no more than
+        ``1 + cfg.search_outline_margin`` times the pixels ``q_old`` does (True when the
+        check is off, ``search_outline_margin`` None, or the frame has no outline)."""
+        margin = self.cfg.search_outline_margin
+        if margin is None or not has_outline(self.cframe(f)):
+            return True
+        return self.disagreement(f, q_new) <= (1.0 + margin) * self.disagreement(f, q_old)
 
     def disagreement(self, f, q):
         """Pixels where pose q's body and frame f's foreground disagree (all cameras)."""
@@ -466,7 +492,8 @@ class FrameFitter:
         * when it is accepted, the limb search (:func:`core.fit_search.search_limbs`)
           from its pose: a limb that a better place explains more points at is moved
           there and the frame refitted from it (a limb lost while hidden, or one that
-          moved faster than the prediction);
+          moved faster than the prediction), kept when it explains the points better
+          and the outline about as well (:meth:`outline_agrees`);
         * when it fails or leaves more than ``cfg.retry_unexplained`` of the points far
           from the body, an annealed fit (:meth:`one_frame` ``anneal``) from the best
           of the prediction and the alternatives;
@@ -500,7 +527,7 @@ class FrameFitter:
                 q1[: self.n] = sr.theta
                 res2 = self.one_frame(f, q1, sig_pred, joints, q_hold)
                 ok2, why2, st2 = self.assess(f, res2)
-                if ok2 and st2["cost"] < st["cost"]:
+                if ok2 and st2["cost"] < st["cost"] and self.outline_agrees(f, res2[0], res[0]):
                     res, ok, why, st = res2, ok2, why2, st2
                     self.retried[f] = True
         elif search:

@@ -184,6 +184,20 @@ class SequenceSettings:
     #: dance_line3 (cues both) 264.2 mm over 21 accepted frames, 29 diverged -> 76.0 mm
     #: over 36, 14 diverged; make demo 11.6 -> 11.7, jumps_line3 14.0 -> 14.7 mm
     silhouette_search_points: bool = True
+    #: with contours, in frames with points: the limb search's refit (core.fit_search)
+    #: is kept only where its body disagrees with the foreground at no more than
+    #: (1 + this) times the pixels the plain fit's does; None: not checked.  make demo's
+    #: walk, clicks moved (draw 1): a burst of points off the body at frame 9 took the
+    #: right leg 41 cm off (7,312 -> 11,732 px), 25.4 -> 16.1 mm; the moves kept in two
+    #: draws logged change the outline by 0.83-1.13 times (0.1 refused the jumps' 1.13:
+    #: 15.9 -> 16.6 mm); seven of eight draws bit for bit the same
+    #: (docs/design.md, "Points that lure a limb off the outline")
+    search_outline_margin: float | None = 0.25
+    #: in frames with points, the silhouette search's arm grids take the upper arm's
+    #: twist as in frames without (core.silhouette_search.SILHOUETTE_LIMBS); False
+    #: leaves the twist to the fit there.  Measured, kept on: walk_line3 medians 14.0 ->
+    #: 13.1 mm, jumps_line3 15.6 -> 16.3 (docs/design.md, "The hidden arm's twist ...")
+    silhouette_points_twist: bool = True
     #: contours alone: the silhouette search also tries a knee or elbow folded beyond
     #: 120° at a few absolute flexions (core.silhouette_search.UNFOLD_DEG), not only
     #: within ±60° of the fit: a shin or forearm folded onto its parent hides inside the
@@ -195,6 +209,12 @@ class SequenceSettings:
     #: 3's fold is kept either way, run 2 went 25.1 -> 42.5 mm (docs/design.md, "A fold
     #: the silhouette search makes")
     contour_no_fold: bool = False
+    #: contours alone: after the silhouette search's refit is kept, the limbs it moved
+    #: are put back where the start had them, on the rest of the body as refitted, and
+    #: the frame refitted once more; kept when it disagrees with the foreground at fewer
+    #: pixels (a limb moved to make up for a root or trunk that was off).  Measured, off:
+    #: dance_ortho3 run 3 38.8 -> 25.6 mm, runs 0 and 2 24.2 -> 39.2 and 25.1 -> 30.8
+    contour_restore: bool = False
     #: contours alone: a frame whose body overlaps the foreground less (mean IoU over the
     #: cameras with one) is diverged.  Walk, skin look, a 29 mm fit: 0.81-0.90; the dance
     #: (orthogonal3) lost by 600 mm and more: below 0.45, down to 0 with the body 25 m away

@@ -436,6 +436,7 @@ def search_limbs_silhouette(
     allowed=None,
     unfold: bool = False,
     no_fold: bool = False,
+    twist: bool = True,
 ) -> SilhouetteSearch:
     """Place each limb at the grid pose that best explains the foreground near it.
 
@@ -458,6 +459,8 @@ def search_limbs_silhouette(
     unfold : a folded knee or elbow (:func:`unfolded`) is also tried straightened
     no_fold : no move folds a knee or elbow the current pose has unfolded (beyond
         :data:`FOLDED_DEG`); the alternative :func:`folds` asks for
+    twist : the arms' grids take the upper arm's twist (:data:`SILHOUETTE_LIMBS`);
+        False searches the arms on :data:`core.fit_search.LIMBS`' grids
 
     Returns
     -------
@@ -466,6 +469,7 @@ def search_limbs_silhouette(
     theta = np.asarray(theta0, float).copy()
     root = np.asarray(root, float).reshape(3)
     names = tuple(LIMBS) if limbs is None else tuple(limbs)
+    grids = SILHOUETTE_LIMBS if twist else LIMBS
     moved: list[str] = []
     total = 0.0
     for _ in range(rounds * len(names)):
@@ -477,7 +481,7 @@ def search_limbs_silhouette(
                 s,
                 theta,
                 root,
-                unfolded(skel, SILHOUETTE_LIMBS[name], theta) if unfold else SILHOUETTE_LIMBS[name],
+                unfolded(skel, grids[name], theta) if unfold else grids[name],
                 cameras,
                 masks,
                 sigma_prior,

@@ -25,7 +25,10 @@ clicked frame's initial posture (:mod:`core.fit_init`):
    their points); with ``shape_fit_track`` it is fitted right after at least
    ``shape_fit_frames`` shape frames, replaces the shape, and those frames' poses are
    refitted once more.  Its convergence,
-   message and per-frame flags are recorded (:class:`ShapeRecord`);
+   message and per-frame flags are recorded (:class:`ShapeRecord`).  Bones the shape
+   frames hardly saw are shaped *late*, over the fitted take
+   (:mod:`core.fit_late_shape`, ``late_shape_points``), and returned for a second pass
+   that starts from that shape (``shape0``; :func:`core.fit_scene.run_scene` runs it);
 2. **motion** — every other frame is *predicted* (the extended Kalman filter of
    :mod:`core.ekf` over ``[θ, root]``, or constant velocity), its points are
    *segmented* to body parts at the predicted pose (:mod:`core.segment`: points far
@@ -131,10 +134,11 @@ from .fit_bridge import unobserved
 from .fit_coupling import fill_unobserved
 from .fit_frame import FrameFitter
 from .fit_init import Initialisation
+from .fit_late_shape import LateShape, late_shape, shape_settings
 from .fit_predict import PosePredictor
 from .fit_types import FramePoints, SequenceResult, SequenceSettings, frame_observations
 from .fit_whole_shape import whole_body_shape, written_shape
-from .fitting import FitSettings, fit
+from .fitting import fit
 from .foot_heading import feet_from_points
 from .metaballs import deflate
 from .motion_smoother import smooth_angles, smooth_joints
@@ -154,6 +158,7 @@ def fit_sequence(
     cameras: list | None = None,
     contours: list | None = None,
     flow=None,
+    shape0: LateShape | None = None,
 ) -> SequenceResult:
     """Fit shape and motion to the observations of every frame.
 
@@ -171,6 +176,9 @@ def fit_sequence(
     flow : :class:`core.fit_flow.FlowAnchors` or None — image corners of every camera
         lifted onto each fitted frame and followed into the next as a further
         observation type (single-camera texture motion)
+    shape0 : :class:`core.fit_late_shape.LateShape` or None — a first pass's late shape
+        to track with (its radii and centres replace the template's before the shape
+        frames' solve, which starts from them); with it no late shape is computed
 
     Returns
     -------
@@ -193,6 +201,8 @@ def fit_sequence(
         )
         init = replace(init, theta=theta0)
     fx = FrameFitter(frames, init, cfg, contours, flow, cameras)  # per frame: fit, results
+    if shape0 is not None:  # the late shape of a first pass (core.fit_late_shape)
+        fx.radii, fx.balls.center0 = shape0.radii.copy(), shape0.centers.copy()
     fx.msgs += [f"clicked frame {f0}: " + h.message() for h in feet]
     skel = init.skeleton
     template = init.metaballs.copy()  # the shape solves' bounds (FitSettings.radius_ratio)
@@ -203,65 +213,59 @@ def fit_sequence(
     # 1) shape: at the clicked frame the clicks fix the pose; later shape frames are
     #    pose-fitted with the current shape, then the shape is re-solved over all of
     #    them with their poses held (shape-only solves avoid the shape/pose trade-off)
-    shape_cfg = FitSettings(
-        **{
-            **cfg.fit.__dict__,
-            "max_nfev": cfg.max_nfev_shape,
-            "fit_scales": cfg.shape_scales,
-            "free_centers": cfg.shape_centers,
-            "sigma_radius": cfg.shape_sigma_radius,
-            "sigma_center": cfg.shape_sigma_center,
-        }
-    )
+    shape_cfg = shape_settings(cfg)
     shape_first = cfg.shape == "fit" and cfg.shape_fit_track
     n_shape = max(cfg.shape_frames, 1, cfg.shape_fit_frames if shape_first else 1)
     shape_range = list(range(f0, min(nf, f0 + n_shape)))
     fx.store(f0, np.concatenate([init.theta, init.root_xyz]), True)
-    shaped = []
-    for k, f in enumerate(shape_range):
-        if k:
-            ok, q = fx.fit_frame(
-                f, np.concatenate([fx.theta[f - 1], fx.root[f - 1]]), np.full(n, cfg.sigma_pred_max)
-            )
-            fx.store(f, q, ok)
-            if not ok:
-                continue
-        for rnd in range(2):  # segment, solve the shape, segment again with it
-            obs_s, keep = [], []
-            for g in (shaped + [f]) if rnd == 0 else shaped:
-                part, _d = segment_points(
-                    frames[g].xyz,
+    for _sweep in range(max(cfg.shape_sweeps, 1)):  # each sweep starts from the last's shape
+        shaped = []
+        for k, f in enumerate(shape_range):
+            if k:
+                ok, q = fx.fit_frame(
+                    f,
+                    np.concatenate([fx.theta[f - 1], fx.root[f - 1]]),
+                    np.full(n, cfg.sigma_pred_max),
+                )
+                fx.store(f, q, ok)
+                if not ok:
+                    continue
+            for rnd in range(2):  # segment, solve the shape, segment again with it
+                obs_s, keep = [], []
+                for g in (shaped + [f]) if rnd == 0 else shaped:
+                    part, _d = segment_points(
+                        frames[g].xyz,
+                        skel,
+                        fx.balls,
+                        fx.theta[g],
+                        fx.root[g],
+                        fx.s,
+                        fx.segment_radii,
+                        cfg.segment_max_dist,
+                        cfg.segment_margin,
+                    )
+                    if (part >= 0).sum() >= cfg.min_points:
+                        obs_s.append(frame_observations(frames[g], part, None, cfg.sigma_pred, n))
+                        keep.append(g)
+                if not obs_s:
+                    break
+                rs = fit(
                     skel,
                     fx.balls,
-                    fx.theta[g],
-                    fx.root[g],
+                    obs_s,
+                    fx.theta[keep],
+                    fx.root[keep],
                     fx.s,
-                    fx.segment_radii,
-                    cfg.segment_max_dist,
-                    cfg.segment_margin,
+                    fx.radii,
+                    solve="shape",
+                    settings=shape_cfg,
+                    shape_ref=template,
                 )
-                if (part >= 0).sum() >= cfg.min_points:
-                    obs_s.append(frame_observations(frames[g], part, None, cfg.sigma_pred, n))
-                    keep.append(g)
-            if not obs_s:
-                break
-            rs = fit(
-                skel,
-                fx.balls,
-                obs_s,
-                fx.theta[keep],
-                fx.root[keep],
-                fx.s,
-                fx.radii,
-                solve="shape",
-                settings=shape_cfg,
-                shape_ref=template,
-            )
-            fx.s, fx.radii = rs[0].s.copy(), rs[0].radii.copy()
-            fx.balls.center0 = rs[0].centers.copy()
-            shaped = keep
-        if progress is not None:
-            progress.update(k + 1, nf + len(shape_range), f"shape: frame {f}")
+                fx.s, fx.radii = rs[0].s.copy(), rs[0].radii.copy()
+                fx.balls.center0 = rs[0].centers.copy()
+                shaped = keep
+            if progress is not None:
+                progress.update(k + 1, nf + len(shape_range), f"shape: frame {f}")
     if not shaped:
         fx.msgs.append(
             "no usable points in the shape frames: the template shape is kept"
@@ -415,6 +419,16 @@ def fit_sequence(
                 f"unobserved angles smoothed over the take in "
                 f"{int((unobs & ~fx.div[:, None]).any(axis=1).sum())} frames"
             )
+    late = None
+    if shape0 is None and cfg.late_shape_points is not None:
+        late = late_shape(
+            fx,
+            shape_range,
+            template,
+            cfg.late_shape_step,
+            cfg.late_shape_points,
+            cfg.late_shape_missed,
+        )
     balls_out = fx.balls.copy(radii=fx.radii) if fitted_balls is None else fitted_balls.copy()
     q = Quality(
         rmse_m=fx.rmse,
@@ -449,6 +463,7 @@ def fit_sequence(
         contour_matches=fx.c_n,
         contour_rms_px=fx.c_rms,
         hidden=fx.hid,
+        late_shape=late,
     )
 
 

@@ -27,7 +27,7 @@ import numpy as np
 from .errors import InputError
 from .fit import FramePoints, SequenceSettings, fit_sequence
 from .fit_types import ShapeRecord
-from .progress import Progress
+from .progress import Progress, prefixed
 from .state import FitState
 
 
@@ -231,6 +231,8 @@ def run_scene(
         res = _second_pass(
             obs, init, settings, res, cframes, anchors, kw, timings, time.perf_counter() - t2
         )
+    elif res.late_shape is not None:
+        res = _late_pass(obs, init, settings, res, cframes, anchors, kw, timings, t2)
     timings["fit"] = time.perf_counter() - t2
     timings["total"] = time.perf_counter() - t0
     if res.shape is not None:
@@ -258,20 +260,12 @@ def _second_pass(obs, init, settings, first, cframes, anchors, kw, timings, seco
     nothing to re-solve without points), on fresh contour frames and flow anchors; the
     result carries the first pass's shape record.
     """
-    from .fit_contours import ContourFrame
-
     timings["first_pass"] = seconds
-    fresh = [
-        None if cf is None else ContourFrame(cf.cameras, cf.contours, cf.cfg, rays=cf.rays)
-        for cf in cframes
-    ]
-    if anchors is not None:
-        anchors.clear()
     res = fit_sequence(
         obs,
         replace(init, metaballs=first.state.metaballs),
-        replace(settings, shape="template"),
-        contours=fresh,
+        replace(settings, shape="template", late_shape_points=None),
+        contours=_fresh(cframes, anchors),
         **kw,
     )
     note = (
@@ -281,6 +275,31 @@ def _second_pass(obs, init, settings, first, cframes, anchors, kw, timings, seco
     )
     shape_msgs = [m for m in first.messages if m.startswith("whole-body shape")]
     return replace(res, shape=first.shape, messages=shape_msgs + [note] + res.messages)
+
+
+def _fresh(cframes, anchors):
+    """Contour frames without a fit's cached state, and the flow's anchors cleared."""
+    from .fit_contours import ContourFrame
+
+    if anchors is not None:
+        anchors.clear()
+    if cframes is None:
+        return None
+    return [
+        None if cf is None else ContourFrame(cf.cameras, cf.contours, cf.cfg, rays=cf.rays)
+        for cf in cframes
+    ]
+
+
+def _late_pass(obs, init, settings, first, cframes, anchors, kw, timings, t_start):
+    """The motion fitted again, tracked with the ``first`` pass's late shape
+    (:mod:`core.fit_late_shape`: the parts the shape frames hardly saw, shaped from the
+    fitted take)."""
+    timings["first_pass"] = time.perf_counter() - t_start
+    late = first.late_shape
+    kw = {**kw, "progress": prefixed(kw.get("progress"), "second pass (late shape): ")}
+    res = fit_sequence(obs, init, settings, contours=_fresh(cframes, anchors), shape0=late, **kw)
+    return replace(res, messages=[late.message()] + res.messages)
 
 
 #: The observation types ``run_scene`` / ``python -m core fit --cues`` can fit.

@@ -54,6 +54,10 @@ class SequenceSettings:
     """Settings of :func:`fit_sequence` (lengths in metres, angles in radians)."""
 
     shape_frames: int = 2
+    #: sweeps of the shape frames' solve, each from the last one's shape and anchored
+    #: to it.  2 on make demo's walk, runs 0-3: 12.9 / 16.1 / 12.7 / 15.1 -> 9.9 / 13.9 /
+    #: 15.6 / 15.0 mm (median 14.0 -> 14.4): left at 1 (docs/design.md, "The late shape")
+    shape_sweeps: int = 1
     predictor: str = "ekf"  # or "constant_velocity"
     damping: float = 0.8  # rate decay per frame of the prediction
     sigma_pred: float = 0.15  # floor of the prior σ on each predicted angle
@@ -252,6 +256,16 @@ class SequenceSettings:
     #: flow (cues both, no points) it helped once and hurt twice: walk_ortho3 17.6 ->
     #: 15.2 (17.1 -> 22.1 with a second shape frame), the skin walk 16.9 -> 19.0 mm
     silhouette_second_pass: bool = True
+    #: the late shape (:mod:`core.fit_late_shape`): bones with fewer than
+    #: ``late_shape_missed`` points in the shape frames and at least
+    #: ``late_shape_points`` over every ``late_shape_step``-th fitted frame are
+    #: re-shaped there at the fitted poses, and :func:`core.fit_scene.run_scene` fits
+    #: the motion a second time with that shape (None: off).  make demo's walk, runs
+    #: 0-3 of bench.fit_spread: 12.9 / 16.1 / 12.7 / 15.1 -> 11.1 / 13.5 / 12.4 / 12.2
+    #: mm; jumps_line3 has no such bone (one pass, unchanged)
+    late_shape_points: int | None = 100
+    late_shape_missed: int = 30
+    late_shape_step: int = 5
     #: with shape = "fit": track with the fitted shape (True: fitted right after the
     #: shape frames), or track with the per-part shape and fit the whole-body shape
     #: after the motion, at the fitted poses, for the state only (False)
@@ -308,6 +322,8 @@ class SequenceResult:
     contour_rms_px: np.ndarray | None = None
     #: (F, n) bool: the DOFs of parts too little observed at the fitted pose (held)
     hidden: np.ndarray | None = None
+    #: :class:`core.fit_late_shape.LateShape` for a second pass, or None
+    late_shape: object | None = None
 
 
 def point_sigma(sigma_m: np.ndarray, model_m: float) -> np.ndarray:

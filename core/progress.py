@@ -56,3 +56,13 @@ class Progress:
 def null_progress() -> Progress:
     """A progress sink that prints nothing (still honours cancel)."""
     return Progress(callback=lambda frac, msg: None)
+
+
+def prefixed(progress: Progress | None, text: str) -> Progress | None:
+    """A sink that forwards to ``progress`` with ``text`` before every message and
+    shares its cancel flag (None stays None): a stage run twice says which run it is."""
+    if progress is None:
+        return None
+    out = Progress(callback=lambda frac, msg: progress.update(frac, 1.0, text + msg))
+    out.cancel_event = progress.cancel_event
+    return out

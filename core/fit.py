@@ -428,6 +428,7 @@ def fit_sequence(
             cfg.late_shape_step,
             cfg.late_shape_points,
             cfg.late_shape_missed,
+            cfg.late_shape_max_unexplained,
         )
     balls_out = fx.balls.copy(radii=fx.radii) if fitted_balls is None else fitted_balls.copy()
     q = Quality(

@@ -100,7 +100,13 @@ def _labels(fx, g):
 
 
 def late_shape(
-    fx, shape_frames, template, step: int = 5, min_points: int = 100, missed_points: int = 30
+    fx,
+    shape_frames,
+    template,
+    step: int = 5,
+    min_points: int = 100,
+    missed_points: int = 30,
+    max_unexplained: float = 0.1,
 ):
     """The late shape of a fitted take, or None when no bone qualifies.
 
@@ -115,6 +121,10 @@ def late_shape(
     min_points : a bone is re-shaped when the solve's frames give it at least this
         many points ...
     missed_points : ... and the shape frames gave it fewer than this
+    max_unexplained : a take whose fit leaves more than this share of the points
+        unexplained in its median fitted frame (``fx.unexpl``) is not re-shaped: its
+        poses may be wrong (dance_line3, lost at its first kick: 0.19; make demo's
+        walk 0.066)
 
     Returns
     -------
@@ -122,7 +132,12 @@ def late_shape(
     """
     cfg = fx.cfg
     nb = len(fx.skel.bone_names)
-    use = [f for f in range(fx.nf) if not fx.div[f] and fx.n_pts[f] >= cfg.min_points][::step]
+    fitted = [f for f in range(fx.nf) if not fx.div[f] and fx.n_pts[f] >= cfg.min_points]
+    share = fx.unexpl[fitted]
+    share = share[np.isfinite(share)]
+    if not fitted or (len(share) and np.median(share) > max_unexplained):
+        return None
+    use = fitted[::step]
     shape_pts = np.zeros(nb, int)
     for g in shape_frames:
         if not fx.div[g]:

@@ -265,6 +265,9 @@ class SequenceSettings:
     #: mm; jumps_line3 has no such bone (one pass, unchanged)
     late_shape_points: int | None = 100
     late_shape_missed: int = 30
+    #: ... unless the fit leaves more than this share of the points unexplained in its
+    #: median frame (its poses may be wrong; dance_line3, lost: 0.19, the walk 0.066)
+    late_shape_max_unexplained: float = 0.1
     late_shape_step: int = 5
     #: with shape = "fit": track with the fitted shape (True: fitted right after the
     #: shape frames), or track with the per-part shape and fit the whole-body shape

@@ -84,6 +84,7 @@ def shape_settings(cfg) -> FitSettings:
 
 
 def _labels(fx, g):
+    """Frame g's points segmented to bones (N,) at its fitted pose (−1: left out)."""
     cfg = fx.cfg
     part, _ = segment_points(
         fx.frames[g].xyz,

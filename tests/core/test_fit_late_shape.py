@@ -107,3 +107,29 @@ def test_a_forearm_the_shape_frames_missed_is_shaped_from_the_take(thin_forearm)
     now = _forearm_surface_mm(skel, s, true, theta, root, st.radii, st.center0, 0, rng)
     was = _forearm_surface_mm(skel, s, true, theta, root, fx.radii, fx.balls.center0, 0, rng)
     assert now[0] < 0.5 * was[0], (was, now)
+
+
+def test_cli_one_pass_turns_the_late_shape_off(monkeypatch):
+    """``python -m core fit SCENE --one-pass`` asks for no late shape; by default the
+    fit has it."""
+    from pathlib import Path
+
+    import core.fit_scene
+    from core.cli import main
+
+    seen = []
+
+    class Stop(Exception):
+        pass
+
+    def fake_run_scene(scene, settings=None, **kw):
+        seen.append(settings.late_shape_points)
+        raise Stop
+
+    monkeypatch.setattr(core.fit_scene, "run_scene", fake_run_scene)
+    scene = Path(__file__).resolve().parents[2] / "sample_scenes" / "walk_line3"
+    for argv, want in ((["--one-pass"], None), ([], SequenceSettings().late_shape_points)):
+        with pytest.raises(Stop):
+            main(["fit", str(scene), *argv])
+        assert seen[-1] == want
+    assert seen[-1] == 100

@@ -143,7 +143,6 @@ from .foot_heading import feet_from_points
 from .metaballs import deflate
 from .motion_smoother import smooth_angles, smooth_joints
 from .progress import Progress
-from .segment import segment_points
 from .state import FitState, Quality
 
 
@@ -233,17 +232,7 @@ def fit_sequence(
             for rnd in range(2):  # segment, solve the shape, segment again with it
                 obs_s, keep = [], []
                 for g in (shaped + [f]) if rnd == 0 else shaped:
-                    part, _d = segment_points(
-                        frames[g].xyz,
-                        skel,
-                        fx.balls,
-                        fx.theta[g],
-                        fx.root[g],
-                        fx.s,
-                        fx.segment_radii,
-                        cfg.segment_max_dist,
-                        cfg.segment_margin,
-                    )
+                    part = fx.stored_labels(g)
                     if (part >= 0).sum() >= cfg.min_points:
                         obs_s.append(frame_observations(frames[g], part, None, cfg.sigma_pred, n))
                         keep.append(g)

@@ -127,6 +127,22 @@ class FrameFitter(SilhouetteRetries):
         """
         return self.balls.radii if self.cfg.segment_initial_radii else self.radii
 
+    def stored_labels(self, g):
+        """Frame g's points segmented to bones (N,) at its stored pose (−1: left out;
+        ``cfg.segment_max_dist`` and ``segment_margin``): what the shape solves take."""
+        part, _ = segment_points(
+            self.frames[g].xyz,
+            self.skel,
+            self.balls,
+            self.theta[g],
+            self.root[g],
+            self.s,
+            self.segment_radii,
+            self.cfg.segment_max_dist,
+            self.cfg.segment_margin,
+        )
+        return part
+
     def cframe(self, f):
         """Frame f's :class:`core.fit_contours.ContourFrame`, or None."""
         return None if self.contours is None else self.contours[f]

@@ -3,8 +3,9 @@
 The per-part shape solve of :func:`core.fit.fit_sequence` runs on the shape frames next
 to the clicked one, and the shape is fixed afterwards.  A part those frames showed with
 few points keeps the template's radii there.  make demo's walk shows its left hand to
-two cameras only from frame 3 on (0 points on the hand bone in the two shape frames, 340
-over the take) and the lower back hardly at all (0–10 points, 100–250 over the take).
+two cameras only from frame 3 on (0 points on the hand bone in the two shape frames,
+330–380 over every 5th frame of the take, over four click draws) and the lower back
+hardly (0–10 points there, 106–256 over the take).
 Once the hand's points arrive (frame 6) they sit on a forearm and hand thinner than the
 template's, and the fit bends the elbow to put them on the template's surface: the left
 wrist goes 13 → 33 mm off at frame 6 and stays 20–27 mm off.
@@ -35,7 +36,6 @@ import numpy as np
 
 from .fit_types import frame_observations
 from .fitting import FitSettings, fit
-from .segment import segment_points
 
 
 @dataclass
@@ -83,23 +83,6 @@ def shape_settings(cfg) -> FitSettings:
     )
 
 
-def _labels(fx, g):
-    """Frame g's points segmented to bones (N,) at its fitted pose (−1: left out)."""
-    cfg = fx.cfg
-    part, _ = segment_points(
-        fx.frames[g].xyz,
-        fx.skel,
-        fx.balls,
-        fx.theta[g],
-        fx.root[g],
-        fx.s,
-        fx.segment_radii,
-        cfg.segment_max_dist,
-        cfg.segment_margin,
-    )
-    return part
-
-
 def late_shape(
     fx,
     shape_frames,
@@ -142,12 +125,12 @@ def late_shape(
     shape_pts = np.zeros(nb, int)
     for g in shape_frames:
         if not fx.div[g]:
-            part = _labels(fx, g)
+            part = fx.stored_labels(g)
             shape_pts += np.bincount(part[part >= 0], minlength=nb)
     take_pts = np.zeros(nb, int)
     obs, keep = [], []
     for g in use:
-        part = _labels(fx, g)
+        part = fx.stored_labels(g)
         if (part >= 0).sum() >= cfg.min_points:
             take_pts += np.bincount(part[part >= 0], minlength=nb)
             obs.append(frame_observations(fx.frames[g], part, None, cfg.sigma_pred, fx.n))

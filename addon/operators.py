@@ -129,13 +129,14 @@ class SOMACAP_OT_fit(bpy.types.Operator):
             "feet_from_points": s.feet_from_points,
             "smooth_motion": s.smooth_motion,
             "contour_starts": s.contour_starts,
+            "late_shape": s.late_shape,
         }
         moved = {} if state_path else pipeline.moved_clicks(scene_dir)
         self._moved = sorted(moved)
         self._cached = (
             not state_path
             and not moved
-            and not (s.feet_from_points or s.smooth_motion or not s.contour_starts)
+            and not pipeline.asks_new_fit(**options)
             and (Path(scene_dir) / "fit.json").is_file()
         )
 

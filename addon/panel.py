@@ -39,6 +39,7 @@ class SOMACAP_PT_main(bpy.types.Panel):
         opts.prop(s, "feet_from_points")
         opts.prop(s, "smooth_motion")
         opts.prop(s, "contour_starts")
+        opts.prop(s, "late_shape")
         if s.status:
             col.label(text=s.status)
         col.prop(s, "state_path")

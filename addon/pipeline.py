@@ -38,8 +38,26 @@ def check_cues(cues: str) -> str:
     return cues
 
 
+#: The fit's options (keywords of :func:`run_fit`) and their defaults, which are core's:
+#: any other value asks for a new fit (a scene's ``fit.json`` is not used).
+FIT_OPTIONS = {
+    "feet_from_points": False,
+    "smooth_motion": False,
+    "contour_starts": True,
+    "late_shape": True,
+}
+
+
+def asks_new_fit(**options) -> bool:
+    """Whether any of the fit's options (:data:`FIT_OPTIONS`) differs from its default."""
+    return any(bool(on) != FIT_OPTIONS[name] for name, on in options.items())
+
+
 def sequence_settings(
-    feet_from_points: bool = False, smooth_motion: bool = False, contour_starts: bool = True
+    feet_from_points: bool = False,
+    smooth_motion: bool = False,
+    contour_starts: bool = True,
+    late_shape: bool = True,
 ):
     """core's ``SequenceSettings`` with the fit's options that differ from core's
     defaults set (the rest core's defaults), or None when none does: core's own default.
@@ -47,16 +65,20 @@ def sequence_settings(
     ``feet_from_points`` sets ``foot_heading`` (:mod:`core.foot_heading`),
     ``smooth_motion`` sets ``smooth_motion`` (:mod:`core.motion_smoother`), both off by
     default; ``contour_starts`` sets ``contour_starts`` (on by default: a frame fitted
-    from contours alone is fitted from three starts, :func:`core.fit.contour_starts`).
+    from contours alone is fitted from three starts, :func:`core.fit.contour_starts`);
+    ``late_shape=False`` sets ``late_shape_points`` to None (on by default: bones the
+    shape frames hardly saw are shaped over the fitted take and the motion is fitted a
+    second time, :mod:`core.fit_late_shape`; off, one pass, ``core fit --one-pass``).
     """
+    SequenceSettings = _core.load("fit").SequenceSettings
+    default = SequenceSettings()
     asked = {
         "foot_heading": feet_from_points,
         "smooth_motion": smooth_motion,
         "contour_starts": contour_starts,
+        "late_shape_points": default.late_shape_points if late_shape else None,
     }
-    SequenceSettings = _core.load("fit").SequenceSettings
-    default = SequenceSettings()
-    fields = {name: on for name, on in asked.items() if on != getattr(default, name)}
+    fields = {name: v for name, v in asked.items() if v != getattr(default, name)}
     return SequenceSettings(**fields) if fields else None
 
 
@@ -69,6 +91,7 @@ def run_fit(
     feet_from_points: bool = False,
     smooth_motion: bool = False,
     contour_starts: bool = True,
+    late_shape: bool = True,
 ) -> Path:
     """Run core's whole pipeline on a scene folder and write ``fit.json``
     (:func:`core.fit_scene.fit_scene`; cancellable through ``progress``).
@@ -88,7 +111,10 @@ def run_fit(
     the prediction only, not also from the previous frame's pose and its extrapolation
     (``SequenceSettings(contour_starts=False)``, ``core fit --prediction-start-only``;
     on by default: about 2x the fit time on a rig without points, but it keeps fast
-    limbs, e.g. on the orthogonal rig).  The options that differ from these defaults
+    limbs, e.g. on the orthogonal rig).  ``late_shape=False`` fits the motion once: no
+    late shape and no second pass (``core fit --one-pass``; on by default, about 2x the
+    fit time where a bone qualifies, make demo's walk 12.9 → 11.1 mm).  The options
+    that differ from these defaults
     give one ``SequenceSettings`` with all of them set (:func:`sequence_settings`);
     none, core's default settings are used (no ``settings`` is passed).
     """
@@ -102,6 +128,7 @@ def run_fit(
         feet_from_points=feet_from_points,
         smooth_motion=smooth_motion,
         contour_starts=contour_starts,
+        late_shape=late_shape,
     )
     kw = {} if settings is None else {"settings": settings}
     state = _core.load("fit_scene").fit_scene(sc, progress=progress, cues=cues, **kw)
@@ -119,6 +146,7 @@ def state_for_scene(
     feet_from_points: bool = False,
     smooth_motion: bool = False,
     contour_starts: bool = True,
+    late_shape: bool = True,
 ):
     """The fitted state of a scene: ``fit_path``, else ``SCENE/fit.json``, else fit now.
 
@@ -126,14 +154,20 @@ def state_for_scene(
     ``SCENE/fit.json`` exists (which is then neither used nor overwritten), and so do
     joints dragged in the viewport (``clicks_xyz``), ``feet_from_points=True`` (the
     feet turned to their points), ``smooth_motion=True`` (the motion smoothed over
-    the take) and ``contour_starts=False`` (frames from contours alone fitted from the
-    prediction only; all :func:`run_fit`).
+    the take), ``contour_starts=False`` (frames from contours alone fitted from the
+    prediction only) and ``late_shape=False`` (one pass; all :func:`run_fit`).
     """
     scene_dir = Path(scene_dir)
     check_cues(cues)
     if fit_path:
         return read_state(fit_path)
-    fresh = refit or clicks_xyz or feet_from_points or smooth_motion or not contour_starts
+    options = {
+        "feet_from_points": feet_from_points,
+        "smooth_motion": smooth_motion,
+        "contour_starts": contour_starts,
+        "late_shape": late_shape,
+    }
+    fresh = refit or clicks_xyz or asks_new_fit(**options)
     if not fresh and (scene_dir / "fit.json").is_file():
         return read_state(scene_dir / "fit.json")
     with tempfile.TemporaryDirectory() as tmp:
@@ -145,9 +179,7 @@ def state_for_scene(
                 progress,
                 cues=cues,
                 clicks_xyz=clicks_xyz,
-                feet_from_points=feet_from_points,
-                smooth_motion=smooth_motion,
-                contour_starts=contour_starts,
+                **options,
             )
         )
 

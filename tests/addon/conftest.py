@@ -46,8 +46,9 @@ def makehuman(shared_data, bpy_module):
 @pytest.fixture
 def fake_run_fit(bpy_module, monkeypatch):
     """Replace ``addon.pipeline.run_fit``: record ``(scene, cues, *options that are on)``
-    (e.g. ``("walk", "both", "smooth_motion")``, and ``"prediction_start_only"`` last
-    when ``contour_starts`` is off), write a 4-frame state."""
+    (e.g. ``("walk", "both", "smooth_motion")``, then ``"prediction_start_only"`` when
+    ``contour_starts`` is off and ``"one_pass"`` when ``late_shape`` is), write a
+    4-frame state."""
     from addon import pipeline
 
     calls = []
@@ -61,9 +62,11 @@ def fake_run_fit(bpy_module, monkeypatch):
         feet_from_points=False,
         smooth_motion=False,
         contour_starts=True,
+        late_shape=True,
     ):
         on = {"feet_from_points": feet_from_points, "smooth_motion": smooth_motion}
         off = () if contour_starts else ("prediction_start_only",)
+        off += () if late_shape else ("one_pass",)
         calls.append((scene_dir.name, cues, *(name for name in OPTIONS if on[name]), *off))
         write_state(out_json, synthetic_state(4, seed=len(calls)))
         return out_json

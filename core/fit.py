@@ -158,6 +158,7 @@ def fit_sequence(
     contours: list | None = None,
     flow=None,
     shape0: LateShape | None = None,
+    defer_shape: bool = False,
 ) -> SequenceResult:
     """Fit shape and motion to the observations of every frame.
 
@@ -178,6 +179,11 @@ def fit_sequence(
     shape0 : :class:`core.fit_late_shape.LateShape` or None — a first pass's late shape
         to track with (its radii and centres replace the template's before the shape
         frames' solve, which starts from them); with it no late shape is computed
+    defer_shape : bool — the caller fits the motion again when a late shape qualifies
+        (:func:`core.fit_scene.run_scene`): the whole-body shape written to the state
+        is then not fitted here (the second pass writes its own; on make demo's walk
+        it took 15–20 s of the first pass's ~160 s).  The state then carries the
+        shape the motion was tracked with.
 
     Returns
     -------
@@ -373,25 +379,9 @@ def fit_sequence(
         reach=cfg.couple_reach,
     )
     fx.msgs += fill_msgs
-    if cfg.shape == "fit" and not shape_first:  # at the fitted poses, for the state only
-        fitted_balls, shape_rec = written_shape(
-            skel,
-            start,
-            fx.s,
-            fx.theta,
-            fx.root,
-            frames,
-            contours,
-            ~fx.div & fx.conv,
-            fx.n_pts,
-            unobs,
-            f0,
-            cfg,
-            cameras,
-            fx.msgs,
-            progress,
-        )
-    # after the written shape, which is fitted at the poses the observations gave
+    written = cfg.shape == "fit" and not shape_first  # the shape written to the state
+    # fitted at the poses the observations gave, before any smoothing below
+    posed = (fx.theta.copy(), fx.root.copy()) if written else None
     if cfg.smooth_motion:
         fx.theta[:], fx.root[:], sm = smooth_joints(skel, fx.s, fx.theta, fx.root, fx.div)
         fx.msgs.append(
@@ -418,6 +408,25 @@ def fit_sequence(
             cfg.late_shape_points,
             cfg.late_shape_missed,
             cfg.late_shape_max_unexplained,
+        )
+    if written and defer_shape and late is not None:
+        fx.msgs.append("whole-body shape: left to the second pass (late shape)")
+    elif written:
+        fitted_balls, shape_rec = written_shape(
+            skel,
+            start,
+            fx.s,
+            *posed,
+            frames,
+            contours,
+            ~fx.div & fx.conv,
+            fx.n_pts,
+            unobs,
+            f0,
+            cfg,
+            cameras,
+            fx.msgs,
+            progress,
         )
     balls_out = fx.balls.copy(radii=fx.radii) if fitted_balls is None else fitted_balls.copy()
     q = Quality(

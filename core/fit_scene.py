@@ -219,15 +219,14 @@ def run_scene(
         cameras=cameras,
         flow=anchors,
     )
-    res = fit_sequence(obs, init, settings, contours=cframes, **kw)
-    if (
+    silhouette_pass = (  # the written shape is what such a second pass tracks with
         silhouette_shaped
         and anchors is None
         and settings.silhouette_second_pass
         and settings.shape == "fit"
-        and res.shape is not None
-        and res.shape.frame_ok.any()
-    ):
+    )
+    res = fit_sequence(obs, init, settings, contours=cframes, defer_shape=not silhouette_pass, **kw)
+    if silhouette_pass and res.shape is not None and res.shape.frame_ok.any():
         res = _second_pass(
             obs, init, settings, res, cframes, anchors, kw, timings, time.perf_counter() - t2
         )

@@ -114,9 +114,9 @@ def run_fit(
     limbs, e.g. on the orthogonal rig).  ``late_shape=False`` fits the motion once: no
     late shape and no second pass (``core fit --one-pass``; on by default, about 2x the
     fit time where a bone qualifies, make demo's walk 12.9 → 11.1 mm).  The options
-    that differ from these defaults
-    give one ``SequenceSettings`` with all of them set (:func:`sequence_settings`);
-    none, core's default settings are used (no ``settings`` is passed).
+    that differ from these defaults give one ``SequenceSettings`` with all of them set
+    (:func:`sequence_settings`); none, core's default settings are used (no
+    ``settings`` is passed).
     """
     scene_dir, out_json = Path(scene_dir), Path(out_json)
     check_cues(cues)

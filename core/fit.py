@@ -182,7 +182,7 @@ def fit_sequence(
     defer_shape : bool — the caller fits the motion again when a late shape qualifies
         (:func:`core.fit_scene.run_scene`): the whole-body shape written to the state
         is then not fitted here (the second pass writes its own; on make demo's walk
-        it took 15–20 s of the first pass's ~160 s).  The state then carries the
+        it took 15–21 s of a first pass of ~150–160 s).  The state then carries the
         shape the motion was tracked with.
 
     Returns

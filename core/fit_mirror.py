@@ -22,6 +22,18 @@ wrist 96 → 43 mm, limb segments 11.7° → 7.0° (14.43 mm without the clicked
 anchor).  Anchoring the shoulder and elbow at the frames where only the hand was seen
 (the unobserved-angle rule of :mod:`core.fit_bridge`) kept them 75–89 mm off there
 (15.8 mm); so the angles of every hidden part are mirrored, a seen hand keeping its own.
+
+The clavicles are mirrored too, but keep their offset from the mirror image at the
+clicked frame (:data:`HELD_PARTS`): a hidden clavicle has nothing but the clicks to
+place it, and the two sides' rest angles differ with them.  Left alone it drifted with
+the chest's fit (the right clavicle's elevation −6° against the mirrored +1° at frame
+20 of jumps_line3, the right shoulder 40 mm off there).  ``bench.fit_spread
+jumps_line3 --runs 4``: 15.24 / 15.90 / 15.43 / 15.76 → 14.43 / 15.70 / 15.82 / 15.31
+mm (median 15.60 → 15.50), the right wrist 57 / 49 / 52 / 49 → 49 / 45 / 49 / 40 mm
+and the right shoulder better in three draws, the right elbow worse in three (22–27
+→ 26–30 mm).  Mirrored with the offset faded out like the other angles: runs 0 / 1
+14.74 / 22.25 mm (run 1's right shoulder 50 mm off: its clicks set the two clavicles
+apart).
 """
 
 from __future__ import annotations
@@ -33,10 +45,9 @@ import numpy as np
 from .fit_bridge import hidden_runs, unobserved
 from .skeleton import Skeleton, forward, joint_positions
 
-#: DOF-name prefixes (after ``l_``/``r_``) of the arms' parts that are mirrored (the
-#: clavicles, seldom seen and anchored to the clicked posture, are left); an arm is
-#: hidden when its shoulder is
-ARM_PARTS = ("shoulder", "elbow", "wrist")
+#: DOF-name prefixes (after ``l_``/``r_``) of the arms' parts that are mirrored; an arm
+#: is hidden when its shoulder is
+ARM_PARTS = ("clavicle", "shoulder", "elbow", "wrist")
 #: the legs' angles whose mirror symmetry gates the mirroring (sagittal: they carry a
 #: jump's or a squat's motion, and swing against each other in gait)
 GATE_DOFS = ("hip_x", "knee_x")
@@ -58,6 +69,25 @@ class Mirroring:
     frames: tuple[int, int]
     r2: float
     mirrored: bool
+
+
+#: arm parts whose offset from the mirror image at the stretch's observed ends is held
+#: through it (interpolated between two ends) rather than faded out: the clavicles,
+#: seldom seen, whose rest angles the clicked frame sets for each side on its own
+HELD_PARTS: tuple[str, ...] = ("clavicle",)
+
+
+def _held_offset(offset: np.ndarray, known: np.ndarray, c: int, d: int) -> np.ndarray:
+    """Offsets over frames ``c:d`` from the known frames at either end: linear between
+    two, constant from one, zero from none."""
+    t = np.arange(c, d, dtype=float)
+    ends = [(f, offset[f]) for f in (c - 1, d) if 0 <= f < len(offset) and known[f]]
+    if not ends:
+        return np.zeros(d - c)
+    if len(ends) == 1:
+        return np.full(d - c, ends[0][1])
+    (fa, oa), (fb, ob) = ends
+    return oa + (ob - oa) * (t - fa) / (fb - fa)
 
 
 def mirror_pairs(skel: Skeleton, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -142,6 +172,7 @@ def mirror_hidden(
         :func:`legs_mirror_r2`), judged on the stretch and ``margin`` frames each side
     min_motion : radians, the legs' least standard deviation over that window
     blend : frames over which an observed end's offset from the mirror image fades
+        (held through the stretch for :data:`HELD_PARTS`)
 
     Returns
     -------
@@ -181,10 +212,13 @@ def mirror_hidden(
                 gap[:a] = gap[b:] = False
                 pred = g * source[:, k]
                 known = (~hidden[:, j] | fixed) & ~div
+                held = skel.dof_names[j][2:].rsplit("_", 1)[0] in HELD_PARTS
                 for c, d in hidden_runs(gap):
                     t = np.arange(c, d)
                     y = pred[c:d].copy()
-                    if c > 0 and known[c - 1]:
+                    if held:
+                        y += _held_offset(theta[:, j] - pred, known, c, d)
+                    elif c > 0 and known[c - 1]:
                         y += np.clip(1.0 - (t - (c - 1)) / blend, 0.0, 1.0) * (
                             theta[c - 1, j] - pred[c - 1]
                         )

@@ -99,10 +99,8 @@ def test_a_hidden_arm_in_a_jump_follows_the_other_arm_mirrored(rng):
     assert np.array_equal(out[:, limb_dofs(skel, "l", "arm")], held[:, limb_dofs(skel, "l", "arm")])
     hand = skel.dof_index("r_wrist_x")
     assert np.array_equal(out[list(seen), hand], held[list(seen), hand])
-    # every shoulder, elbow and wrist angle is mirrored; the clavicle's are left
-    clav = [skel.dof_index("r_clavicle_z"), skel.dof_index("r_clavicle_y")]
-    assert mirrored[1:, [k for k in arm if k not in clav]].any(axis=0).all()
-    assert not mirrored[:, clav].any()
+    # every clavicle, shoulder, elbow and wrist angle is mirrored
+    assert mirrored[1:, arm].any(axis=0).all()
     # the seen hand's offset from the mirror image fades in and out: no jump at its ends
     steps = np.abs(np.diff(out[:, hand]))
     assert steps.max() < np.radians(3.0), np.degrees(steps.max())
@@ -135,3 +133,21 @@ def test_the_fit_s_last_step_mirrors_before_it_bridges(rng):
     err_off = np.abs(off[:, k] - truth[:, k]).max()
     assert err_on < np.radians(2.5) and err_off > 10 * err_on, (err_on, err_off)
     assert any("mirrored from the other arm" in m for m in msgs)
+
+
+def test_a_hidden_clavicle_keeps_its_offset_from_the_mirror_image(rng):
+    """The clavicles are placed by the clicked frame alone; the right one sits 4° higher
+    than the left's mirror image (the subject's, or the clicks'): mirrored, it keeps that
+    offset through the hidden stretch instead of fading to the mirror image."""
+    skel, s, truth, root = _jumps(rng)
+    left, right, sign = mirror_pairs(skel, s)
+    lk, rk = skel.dof_index("l_clavicle_y"), skel.dof_index("r_clavicle_y")
+    g = sign[list(left).index(lk)]
+    truth[:, lk] = 0.1 * np.sin(2 * np.pi * 0.8 * np.arange(NF) / 25.0)
+    truth[:, rk] = g * truth[:, lk] + np.radians(4.0)
+    held, hidden = _hide_right_arm(skel, truth)
+    out, mirrored, _ = mirror_hidden(skel, held, s, hidden, anchors=(0,))
+    assert mirrored[1:, rk].all()
+    err = np.abs(out[:, rk] - truth[:, rk]).max()
+    faded = np.abs(g * held[10:, lk] - truth[10:, rk]).min()  # the mirror image alone
+    assert err < np.radians(1.0) and faded > np.radians(3.0), (err, faded)

@@ -16,6 +16,7 @@ Arrays written to the ``.npz`` (F frames, P points, C cameras):
 
 from __future__ import annotations
 
+import argparse
 import sys
 import time
 
@@ -25,7 +26,9 @@ from .errors import InputError, check_output
 from .progress import Progress
 from .scene import load_scene
 from .surface import concat, measure_surface, seeds_from_clicks
+from .surface_pairs import grow_pairs
 from .surface_seed import grow_from_jumps
+from .track_settings import TrackSettings
 from .tracking import filter_trajectories, track
 
 
@@ -74,6 +77,14 @@ def add_arguments(parser) -> None:
         "stops at (a limb beside or behind the trunk; core.surface_seed)"
         " at frame 0 and when regenerating",
     )
+    parser.add_argument(
+        "--pair-seeds",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="also measure the surface that the reference (middle) camera does not "
+        "see from pairs of the other cameras (core.surface_pairs), at frame 0 and "
+        "when regenerating (default: core.track_settings.TrackSettings's)",
+    )
 
 
 def run(args) -> int:
@@ -106,6 +117,10 @@ def run(args) -> int:
         )
         if jump is not None and len(jump):  # a limb the growth did not reach from the seeds
             surf = concat(surf, jump)
+    pair_seeds = TrackSettings().pair_seeds if args.pair_seeds is None else args.pair_seeds
+    if pair_seeds and len(cams) > 2:  # a limb the reference camera does not see
+        occupied = [surf.uv[:, j] for j in range(len(cams))]
+        surf = concat(surf, grow_pairs(first, cams, surf.ref, surf.xyz, occupied, step=args.step))
     print(
         f"surface: {len(surf)} points at frame 0 ({time.perf_counter() - t0:.1f} s)",
         file=sys.stderr,
@@ -121,6 +136,7 @@ def run(args) -> int:
         predict=args.predict,
         anchor=not args.no_anchor,
         jump_seeds=not args.no_jump_seeds,
+        pair_seeds=pair_seeds,
         progress=progress,
         **({} if args.regen_every is None else {"regen_every": args.regen_every}),
         **({} if args.max_dormant is None else {"max_dormant": args.max_dormant}),

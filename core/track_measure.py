@@ -15,6 +15,7 @@ import numpy as np
 
 from .intersect import triangulate
 from .surface import concat, measure_surface
+from .surface_pairs import grow_pairs
 from .surface_seed import grow_from_jumps
 from .track_filter import COV_FLOOR, neighbour_rates
 from .track_reacquire import dormant_step, predict_unmeasured
@@ -292,7 +293,36 @@ def regenerate(
         if jump is not None and len(jump):
             new = concat(new, jump)
             stage["jump_seeded"] = len(jump)
+    if s.pair_seeds and len(st.cameras) > 2:  # surface the reference camera does not see
+        pairs = grow_pairs(
+            nxt.stack,
+            st.cameras,
+            ref,
+            ms.xyz[chosen],
+            _occupied(st, pr, ms, new),
+            step=s.step,
+            half=s.half,
+            max_sigma_px=s.spatial_sigma_px,
+            max_depth_dev_m=s.depth_dev_m,
+        )
+        if len(pairs):
+            new = concat(new, pairs)
+            stage["pair_seeded"] = len(pairs)
     if len(new):
         rate0, rsig = neighbour_rates(ms.xyz[chosen], st.kf.x[chosen, 3:], new.xyz)
         st.append(new, rate0, rsig, i + 1)
         stage["regenerated"] = len(new)
+
+
+def _occupied(st: TrackerState, pr: Prediction, ms: Measurement, new) -> list[np.ndarray]:
+    """Image points (M_c, 2) per camera that the surface already covers at frame i+1:
+    the live points (measured, or coasting at their prediction) where measured in that
+    camera or projected there unoccluded, and the points ``new`` adds."""
+    live = ~st.dead
+    xyz = np.where(ms.chosen[:, None], ms.xyz, pr.xyz)[live]
+    out = []
+    for j, cam in enumerate(st.cameras):
+        uv = np.where(np.isfinite(ms.uv[live, j]), ms.uv[live, j], cam.project(xyz))
+        uv = uv[np.isfinite(ms.uv[live, j, 0]) | ~pr.occ[live, j]]
+        out.append(np.concatenate([uv, new.uv[:, j]]))
+    return out

@@ -168,6 +168,20 @@ class TrackSettings:
         the true mesh: as many as without); with the contours no longer un-hiding the
         parts the points miss (:attr:`core.fit_contours.ContourSettings.unhide`) the
         fit of make demo's walk went from 18.1 to 13.0 mm.
+    pair_seeds : bool
+        When regenerating (and, in ``core track --pair-seeds``, at frame 0), also
+        measure the surface that the reference camera does not see from every pair of
+        the other cameras (:mod:`core.surface_pairs`): through line3 the far leg behind
+        the near one, hidden in the middle camera, seen by the outer two.  Off: on make
+        demo's walk it adds 219 points at frame 0 (2,510 → 2,729, most on the right
+        shin and foot) and 2.7 % more point-frames, their distance to the true mesh the
+        same (median 1.75 mm, 95th 7.68 → 7.56 mm), yet the fit of those tracks is worse
+        (``bench.fit_spread`` draws 0 / 1: 11.09 / 13.51 → 11.83 / 14.70 mm; the neck
+        and the right shoulder moved, not the leg).  On jumps_line3, where the far leg
+        shows only slivers at its outline, it adds a few points on the right forearm
+        (frames 9 and 36–45) and none on the leg: draws 0–3 14.43 / 15.70 / 15.82 /
+        15.31 → 14.41 / 15.00 / 16.07 / 15.87 mm.  The outer cameras are 38° apart:
+        the epipolar search's 13 × 13 correlation across them finds few seeds.
     step : int
         Grid step of the regenerated surface (:func:`core.surface.measure_surface`),
         pixels.
@@ -205,6 +219,7 @@ class TrackSettings:
     reacquire_views: int = 2
     reacquire_checks: bool = True
     jump_seeds: bool = True
+    pair_seeds: bool = False
     step: int = 2
 
     def __post_init__(self):

@@ -23,17 +23,22 @@ anchor).  Anchoring the shoulder and elbow at the frames where only the hand was
 (the unobserved-angle rule of :mod:`core.fit_bridge`) kept them 75–89 mm off there
 (15.8 mm); so the angles of every hidden part are mirrored, a seen hand keeping its own.
 
-The clavicles are mirrored too, but keep their offset from the mirror image at the
-clicked frame (:data:`HELD_PARTS`): a hidden clavicle has nothing but the clicks to
-place it, and the two sides' rest angles differ with them.  Left alone it drifted with
-the chest's fit (the right clavicle's elevation −6° against the mirrored +1° at frame
-20 of jumps_line3, the right shoulder 40 mm off there).  ``bench.fit_spread
-jumps_line3 --runs 4``: 15.24 / 15.90 / 15.43 / 15.76 → 14.43 / 15.70 / 15.82 / 15.31
-mm (median 15.60 → 15.50), the right wrist 57 / 49 / 52 / 49 → 49 / 45 / 49 / 40 mm
-and the right shoulder better in three draws, the right elbow worse in three (22–27
-→ 26–30 mm).  Mirrored with the offset faded out like the other angles: runs 0 / 1
-14.74 / 22.25 mm (run 1's right shoulder 50 mm off: its clicks set the two clavicles
-apart).
+The hidden arm's clavicle is not mirrored but held: over the stretch it keeps its
+angles at the stretch's known ends — the clicked frame, a frame where it was seen —
+interpolated between two (:data:`HELD_PARTS`).  A frame counts as known where the
+clavicle's own part was seen, not where only the hand was: on jumps_line3 the right
+clavicle is never seen and keeps its clicked angles throughout.  Before, the hand's
+points in frames 12–13 and 42–46 set it (elevation −2° and +12°) and the bridge
+between them passed −6° at frame 20, against +6° at the clicked frame (the right
+shoulder 40 mm off there), while on the truth the right shoulder moves at most 15 mm
+about the neck over the take.  ``bench.fit_spread jumps_line3
+--runs 4``: 15.24 / 15.90 / 15.43 / 15.76 → **13.51 / 15.20 / 14.07 / 14.93 mm**
+(median 15.60 → 14.50); right shoulder 19 / 19 / 17 / 21 → 13 / 15 / 11 / 16, right
+wrist 57 / 49 / 52 / 49 → 44 / 43 / 40 / 40 mm, right elbow within ±4 mm.  Mirrored
+like the other angles instead, holding its offset from the mirror image at the
+clicked frame: 14.43 / 15.70 / 15.82 / 15.31 (the right shoulder 15 mm off in frames
+4–14 where held it was 6); mirrored with the offset faded out: runs 0 / 1 14.74 /
+22.25 mm (run 1's clicks set the two clavicles apart: its right shoulder 50 mm off).
 """
 
 from __future__ import annotations
@@ -71,23 +76,35 @@ class Mirroring:
     mirrored: bool
 
 
-#: arm parts whose offset from the mirror image at the stretch's observed ends is held
-#: through it (interpolated between two ends) rather than faded out: the clavicles,
-#: seldom seen, whose rest angles the clicked frame sets for each side on its own
+#: arm parts of a mirrored stretch that keep their own angles at the stretch's known
+#: ends (interpolated between two) instead of taking the other side's: the clavicles,
+#: seldom seen, which hardly move in the movements mirrored here
 HELD_PARTS: tuple[str, ...] = ("clavicle",)
 
 
-def _held_offset(offset: np.ndarray, known: np.ndarray, c: int, d: int) -> np.ndarray:
-    """Offsets over frames ``c:d`` from the known frames at either end: linear between
-    two, constant from one, zero from none."""
+def _held_offset(value: np.ndarray, known: np.ndarray, c: int, d: int) -> np.ndarray:
+    """``value`` (F,) over frames ``c:d`` from the known frames at either end: linear
+    between two, constant from one, zero from none."""
     t = np.arange(c, d, dtype=float)
-    ends = [(f, offset[f]) for f in (c - 1, d) if 0 <= f < len(offset) and known[f]]
+    ends = [(f, value[f]) for f in (c - 1, d) if 0 <= f < len(value) and known[f]]
     if not ends:
         return np.zeros(d - c)
     if len(ends) == 1:
         return np.full(d - c, ends[0][1])
     (fa, oa), (fb, ob) = ends
     return oa + (ob - oa) * (t - fa) / (fb - fa)
+
+
+def _faded_offset(offset: np.ndarray, known: np.ndarray, c: int, d: int, blend: int) -> np.ndarray:
+    """``offset`` (F,) at the known frames either side of ``c:d``, each fading out over
+    ``blend`` frames into the stretch."""
+    t = np.arange(c, d)
+    y = np.zeros(d - c)
+    if c > 0 and known[c - 1]:
+        y += np.clip(1.0 - (t - (c - 1)) / blend, 0.0, 1.0) * offset[c - 1]
+    if d < len(offset) and known[d]:
+        y += np.clip(1.0 - (d - t) / blend, 0.0, 1.0) * offset[d]
+    return y
 
 
 def mirror_pairs(skel: Skeleton, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -172,7 +189,7 @@ def mirror_hidden(
         :func:`legs_mirror_r2`), judged on the stretch and ``margin`` frames each side
     min_motion : radians, the legs' least standard deviation over that window
     blend : frames over which an observed end's offset from the mirror image fades
-        (held through the stretch for :data:`HELD_PARTS`)
+        (:data:`HELD_PARTS` keep their own angles instead)
 
     Returns
     -------
@@ -214,16 +231,10 @@ def mirror_hidden(
                 known = (~hidden[:, j] | fixed) & ~div
                 held = skel.dof_names[j][2:].rsplit("_", 1)[0] in HELD_PARTS
                 for c, d in hidden_runs(gap):
-                    t = np.arange(c, d)
-                    y = pred[c:d].copy()
-                    if held:
-                        y += _held_offset(theta[:, j] - pred, known, c, d)
-                    elif c > 0 and known[c - 1]:
-                        y += np.clip(1.0 - (t - (c - 1)) / blend, 0.0, 1.0) * (
-                            theta[c - 1, j] - pred[c - 1]
-                        )
-                    if d < nf and known[d]:
-                        y += np.clip(1.0 - (d - t) / blend, 0.0, 1.0) * (theta[d, j] - pred[d])
+                    if held:  # its own angles at the known ends, not the mirror's
+                        y = _held_offset(theta[:, j], known, c, d)
+                    else:
+                        y = pred[c:d] + _faded_offset(theta[:, j] - pred, known, c, d, blend)
                     theta[c:d, j] = np.clip(y, skel.dof_lo[j], skel.dof_hi[j])
                     mirrored[c:d, j] = True
     return theta, mirrored, report

@@ -426,6 +426,12 @@ def main(argv=None) -> int:
         help="keep the tracker's key-template, occlusion and depth tests as the "
         "studio tunes them (default: VIDEO_SETTINGS)",
     )
+    ap.add_argument(
+        "--pair-seeds",
+        action="store_true",
+        help="when regenerating, also measure the surface the reference camera does not "
+        "see from the other tracking cameras' pair (core.surface_pairs)",
+    )
     ap.add_argument("--png", type=Path, default=Path("out/realvideo/trajectories.png"))
     a = ap.parse_args(argv)
     t0 = time.perf_counter()
@@ -486,6 +492,7 @@ def main(argv=None) -> int:
         log=log,
         spatial_sigma_px=a.max_sigma,
         max_sigma_px=a.max_sigma_temporal,
+        pair_seeds=a.pair_seeds,
         **({} if a.studio_checks else VIDEO_SETTINGS),
     )
     dt = time.perf_counter() - t2

@@ -251,6 +251,12 @@ def main(argv: list[str] | None = None) -> int:
         metavar="JOINT,...",
         help="move these joints' clicks along their depth onto the truth first",
     )
+    ap.add_argument(
+        "--tracks",
+        type=Path,
+        default=None,
+        help="fit these tracks (a `core track` .npz) instead of the scene's own",
+    )
     ap.add_argument("--json", type=Path, default=None, help="write the figures here")
     args = ap.parse_args(argv)
     drag = tuple(j for j in args.drag.split(",") if j)
@@ -264,7 +270,9 @@ def main(argv: list[str] | None = None) -> int:
     settings = parse_settings(args.setting, ap.error)
     flow = parse_settings(args.flow, ap.error, FlowSettings, "--flow")
     scene, _ = _resolve(args.scene, RENDERS)
-    tracks = scene_tracks(scene)
+    if args.tracks is not None and not args.tracks.is_file():
+        ap.error(f"--tracks {args.tracks}: no such file")
+    tracks = scene_tracks(scene) if args.tracks is None else args.tracks
     print(
         f"{scene.name}: {args.runs} fits of {tracks}, cues {args.cues}, clicks moved by "
         f"N(0, {args.click_noise} px) in runs 1..{args.runs - 1}"

@@ -189,3 +189,11 @@ def test_dragged_clicks_move_only_the_depth_onto_the_truth():
     for j in c["joints"]:
         if j != "l_knee":
             assert d["joints"][j] == c["joints"][j]
+
+
+def test_other_tracks_must_exist(tmp_path, capsys):
+    from bench.fit_spread import main
+
+    with pytest.raises(SystemExit):
+        main([SCENE, "--tracks", str(tmp_path / "none.npz"), "--runs", "1"])
+    assert "none.npz: no such file" in capsys.readouterr().err

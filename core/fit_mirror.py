@@ -82,7 +82,7 @@ class Mirroring:
 HELD_PARTS: tuple[str, ...] = ("clavicle",)
 
 
-def _held_offset(value: np.ndarray, known: np.ndarray, c: int, d: int) -> np.ndarray:
+def _held_angles(value: np.ndarray, known: np.ndarray, c: int, d: int) -> np.ndarray:
     """``value`` (F,) over frames ``c:d`` from the known frames at either end: linear
     between two, constant from one, zero from none."""
     t = np.arange(c, d, dtype=float)
@@ -232,7 +232,7 @@ def mirror_hidden(
                 held = skel.dof_names[j][2:].rsplit("_", 1)[0] in HELD_PARTS
                 for c, d in hidden_runs(gap):
                     if held:  # its own angles at the known ends, not the mirror's
-                        y = _held_offset(theta[:, j], known, c, d)
+                        y = _held_angles(theta[:, j], known, c, d)
                     else:
                         y = pred[c:d] + _faded_offset(theta[:, j] - pred, known, c, d, blend)
                     theta[c:d, j] = np.clip(y, skel.dof_lo[j], skel.dof_hi[j])

@@ -255,7 +255,9 @@ def regenerate(
     from about 20 of the measured points over the reference camera's grid cells that
     no live point (measured, or coasting at its prediction) covers, and with
     ``jump_seeds`` also from seeds found along the epipolar lines beyond the depth jumps
-    that growth stops at (:func:`core.surface_seed.grow_from_jumps`); the K new points
+    that growth stops at (:func:`core.surface_seed.grow_from_jumps`), and with
+    ``pair_seeds`` from the pairs of the other cameras where the reference camera does
+    not see (:func:`core.surface_pairs.grow_pairs`); the K new points
     are added to ``st`` (:meth:`core.track_state.TrackerState.append`) with rates
     from their measured neighbours.
     """

@@ -1,7 +1,8 @@
 """How far one fit's figures move when its input moves a little.
 
 ``python -m bench.fit_spread [SCENE] [--runs N] [--click-noise PX] [--cues C] [--jobs J]
-[--flow-sigma PX] [--flow NAME=VALUE ...] [--setting NAME=VALUE ...]``
+[--flow-sigma PX] [--flow NAME=VALUE ...] [--setting NAME=VALUE ...] [--shape NAME=VALUE ...]
+[--states DIR]``
 
 The sequence fit makes discrete choices — which camera a part uses, whether a limb
 search's move is kept, which corners the texture flow lifts — so on a scene where a limb
@@ -11,12 +12,16 @@ by a millimetre in one run may be noise.  This benchmark fits the same tracks ``
 times: run 0 with the scene's clicks as they are, runs 1…N−1 with every click moved by
 Gaussian noise of ``--click-noise`` pixels (seeded by the run number; 0.5 px is well
 under what a person clicking reaches).  It prints each run's MPJPE, diverged frames,
-limb-segment RMSE and share of frames within 1 % of the height, then the median and
-range over the runs, overall and per joint.  ``--flow-sigma`` sets the texture flow's
+limb-segment RMSE, share of frames within 1 % of the height and the written metaball
+surface's mean distance to the true mesh, then the median and range over the runs,
+overall and per joint.  ``--flow-sigma`` sets the texture flow's
 a-priori σ (:class:`core.fit_flow.FlowSettings` ``sigma_px``), so that two settings can
 be compared by their medians rather than by one run each; ``--flow`` sets any field of
-:class:`core.fit_flow.FlowSettings` (VALUE in JSON: ``reference=false``) and
-``--setting`` one of :class:`core.fit_types.SequenceSettings` (``shape_scales=true``).
+:class:`core.fit_flow.FlowSettings` (VALUE in JSON: ``reference=false``),
+``--setting`` one of :class:`core.fit_types.SequenceSettings` (``shape_scales=true``)
+and ``--shape`` one of the whole-body shape fit's :class:`core.shape_fit.ShapeSettings`
+(``sigma_one_sided=0.0005``).  ``--states DIR`` writes each run's fitted state as
+``DIR/runK.json``, for ``core evaluate`` or ``bench.visibility``.
 
 ``--drag JOINT,...`` does, before each fit, what a user dragging those joints' empties
 in a side view of Blender's viewport does at best (:func:`dragged_clicks`): each joint's
@@ -97,17 +102,23 @@ def fit_once(
     settings: dict | None = None,
     drag: tuple = (),
     flow: dict | None = None,
+    shape: dict | None = None,
+    states: str | None = None,
 ) -> dict:
     """One in-process fit of the scene's tracks with perturbed clicks; its figures.
     ``flow_sigma_px``: the texture flow's σ (None: ``FlowSettings``' default);
     ``settings``: :class:`SequenceSettings` fields (None: its defaults); ``flow``:
-    :class:`core.fit_flow.FlowSettings` fields (None: its defaults)."""
+    :class:`core.fit_flow.FlowSettings` fields (None: its defaults); ``shape``:
+    :class:`core.shape_fit.ShapeSettings` fields of the written shape (None: its
+    defaults); ``states``: a folder to write the fitted state to (``run{seed}.json``)."""
     from core.blas_threads import single_blas_thread
     from core.evaluate import evaluate_state
     from core.fit_flow import FlowSettings
     from core.fit_scene import run_scene
     from core.fit_types import SequenceSettings
     from core.scene import load_scene
+    from core.shape_fit import ShapeSettings
+    from core.state import write_state
 
     scene = load_scene(Path(scene_dir), check_images=False)
     clicks = perturbed_clicks(scene.clicks(), noise_px, seed)
@@ -118,6 +129,9 @@ def fit_once(
     if flow_sigma_px is not None:
         flow["sigma_px"] = flow_sigma_px
     flow = FlowSettings(**flow) if flow else "auto"
+    settings = dict(settings or {})
+    if shape:
+        settings["shape_fit"] = ShapeSettings(**shape)
     t0 = time.perf_counter()
     with single_blas_thread():
         res = run_scene(
@@ -130,6 +144,9 @@ def fit_once(
             settings=SequenceSettings(**settings) if settings else None,
         )
     ev = evaluate_state(res.state, scene.truth)
+    if states is not None:
+        Path(states).mkdir(parents=True, exist_ok=True)
+        write_state(Path(states) / f"run{seed}.json", res.state)
     return {
         "seed": seed,
         "mpjpe_mm": ev.mpjpe_mm,
@@ -140,6 +157,7 @@ def fit_once(
         "per_joint_mm": ev.per_joint_mm,
         "per_segment_deg": ev.per_segment_rmse_deg,
         "accel_mm": ev.accel_error_mm,
+        "surface_mm": ev.surface_mm,
         "wall_s": time.perf_counter() - t0,
     }
 
@@ -202,6 +220,7 @@ def summary(rows: list[dict]) -> dict:
         "mpjpe_min_mm": float(m.min()),
         "mpjpe_max_mm": float(m.max()),
         "accel_median_mm": float(np.median(acc)),
+        "surface_median_mm": float(np.median([r.get("surface_mm", np.nan) for r in rows])),
         "per_joint": {
             j: (float(np.median(pj[:, k])), float(pj[:, k].min()), float(pj[:, k].max()))
             for k, j in enumerate(joints)
@@ -246,6 +265,16 @@ def main(argv: list[str] | None = None) -> int:
         help="a FlowSettings field, VALUE in JSON (repeatable): reference=false",
     )
     ap.add_argument(
+        "--shape",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="a ShapeSettings field of the written shape, VALUE in JSON (repeatable)",
+    )
+    ap.add_argument(
+        "--states", type=Path, default=None, help="write each run's state as DIR/runK.json"
+    )
+    ap.add_argument(
         "--drag",
         default="",
         metavar="JOINT,...",
@@ -266,9 +295,11 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--flow-sigma and --flow need --cues both (the flow runs only with both cues)")
 
     from core.fit_flow import FlowSettings
+    from core.shape_fit import ShapeSettings
 
     settings = parse_settings(args.setting, ap.error)
     flow = parse_settings(args.flow, ap.error, FlowSettings, "--flow")
+    shape = parse_settings(args.shape, ap.error, ShapeSettings, "--shape")
     scene, _ = _resolve(args.scene, RENDERS)
     if args.tracks is not None and not args.tracks.is_file():
         ap.error(f"--tracks {args.tracks}: no such file")
@@ -279,12 +310,13 @@ def main(argv: list[str] | None = None) -> int:
         + ("" if args.flow_sigma is None else f", flow σ {args.flow_sigma} px")
         + "".join(f", {k} = {v!r}" for k, v in settings.items())
         + "".join(f", flow {k} = {v!r}" for k, v in flow.items())
+        + "".join(f", shape {k} = {v!r}" for k, v in shape.items())
         + (f", dragged in depth onto the truth: {', '.join(drag)}" if drag else ""),
         flush=True,
     )
     print(
         f"{'run':>3}  {'MPJPE mm':>8}  {'diverged':>8}  {'segments °':>10}  {'axes °':>6}  "
-        f"{'≤1 % height':>11}  {'accel mm/f²':>11}  {'s':>5}",
+        f"{'≤1 % height':>11}  {'accel mm/f²':>11}  {'surface mm':>10}  {'s':>5}",
         flush=True,
     )
     rows = []
@@ -301,6 +333,8 @@ def main(argv: list[str] | None = None) -> int:
                 settings,
                 drag,
                 flow,
+                shape,
+                None if args.states is None else str(args.states),
             )
             for k in range(args.runs)
         ]
@@ -311,14 +345,15 @@ def main(argv: list[str] | None = None) -> int:
                 f"{r['seed']:>3}  {r['mpjpe_mm']:8.1f}  {r['diverged']:8d}  "
                 f"{r['segments_deg']:10.1f}  {r['segment_axes_deg']:6.1f}  "
                 f"{100 * r['within_1pct']:10.0f}%  "
-                f"{r['accel_mm']:11.2f}  {r['wall_s']:5.0f}",
+                f"{r['accel_mm']:11.2f}  {r['surface_mm']:10.2f}  {r['wall_s']:5.0f}",
                 flush=True,
             )
     s = summary(rows)
     print(
         f"MPJPE median {s['mpjpe_median_mm']:.1f} mm, range {s['mpjpe_min_mm']:.1f}–"
         f"{s['mpjpe_max_mm']:.1f} mm over {len(rows)} runs; acceleration error median "
-        f"{s['accel_median_mm']:.2f} mm/frame²"
+        f"{s['accel_median_mm']:.2f} mm/frame²; metaball surface median "
+        f"{s['surface_median_mm']:.2f} mm"
     )
     print(
         "per joint, median (min–max) mm: "

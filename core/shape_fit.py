@@ -31,7 +31,14 @@ prior:
   same radii and mirror-image centres (about the skeleton's rest-pose sagittal plane),
   and a metaball of the trunk or head is centred on that plane.  The studio's
   ``line3`` rig sees the walker's right side in no frame: without this its shape is
-  left to the prior;
+  left to the prior.  Opt-in (``σ_one_sided`` > 0): where a pair's or a mid-plane
+  metaball's data points lie on one side only (:func:`core.shape_priors.one_sided`)
+  it is held at that tighter σ.  At ``σ_symmetry`` a trunk metaball can drift towards
+  the seen side while its radius shrinks, which keeps the seen surface and thins the
+  unseen one (jumps_line3: the trunk's right side 17-20 mm inside the true mesh); held,
+  it cannot follow a skeleton that itself sits off in depth, so the tighter σ helps
+  only where the skeleton is well placed (``docs/design.md``, "The side no point
+  sees");
 * **smoothness** (``σ_smooth``): neighbouring metaballs — consecutive on one bone, and
   across a joint — change alike from the start shape (radii and centre
   displacements), so a limb's or the trunk's cross-section varies smoothly instead of
@@ -273,6 +280,13 @@ def fit_shape(
         if fr.soff_all is not None:
             mrms[f] = float(np.sqrt(np.mean(fr.soff_all**2)))
             n_mod[f] = len(fr.soff_all)
+    if prob.one_sided is not None and any(f.any() for f in prob.one_sided):
+        pairs, centres = prob.one_sided
+        msg += (
+            f"; {int(pairs.sum())} of {len(pairs)} left/right pairs and {int(centres.sum())} "
+            f"of {len(centres)} mid-plane metaballs had their points on one side, held "
+            f"symmetric at {1e3 * cfg.sigma_one_sided:g} mm"
+        )
     if not keep.all():
         msg += f"; {int((~keep).sum())} frame(s) with fewer than {cfg.min_points} points left out"
     return ShapeFit(out, rms, mrms, n_pts, n_mod, keep, converged, msg, srms)

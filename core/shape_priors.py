@@ -3,7 +3,9 @@
 * **symmetry** — :func:`mirror_pairs` pairs each left metaball with its right partner
   (and finds the mid-plane ones) about the skeleton's rest-pose sagittal plane;
   :func:`symmetry_rows` are the residuals and Jacobian of "partners have the same radii
-  and mirror-image centres, mid-plane metaballs stay on the plane";
+  and mirror-image centres, mid-plane metaballs stay on the plane"; :func:`one_sided`
+  finds the pairs and mid-plane metaballs whose data lie on one side only, which the
+  shape fit holds to the symmetry more tightly;
 * **smoothness** — :func:`chain_pairs` lists neighbouring metaballs (consecutive on a
   bone, and across a joint); :func:`smooth_rows` asks neighbours to change alike from
   the start shape.
@@ -18,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .metaballs import Metaballs
+from .metaballs import Metaballs, world_frames
 from .skeleton import Skeleton, bone_frames, forward, joint_positions
 
 
@@ -100,28 +102,94 @@ def mirror_pairs(skel: Skeleton, balls: Metaballs, s: np.ndarray) -> Symmetry:
     )
 
 
-def symmetry_rows(sym: Symmetry, M: int, n_c: int, w: float, radii, centers):
-    """Residuals and Jacobian (rows, 3M + n_c) of the symmetry prior."""
+def symmetry_rows(
+    sym: Symmetry, M: int, n_c: int, w, radii, centers, w_centre=None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Residuals and Jacobian (rows, 3M + n_c) of the symmetry prior.
+
+    ``w``: 1/σ of the pairs, a scalar or one per pair (P,); ``w_centre``: 1/σ of the
+    mid-plane metaballs' offsets from the plane, a scalar or (C,) (default ``w``, which
+    must then be a scalar).
+    """
     P, C = len(sym.left), len(sym.centre)
+    w_pair = np.broadcast_to(np.asarray(w, float), (P,))
+    w_mid = np.broadcast_to(np.asarray(w if w_centre is None else w_centre, float), (C,))
+    w3 = np.repeat(w_pair, 3)
     mirror = np.eye(3) - 2.0 * np.outer(sym.lateral, sym.lateral)
     rows = np.arange(3 * P)
-    r = [(radii[sym.right[:, None], sym.axis_map] - radii[sym.left]).ravel() * w]
+    r = [(radii[sym.right[:, None], sym.axis_map] - radii[sym.left]).ravel() * w3]
     J = np.zeros((3 * P, 3 * M + n_c))
-    J[rows, (3 * sym.right[:, None] + sym.axis_map).ravel()] = w
-    J[rows, (3 * sym.left[:, None] + np.arange(3)).ravel()] -= w
+    J[rows, (3 * sym.right[:, None] + sym.axis_map).ravel()] = w3
+    J[rows, (3 * sym.left[:, None] + np.arange(3)).ravel()] -= w3
     Js = [J]
     if n_c:
         o = np.einsum("mij,mj->mi", sym.A, centers)
-        r.append((o[sym.right] - o[sym.left] @ mirror.T).ravel() * w)
-        r.append(o[sym.centre] @ sym.lateral * w)
+        r.append((o[sym.right] - o[sym.left] @ mirror.T).ravel() * w3)
+        r.append(o[sym.centre] @ sym.lateral * w_mid)
         Jc = np.zeros((3 * P + C, 3 * M + n_c))
         for k, (m, mr) in enumerate(zip(sym.left, sym.right, strict=True)):
-            Jc[3 * k : 3 * k + 3, 3 * M + 3 * mr : 3 * M + 3 * mr + 3] = sym.A[mr] * w
-            Jc[3 * k : 3 * k + 3, 3 * M + 3 * m : 3 * M + 3 * m + 3] = -(mirror @ sym.A[m]) * w
+            Jc[3 * k : 3 * k + 3, 3 * M + 3 * mr : 3 * M + 3 * mr + 3] = sym.A[mr] * w_pair[k]
+            Jc[3 * k : 3 * k + 3, 3 * M + 3 * m : 3 * M + 3 * m + 3] = (
+                -(mirror @ sym.A[m]) * w_pair[k]
+            )
         for k, m in enumerate(sym.centre):
-            Jc[3 * P + k, 3 * M + 3 * m : 3 * M + 3 * m + 3] = sym.lateral @ sym.A[m] * w
+            Jc[3 * P + k, 3 * M + 3 * m : 3 * M + 3 * m + 3] = sym.lateral @ sym.A[m] * w_mid[k]
         Js.append(Jc)
     return np.concatenate(r), np.concatenate(Js, axis=0)
+
+
+def one_sided(
+    sym: Symmetry,
+    skel: Skeleton,
+    balls: Metaballs,
+    s: np.ndarray,
+    poses: list,
+    points: list[np.ndarray],
+    ratio: float,
+    min_points: int = 20,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The symmetry pairs and mid-plane metaballs whose data points lie on one side.
+
+    Each point goes to the metaball of strongest field at it (its nearest in the
+    metaball's own scaled distance ``d``), at the start shape.  A pair is one-sided when
+    its emptier member got fewer than ``ratio`` times its fuller member's points; a
+    mid-plane metaball when the points on one side of the sagittal plane through its
+    centre are fewer than ``ratio`` times those on the other.  Only with at least
+    ``min_points`` on the fuller side: two empty sides say nothing.
+
+    Parameters
+    ----------
+    sym : the pairing (:func:`mirror_pairs`)
+    poses : per frame, the pose (:func:`core.skeleton.forward` of one frame)
+    points : per frame, (N_f, 3) world data points, metres
+    ratio : in [0, 1] (0: nothing is one-sided)
+
+    Returns
+    -------
+    pairs : (P,) bool; centres : (C,) bool
+    """
+    M = len(balls)
+    Rb0, _ = bone_frames(skel, forward(skel, np.zeros(skel.n_dof), np.zeros(3), s))
+    lat = np.einsum("mji,j->mi", Rb0[0][balls.bone] @ balls.rot, sym.lateral)  # (M, 3)
+    side = np.zeros((2, M))
+    for pose, x in zip(poses, points, strict=True):
+        if not len(x):
+            continue
+        Rw, cw = world_frames(skel, pose, balls, s)
+        y = np.einsum("mji,nmj->nmi", Rw[0], np.asarray(x, float)[:, None] - cw[0][None])
+        m = np.argmin(np.sum((y / balls.radii[None]) ** 2, axis=2), axis=1)
+        plus = np.einsum("ni,ni->n", y[np.arange(len(m)), m], lat[m]) > 0
+        np.add.at(side, (plus.astype(int), m), 1)
+    count = side.sum(axis=0)
+
+    def lopsided(a, b):
+        hi = np.maximum(a, b)
+        return (hi >= min_points) & (np.minimum(a, b) < ratio * hi)
+
+    return (
+        lopsided(count[sym.left], count[sym.right]),
+        lopsided(side[0, sym.centre], side[1, sym.centre]),
+    )
 
 
 def chain_pairs(balls: Metaballs, skel: Skeleton | None = None) -> np.ndarray:

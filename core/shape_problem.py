@@ -24,7 +24,7 @@ from .attractor import LN_T, attractor, attractor_jacobians
 from .camera import Camera
 from .metaballs import Metaballs, local_coords, sample_surface, world_frames
 from .model_render import render_parts
-from .shape_priors import chain_pairs, mirror_pairs, smooth_rows, symmetry_rows
+from .shape_priors import chain_pairs, mirror_pairs, one_sided, smooth_rows, symmetry_rows
 from .shape_settings import ShapeSettings
 from .skeleton import Skeleton, bone_frames
 
@@ -138,6 +138,19 @@ class ShapeProblem:
             _Frame(p, x, sg, *c) for p, x, sg, c in zip(poses, points, sigma, sil, strict=True)
         ]
         self.sym = mirror_pairs(skel, balls, s) if cfg.sigma_symmetry > 0 else None
+        self.sym_w = self.one_sided = None
+        if self.sym is not None:
+            pairs = np.zeros(len(self.sym.left), bool)
+            centres = np.zeros(len(self.sym.centre), bool)
+            if cfg.sigma_one_sided > 0 and cfg.one_sided_ratio > 0:
+                pairs, centres = one_sided(
+                    self.sym, skel, balls, s, poses, points, cfg.one_sided_ratio
+                )
+            self.one_sided = (pairs, centres)
+            w_one = 1.0 / (cfg.sigma_one_sided or cfg.sigma_symmetry)
+            self.sym_w = tuple(
+                np.where(f, w_one, 1.0 / cfg.sigma_symmetry) for f in (pairs, centres)
+            )
         self.chain = chain_pairs(balls, skel) if cfg.sigma_smooth > 0 else None
         self.seed = int(seed)
 
@@ -310,7 +323,7 @@ class ShapeProblem:
             res.append((centers - self.centers0).ravel() * w)
             jac.append(sparse.eye(n_c, n_x, k=3 * M, format="csr") * w)
         if self.sym is not None:
-            r, J = symmetry_rows(self.sym, M, n_c, 1.0 / cfg.sigma_symmetry, radii, centers)
+            r, J = symmetry_rows(self.sym, M, n_c, self.sym_w[0], radii, centers, self.sym_w[1])
             res.append(r)
             jac.append(sparse.csr_matrix(J))
         if self.chain is not None and len(self.chain):

@@ -155,6 +155,39 @@ def test_the_flow_settings_reach_the_pipeline(monkeypatch):
     assert seen["flow"] == "auto"
 
 
+def test_the_shape_settings_reach_the_pipeline_and_the_states_are_written(monkeypatch, tmp_path):
+    from core.shape_fit import ShapeSettings
+
+    def error(msg):
+        raise ValueError(msg)
+
+    shape = parse_settings(["sigma_one_sided=0"], error, ShapeSettings, "--shape")
+    assert shape == {"sigma_one_sided": 0}
+    with pytest.raises(ValueError, match="--shape 'sigma=1': expected NAME=VALUE"):
+        parse_settings(["sigma=1"], error, ShapeSettings, "--shape")
+    seen = {}
+
+    def fake_run_scene(scene, **kw):
+        seen.update(kw)
+        return _StateOnly(truth_to_state(scene.truth, scene.fps)[0])
+
+    import core.fit_scene
+    from core.truth_state import truth_to_state
+
+    monkeypatch.setattr(core.fit_scene, "run_scene", fake_run_scene)
+    row = fit_once(SCENE, "unused.npz", "both", 0.5, 2, shape=shape, states=str(tmp_path / "s"))
+    assert seen["settings"].shape_fit.sigma_one_sided == 0
+    assert (tmp_path / "s" / "run2.json").is_file()
+    assert np.isfinite(row["surface_mm"])
+
+
+class _StateOnly:
+    """What fit_once reads of run_scene's result."""
+
+    def __init__(self, state):
+        self.state = state
+
+
 def test_dragged_clicks_move_only_the_depth_onto_the_truth():
     """A knee clicked 2 px apart in the outer cameras: its intersection is off in depth;
     dragged, it moves along its long axis only, to where no error is left along it, and

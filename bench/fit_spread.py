@@ -2,7 +2,7 @@
 
 ``python -m bench.fit_spread [SCENE] [--runs N] [--click-noise PX] [--cues C] [--jobs J]
 [--flow-sigma PX] [--flow NAME=VALUE ...] [--setting NAME=VALUE ...] [--shape NAME=VALUE ...]
-[--states DIR]``
+[--states DIR] [--visibility]``
 
 The sequence fit makes discrete choices — which camera a part uses, whether a limb
 search's move is kept, which corners the texture flow lifts — so on a scene where a limb
@@ -21,7 +21,9 @@ be compared by their medians rather than by one run each; ``--flow`` sets any fi
 ``--setting`` one of :class:`core.fit_types.SequenceSettings` (``shape_scales=true``)
 and ``--shape`` one of the whole-body shape fit's :class:`core.shape_fit.ShapeSettings`
 (``sigma_one_sided=0.0005``).  ``--states DIR`` writes each run's fitted state as
-``DIR/runK.json``, for ``core evaluate`` or ``bench.visibility``.
+``DIR/runK.json``, for ``core evaluate`` or ``bench.visibility``; ``--visibility`` adds
+each run's visibility index against the true mesh (:func:`bench.visibility.compare`,
+outer surface, every 5th frame: the #7 figure).
 
 ``--drag JOINT,...`` does, before each fit, what a user dragging those joints' empties
 in a side view of Blender's viewport does at best (:func:`dragged_clicks`): each joint's
@@ -104,13 +106,15 @@ def fit_once(
     flow: dict | None = None,
     shape: dict | None = None,
     states: str | None = None,
+    visibility: bool = False,
 ) -> dict:
     """One in-process fit of the scene's tracks with perturbed clicks; its figures.
     ``flow_sigma_px``: the texture flow's σ (None: ``FlowSettings``' default);
     ``settings``: :class:`SequenceSettings` fields (None: its defaults); ``flow``:
     :class:`core.fit_flow.FlowSettings` fields (None: its defaults); ``shape``:
     :class:`core.shape_fit.ShapeSettings` fields of the written shape (None: its
-    defaults); ``states``: a folder to write the fitted state to (``run{seed}.json``)."""
+    defaults); ``states``: a folder to write the fitted state to (``run{seed}.json``);
+    ``visibility``: also the mean |ΔVI| against the true mesh (NaN when not asked)."""
     from core.blas_threads import single_blas_thread
     from core.evaluate import evaluate_state
     from core.fit_flow import FlowSettings
@@ -143,7 +147,15 @@ def fit_once(
             flow=flow,
             settings=SequenceSettings(**settings) if settings else None,
         )
+    wall = time.perf_counter() - t0
     ev = evaluate_state(res.state, scene.truth)
+    vi = np.nan
+    if visibility:
+        from bench.visibility import compare
+
+        frames = range(0, scene.n_frames, 5)
+        vi = compare(res.state, scene.truth, scene.calibration(), frames, outer_only=True)
+        vi = vi["mean_abs_diff"]
     if states is not None:
         Path(states).mkdir(parents=True, exist_ok=True)
         write_state(Path(states) / f"run{seed}.json", res.state)
@@ -158,7 +170,8 @@ def fit_once(
         "per_segment_deg": ev.per_segment_rmse_deg,
         "accel_mm": ev.accel_error_mm,
         "surface_mm": ev.surface_mm,
-        "wall_s": time.perf_counter() - t0,
+        "visibility": vi,
+        "wall_s": wall,
     }
 
 
@@ -221,6 +234,7 @@ def summary(rows: list[dict]) -> dict:
         "mpjpe_max_mm": float(m.max()),
         "accel_median_mm": float(np.median(acc)),
         "surface_median_mm": float(np.median([r.get("surface_mm", np.nan) for r in rows])),
+        "visibility_median": float(np.median([r.get("visibility", np.nan) for r in rows])),
         "per_joint": {
             j: (float(np.median(pj[:, k])), float(pj[:, k].min()), float(pj[:, k].max()))
             for k, j in enumerate(joints)
@@ -275,6 +289,11 @@ def main(argv: list[str] | None = None) -> int:
         "--states", type=Path, default=None, help="write each run's state as DIR/runK.json"
     )
     ap.add_argument(
+        "--visibility",
+        action="store_true",
+        help="also each run's visibility index against the true mesh (~15 s a run)",
+    )
+    ap.add_argument(
         "--drag",
         default="",
         metavar="JOINT,...",
@@ -316,7 +335,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     print(
         f"{'run':>3}  {'MPJPE mm':>8}  {'diverged':>8}  {'segments °':>10}  {'axes °':>6}  "
-        f"{'≤1 % height':>11}  {'accel mm/f²':>11}  {'surface mm':>10}  {'s':>5}",
+        f"{'≤1 % height':>11}  {'accel mm/f²':>11}  {'surface mm':>10}  {'VI':>6}  {'s':>5}",
         flush=True,
     )
     rows = []
@@ -335,6 +354,7 @@ def main(argv: list[str] | None = None) -> int:
                 flow,
                 shape,
                 None if args.states is None else str(args.states),
+                args.visibility,
             )
             for k in range(args.runs)
         ]
@@ -345,7 +365,8 @@ def main(argv: list[str] | None = None) -> int:
                 f"{r['seed']:>3}  {r['mpjpe_mm']:8.1f}  {r['diverged']:8d}  "
                 f"{r['segments_deg']:10.1f}  {r['segment_axes_deg']:6.1f}  "
                 f"{100 * r['within_1pct']:10.0f}%  "
-                f"{r['accel_mm']:11.2f}  {r['surface_mm']:10.2f}  {r['wall_s']:5.0f}",
+                f"{r['accel_mm']:11.2f}  {r['surface_mm']:10.2f}  {r['visibility']:6.3f}  "
+                f"{r['wall_s']:5.0f}",
                 flush=True,
             )
     s = summary(rows)
@@ -354,6 +375,7 @@ def main(argv: list[str] | None = None) -> int:
         f"{s['mpjpe_max_mm']:.1f} mm over {len(rows)} runs; acceleration error median "
         f"{s['accel_median_mm']:.2f} mm/frame²; metaball surface median "
         f"{s['surface_median_mm']:.2f} mm"
+        + ("" if not args.visibility else f"; visibility index median {s['visibility_median']:.3f}")
     )
     print(
         "per joint, median (min–max) mm: "

@@ -178,7 +178,10 @@ def test_the_shape_settings_reach_the_pipeline_and_the_states_are_written(monkey
     row = fit_once(SCENE, "unused.npz", "both", 0.5, 2, shape=shape, states=str(tmp_path / "s"))
     assert seen["settings"].shape_fit.sigma_one_sided == 0
     assert (tmp_path / "s" / "run2.json").is_file()
-    assert np.isfinite(row["surface_mm"])
+    assert np.isfinite(row["surface_mm"]) and np.isnan(row["visibility"])
+    # the truth's own state against its mesh: the template's shape, a small but real |ΔVI|
+    row = fit_once(SCENE, "unused.npz", "both", 0.5, 0, visibility=True)
+    assert 0.0 < row["visibility"] < 0.15
 
 
 class _StateOnly:

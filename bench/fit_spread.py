@@ -243,7 +243,7 @@ def summary(rows: list[dict]) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from bench.fit import DEFAULT, RENDERS, _resolve
+    from bench.fit import DEFAULT, RENDERS, STUDIO_SCENES, _resolve
 
     ap = argparse.ArgumentParser(
         prog="python -m bench.fit_spread", description=__doc__.splitlines()[0]
@@ -320,9 +320,16 @@ def main(argv: list[str] | None = None) -> int:
     flow = parse_settings(args.flow, ap.error, FlowSettings, "--flow")
     shape = parse_settings(args.shape, ap.error, ShapeSettings, "--shape")
     scene, _ = _resolve(args.scene, RENDERS)
+    if not scene.is_dir():
+        ap.error(
+            f"{args.scene}: no such scene folder, nor a studio scene ({', '.join(STUDIO_SCENES)})"
+        )
     if args.tracks is not None and not args.tracks.is_file():
         ap.error(f"--tracks {args.tracks}: no such file")
-    tracks = scene_tracks(scene) if args.tracks is None else args.tracks
+    try:
+        tracks = scene_tracks(scene) if args.tracks is None else args.tracks
+    except subprocess.CalledProcessError:
+        ap.error(f"{scene}: tracking failed (python -m core track printed why, above)")
     print(
         f"{scene.name}: {args.runs} fits of {tracks}, cues {args.cues}, clicks moved by "
         f"N(0, {args.click_noise} px) in runs 1..{args.runs - 1}"

@@ -227,6 +227,16 @@ def test_dragged_clicks_move_only_the_depth_onto_the_truth():
             assert d["joints"][j] == c["joints"][j]
 
 
+def test_a_scene_that_is_not_there_is_one_clear_error(tmp_path, capsys):
+    from bench.fit_spread import main
+
+    with pytest.raises(SystemExit):
+        main([str(tmp_path / "pirouette_ortho3"), "--runs", "1"])
+    err = capsys.readouterr().err
+    assert "pirouette_ortho3: no such scene folder, nor a studio scene (walk_ortho3" in err
+    assert not (tmp_path / "pirouette_ortho3").exists()  # nothing tracked or created
+
+
 def test_other_tracks_must_exist(tmp_path, capsys):
     from bench.fit_spread import main
 

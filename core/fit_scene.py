@@ -184,7 +184,13 @@ def run_scene(
         msgs += cmsgs
         timings["contours"] = time.perf_counter() - t3
     t2 = time.perf_counter()
-    init = initialise(scene.clicks(), cameras, model=model, path=str(scene.root / "clicks.json"))
+    init = initialise(
+        scene.clicks(),
+        cameras,
+        model=model,
+        path=str(scene.root / "clicks.json"),
+        hip_lean=(settings or SequenceSettings()).hip_lean,
+    )
     msgs += init.clicks.messages()
     if init.frame >= nf:
         raise InputError(

@@ -205,3 +205,24 @@ def test_visible_scale_survives_the_state_dict():
     plain = mb.make_metaballs(skel, "simplified", s)
     assert mb.Metaballs.from_dict(plain.to_dict(skel), skel).visible_scale is None
     np.testing.assert_allclose(plain.visible, plain.radii * mb.VISIBLE)
+
+
+def test_the_hip_girdle_follows_the_hips_when_they_sit_in_front_of_the_pelvis():
+    """Hips clicked in front of the pelvis (a mocap root near the sacrum) turn the
+    girdle about the lateral axis with them: it keeps its place and axes relative to
+    the hips' line, as with hips straight below the pelvis."""
+    lean = np.radians(40.0)
+    Q = np.array(
+        [[1, 0, 0], [0, np.cos(lean), np.sin(lean)], [0, -np.sin(lean), np.cos(lean)]]
+    )  # turns straight down (0, 0, −1) to down and forward (0, −sin, −cos)
+    below = np.array([0.09, 0.0, -0.09])
+    for model in ("simplified", "complete"):
+        upright = sk.make_skeleton({"l_hip": below, "r_hip": below * [-1, 1, 1]})
+        leaning = sk.make_skeleton({"l_hip": Q @ below, "r_hip": Q @ (below * [-1, 1, 1])})
+        a, b = mb.make_metaballs(upright, model), mb.make_metaballs(leaning, model)
+        on = a.bone == upright.bone_index("pelvis")
+        assert on.sum() == (1 if model == "simplified" else 3)
+        np.testing.assert_allclose(b.center0[on], a.center0[on] @ Q.T, atol=1e-12)
+        np.testing.assert_allclose(b.rot[on], Q @ a.rot[on], atol=1e-12)
+        np.testing.assert_allclose(b.radii, a.radii)
+        assert np.allclose(a.rot[on], np.eye(3))  # hips straight below: as the template

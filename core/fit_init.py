@@ -224,8 +224,8 @@ def _hip_offsets(pts: dict, lean: bool = False) -> dict:
     62 mm in front of it and 70 mm below on jumps_line3), dropping it leaves the
     pelvis-to-hip distance 9 mm short, and the fit tilts the pelvis 36° to share the
     error: pelvis, hips and neck 8–15 mm off in every frame.  Kept, they are within 1.4
-    mm; but the walk's fits got worse, so it is not the default (docs/design.md, "The
-    hips in front of the pelvis").
+    mm; but the walk's and the orthogonal dance's fits got worse, so it is not the
+    default (docs/design.md, "The hips in front of the pelvis").
     """
     if not all(j in pts for j in ("pelvis", "l_hip", "r_hip", "neck")):
         return {}

@@ -74,7 +74,8 @@ class SequenceSettings:
     contour_start_margin: float = 0.0
     #: the hips' rest offsets keep their forward part from the clicked pelvis
     #: (:func:`core.fit_init.initialise`): jumps_line3 draws 0-3 14.5 -> 13.4 mm median,
-    #: make demo's walk 12.3 -> 14.4 (docs/design.md, "The hips in front of the pelvis")
+    #: make demo's walk 12.3 -> 14.4, dance_ortho3 run 0 24.2 -> 108.5 (docs/design.md,
+    #: "The hips in front of the pelvis")
     hip_lean: bool = False
     shape_scales: bool = False  # bone scales refitted to the points (else: the clicks')
     shape_centers: bool = True  # metaball centres free in the shape solve

@@ -202,7 +202,8 @@ def make_metaballs(
             # the turn the girdle hung behind the hips, and jumps_line3 lost its hidden
             # right leg: 27 mm); hips on the pelvis' plane leave it as it is (Q = I)
             a = float(np.arctan2(hip[1], -hip[2])) if hip[2] < 0 else 0.0
-            Q = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+            c, sn = np.cos(a), np.sin(a)
+            Q = np.array([[1, 0, 0], [0, c, -sn], [0, sn, c]]) if a else np.eye(3)
             for cx in (0.0,) if model == "simplified" else (-0.5, 0.0, 0.5):
                 bone.append(b)
                 center.append(Q @ np.array([cx * w, 0.01, -0.04]))

@@ -15,11 +15,11 @@ metaball model itself can reach, against which the targets can be read.  The
 distances are measured on other frames as well:
 
 * metaball → mesh: points on the whole-body iso-surface ``Σ f = 0.5``
-  (:func:`core.metaballs.sample_surface`) to the nearest point of the true mesh
+  (:func:`core.metaball_surface.sample_surface`) to the nearest point of the true mesh
   (:func:`bench.meshtruth.nearest_on_mesh`);
 * mesh → metaball: every other true vertex to the iso-surface — the shorter of two
   upper bounds of the distance: the Newton projection along the field gradient
-  (:func:`core.metaballs.project_to_surface`, not the shortest path far from the
+  (:func:`core.metaball_surface.project_to_surface`, not the shortest path far from the
   surface) and the nearest of dense surface samples (too long by the spacing).
 """
 
@@ -33,13 +33,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from bench.meshtruth import nearest_on_mesh
-from core.metaballs import (
-    Metaballs,
-    make_metaballs,
-    project_to_surface,
-    sample_surface,
-    world_frames,
-)
+from core.metaball_surface import project_to_surface, sample_surface
+from core.metaballs import Metaballs, make_metaballs, world_frames
 from core.skeleton import Skeleton, forward
 
 REPO = Path(__file__).resolve().parents[1]
@@ -218,7 +213,7 @@ def shape_table(
     print(
         "   mesh labels: 'segments' = nearest bone segment (the earlier reference), 'model' ="
         " the model's own part boundaries; our render: 'lone' = each metaball's lone"
-        " ellipsoid (as core.contour_obs renders now), 'blend' = core.metaballs.render_radii"
+        " ellipsoid (as core.contour_obs renders now), 'blend' = core.metaball_surface.render_radii"
     )
     return results
 

@@ -28,7 +28,7 @@ Part labels of the true mesh (``labels``):
 Our rendering (``surface``): ``"lone"`` (default) — each metaball's lone visible
 ellipsoid, as :func:`core.contour_obs.body_ellipsoids` renders it for the camera
 selection; ``"blend"`` — ellipsoids that follow the blended whole-body surface
-(:func:`core.metaballs.render_radii`), right for a shape fitted to surface points
+(:func:`core.metaball_surface.render_radii`), right for a shape fitted to surface points
 (:mod:`core.shape_fit`), whose metaballs are often small and overlap.
 
 Our area ignoring occlusion (``outer_only``): the whole of each ellipsoid, as the camera
@@ -86,10 +86,10 @@ def body_render(state, frame: int, surface: str = "lone"):
     semi-axes (M, 3) and parts (M,).
 
     ``surface``: ``"blend"`` — axes approximating the whole-body iso-surface
-    (:func:`core.metaballs.render_radii`); ``"lone"`` — each metaball's lone visible
+    (:func:`core.metaball_surface.render_radii`); ``"lone"`` — each metaball's lone visible
     ellipsoid (what :func:`core.contour_obs.body_ellipsoids` renders).
     """
-    from core.metaballs import render_radii
+    from core.metaball_surface import render_radii
     from core.skeleton import forward
 
     if surface not in ("blend", "lone"):

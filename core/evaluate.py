@@ -319,7 +319,7 @@ def surface_distance_mm(
 
     The mesh surface is sampled uniformly by area (``per_frame`` points per frame on its
     triangles) and each sample projected onto the fitted ``Σ f = 0.5``
-    (:func:`core.metaballs.project_to_surface`).  Sampling by area, not by vertex: the
+    (:func:`core.metaball_surface.project_to_surface`).  Sampling by area, not by vertex: the
     character's vertices crowd on the head, hands and feet (1,600 on each hand of
     13,380), so a vertex mean weighs those several times their area (make demo's walk:
     22.8 mm per vertex, 25.7 mm by area).
@@ -335,6 +335,7 @@ def surface_distance_mm(
     frames : list of int
         Frames to measure.
     """
+    from . import metaball_surface as mbs
     from . import metaballs as mb
     from .skeleton import forward
 
@@ -344,7 +345,7 @@ def surface_distance_mm(
         p = sample_mesh_surface(vertices[f], faces, per_frame, rng)
         pose = forward(state.skeleton, state.theta[f][None], state.root_xyz[f][None], state.s)
         Rw, cw = mb.world_frames(state.skeleton, pose, state.metaballs, state.s)
-        xs, ok = mb.project_to_surface(
+        xs, ok = mbs.project_to_surface(
             p, Rw[0], cw[0], state.metaballs.radii, iterations=60, tol=1e-6
         )
         out.append(np.linalg.norm(xs - p, axis=1)[ok])

@@ -16,7 +16,7 @@ clicked frame's initial posture (:mod:`core.fit_init`):
    *whole-body* shape is fitted as well (:func:`core.shape_fit.fit_shape`: metaball
    radii and centres, the anti-bulge term with the scene's ``cameras``), from the
    template deflated so that its blended surface follows the ellipsoids the contours
-   render (``shape_fit_deflate``, :func:`core.metaballs.deflate`).  With
+   render (``shape_fit_deflate``, :func:`core.metaball_surface.deflate`).  With
    ``shape_fit_track = False`` (its default) the tracking keeps the per-part shape and the
    whole-body shape is fitted after the motion, at the fitted poses, and only written to
    the state (:func:`core.fit_whole_shape.written_shape`: with silhouette contours, at
@@ -140,7 +140,7 @@ from .fit_types import FramePoints, SequenceResult, SequenceSettings, frame_obse
 from .fit_whole_shape import whole_body_shape, written_shape
 from .fitting import fit
 from .foot_heading import feet_from_points
-from .metaballs import deflate
+from .metaball_surface import deflate
 from .motion_smoother import smooth_angles, smooth_joints
 from .progress import Progress
 from .state import FitState, Quality

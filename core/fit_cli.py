@@ -13,7 +13,7 @@ frame's silhouettes) or ``both``; with contours the cameras each part used are w
 per frame in the state's quality (SPEC: ``quality.cameras``).
 ``--shape`` chooses the body shape written: ``written`` (default) fits the whole-body
 metaball shape after the motion, at the fitted poses, from the deflated template
-(:func:`core.metaballs.deflate`) — with contours to the points and silhouettes of frames
+(:func:`core.metaball_surface.deflate`) — with contours to the points and silhouettes of frames
 spread over the take, else to the points of the frames nearest the clicked one — for
 the state only (the motion is the same as with ``template``); ``template`` keeps the
 per-part shape of the shape frames, that the motion was tracked with;

@@ -279,7 +279,7 @@ class SequenceSettings:
     #: after the motion, at the fitted poses, for the state only (False)
     shape_fit_track: bool = False
     #: with shape = "fit": start the whole-body shape fit (and its prior) from the
-    #: deflated template (:func:`core.metaballs.deflate`), whose blended surface follows
+    #: deflated template (:func:`core.metaball_surface.deflate`), whose blended surface follows
     #: the ellipsoids the contours render instead of swelling where metaballs overlap
     shape_fit_deflate: bool = True
     shape_fit: ShapeSettings | None = None  # its settings (None: its defaults)

@@ -220,12 +220,12 @@ def blend_scale(
     """``visible_scale`` (M, 3) whose ellipsoids follow the blended surface.
 
     The median over the poses ``theta`` (K, n) / ``root`` (K, 3) of
-    :func:`core.metaballs.render_radii` over the radii: the contours, the camera
+    :func:`core.metaball_surface.render_radii` over the radii: the contours, the camera
     selection and the segmentation then render the surface the silhouettes shaped (a
     metaball's share of the blend changes a little with the pose as its neighbours
     come closer or part).
     """
-    from .metaballs import render_radii
+    from .metaball_surface import render_radii
     from .skeleton import forward
 
     vis = [

@@ -22,7 +22,8 @@ from scipy.spatial import cKDTree
 
 from .attractor import LN_T, attractor, attractor_jacobians
 from .camera import Camera
-from .metaballs import Metaballs, local_coords, sample_surface, world_frames
+from .metaball_surface import sample_surface
+from .metaballs import Metaballs, local_coords, world_frames
 from .model_render import render_parts
 from .shape_priors import chain_pairs, mirror_pairs, one_sided, smooth_rows, symmetry_rows
 from .shape_settings import ShapeSettings
@@ -218,14 +219,14 @@ class ShapeProblem:
         """Pair the blended surface's rim with the frame's image contours and linearise.
 
         The whole-body surface ``Σ f = 0.5`` is rendered as the ellipsoids that follow it
-        (:func:`core.metaballs.render_radii`, their ratio to the radii held for the
+        (:func:`core.metaball_surface.render_radii`, their ratio to the radii held for the
         round); its occluding contour is paired with the observed one in every camera
         (:func:`core.contour_obs.contour_observations`, all cameras fused) and the
         residuals (pixels, along the image normal) are linearised in the radii and the
         centres: ``r(x) ≈ r0 + J (x − x0)``, Huber-weighted at ``r0``.
         """
         from .contour_obs import contour_observations
-        from .metaballs import render_radii
+        from .metaball_surface import render_radii
 
         cfg = self.cfg
         fr.sil, fr.sil_rms = None, np.nan

@@ -108,6 +108,7 @@ def test_metaballs_one_family_parented_to_bones(built):
 def test_blender_body_is_the_fitted_metaball_surface(built):
     """Blender's blended metaball surface lies on core's Σ f = 0.5 (the field kernels
     matched, builders.KERNEL_SCALE / STIFFNESS), not inside or outside it."""
+    from core import metaball_surface as mbs
     from core import metaballs as mb
     from core.skeleton import forward
 
@@ -117,7 +118,7 @@ def test_blender_body_is_the_fitted_metaball_surface(built):
         v = _evaluated_vertices(bpy, balls[0])
         pose = forward(state.skeleton, state.theta[f : f + 1], state.root_xyz[f : f + 1], state.s)
         Rw, cw = mb.world_frames(state.skeleton, pose, state.metaballs, state.s)
-        xs, ok = mb.project_to_surface(v, Rw[0], cw[0], state.metaballs.radii)
+        xs, ok = mbs.project_to_surface(v, Rw[0], cw[0], state.metaballs.radii)
         inside = mb.field(v, Rw[0], cw[0], state.metaballs.radii)[0] > 0.5
         d = np.linalg.norm(xs - v, axis=1)[ok]
         signed = np.where(inside, -1.0, 1.0)[ok] * d

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from core import metaball_surface as mbs
 from core import metaballs as mb
 from core import skeleton as sk
 from core.camera import Camera
@@ -39,7 +40,7 @@ def model_points(skel, balls, theta, root, s, rng, per_bone=20):
         u = rng.normal(size=(per_bone, 3))
         u /= np.linalg.norm(u, axis=1, keepdims=True)
         x0 = np.einsum("nij,nj->ni", Rw[0, m], u * balls.radii[m] * mb.VISIBLE) + cw[0, m]
-        x, ok = mb.project_to_surface(x0, Rw[0, on], cw[0, on], balls.radii[on])
+        x, ok = mbs.project_to_surface(x0, Rw[0, on], cw[0, on], balls.radii[on])
         xyz.append(x[ok])
         part.append(np.full(ok.sum(), b))
     return np.concatenate(xyz), np.concatenate(part)

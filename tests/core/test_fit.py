@@ -5,6 +5,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from core import metaball_surface as mbs
 from core import metaballs as mb
 from core import skeleton as sk
 from core.fit import FramePoints, SequenceSettings, fit_sequence
@@ -76,7 +77,7 @@ def _shape_sequence(rng, nf=3):
     frames = []
     for f in range(nf):
         pose = sk.forward(skel, theta[f][None], root[f][None], s)
-        x, ok = mb.sample_surface(skel, pose, truth, s, per_ball=30, seed=f)
+        x, ok = mbs.sample_surface(skel, pose, truth, s, per_ball=30, seed=f)
         x = x[ok] + rng.normal(0.0, 0.001, (int(ok.sum()), 3))
         frames.append(FramePoints(xyz=x, sigma=0.001))
     cams = cameras()
@@ -115,12 +116,12 @@ def test_shape_fit_option_moves_the_surface_to_the_truth(rng):
     assert np.abs(st.metaballs.radii - template.radii).max() > 0.005  # the shape was replaced
     # held-out true surface points of the last frame lie closer to the fitted surface
     pose = sk.forward(skel, theta[2][None], root[2][None], s)
-    x, ok = mb.sample_surface(skel, pose, truth, s, per_ball=10, seed=99)
+    x, ok = mbs.sample_surface(skel, pose, truth, s, per_ball=10, seed=99)
 
     def dist(state):
         p = sk.forward(skel, state.theta[2][None], state.root_xyz[2][None], state.s)
         Rw, cw = mb.world_frames(skel, p, state.metaballs, state.s)
-        xs, conv = mb.project_to_surface(x[ok], Rw[0], cw[0], state.metaballs.radii)
+        xs, conv = mbs.project_to_surface(x[ok], Rw[0], cw[0], state.metaballs.radii)
         return np.mean(np.linalg.norm(xs - x[ok], axis=1)[conv])
 
     default = fit_sequence(frames, init, base)
@@ -162,7 +163,7 @@ def test_an_arm_hidden_for_two_frames_is_marked_and_bridged(rng):
         xyz, _ = model_points(skel, balls, theta[f], root[f], s, rng, per_bone=60)
         pose = sk.forward(skel, theta[f][None], root[f][None], s)
         Rw, cw = mb.world_frames(skel, pose, balls, s)
-        xyz, ok = mb.project_to_surface(xyz, Rw[0], cw[0], balls.radii)  # the outer surface
+        xyz, ok = mbs.project_to_surface(xyz, Rw[0], cw[0], balls.radii)  # the outer surface
         xyz = xyz[ok]
         seen = np.ones(len(xyz), bool)
         if f in (2, 3):  # the arm behind the body: nothing within 5 cm of it seen

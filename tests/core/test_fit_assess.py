@@ -2,6 +2,7 @@
 
 import numpy as np
 
+from core import metaball_surface as mbs
 from core import metaballs as mb
 from core import skeleton as sk
 from core.fit_assess import assess_frame
@@ -18,7 +19,7 @@ def _frame():
     s = np.ones(skel.n_groups)
     balls = mb.make_metaballs(skel, "simplified", s)
     theta, root = np.zeros(skel.n_dof), np.array([0.0, 0.0, 1.0])
-    xyz, ok = mb.sample_surface(
+    xyz, ok = mbs.sample_surface(
         skel, sk.forward(skel, theta[None], root[None], s), balls, s, per_ball=20
     )
     xyz = xyz[ok]

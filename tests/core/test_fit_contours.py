@@ -8,6 +8,7 @@ contours are in ``test_fit_contours_sequence.py``.
 import numpy as np
 import pytest
 
+from core import metaball_surface as mbs
 from core import metaballs as mb
 from core import skeleton as sk
 from core.camera_selection import Selection, add_wide_views
@@ -35,7 +36,7 @@ def body():
 def test_contour_jacobians_match_finite_differences(body, deflated):
     skel, balls, s, theta, root, cams, observed = body
     if deflated:  # rendered ellipsoids radii · visible_scale, not VISIBLE · radii
-        balls = mb.deflate(skel, balls, s)
+        balls = mbs.deflate(skel, balls, s)
     rng = np.random.default_rng(3)
     th = theta + rng.normal(0, 0.03, theta.shape)
     rt = root + np.array([0.01, -0.01, 0.005])

@@ -8,6 +8,7 @@ tested in ``test_fit_contours.py``.
 import numpy as np
 import pytest
 
+from core import metaball_surface as mbs
 from core import metaballs as mb
 from core import skeleton as sk
 from core.contour_obs import body_ellipsoids
@@ -268,7 +269,7 @@ def test_a_leg_the_tracker_lost_is_found_by_the_silhouettes_in_frames_with_point
         frames = []
         for f in range(nf):
             pose = sk.forward(skel, theta[f][None], root[f][None], s)
-            xyz, ok = mb.sample_surface(skel, pose, balls, s, per_ball=30, seed=f + sampling)
+            xyz, ok = mbs.sample_surface(skel, pose, balls, s, per_ball=30, seed=f + sampling)
             keep = ok & (~np.repeat(leg, 30) if f else ok)
             frames.append(FramePoints(xyz[keep], np.full(keep.sum(), 0.002)))
         res = fit_sequence(

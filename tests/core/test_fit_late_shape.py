@@ -11,6 +11,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from core import metaball_surface as mbs
 from core import metaballs as mb
 from core import skeleton as sk
 from core.fit import FramePoints, SequenceSettings, fit_sequence
@@ -72,7 +73,7 @@ def _forearm_surface_mm(skel, s, true, theta, root, radii, centers, f, rng):
     front = x[:, 1] < sk.bone_frames(skel, pose)[1][0, b, 1] - 0.005
     arm = np.isin(true.bone, [b, skel.bone_index("l_wrist")])
     Rw, cw = mb.world_frames(skel, pose, true.with_parts(centers, radii), s)
-    p, ok = mb.project_to_surface(x, Rw[0, arm], cw[0, arm], radii[arm])
+    p, ok = mbs.project_to_surface(x, Rw[0, arm], cw[0, arm], radii[arm])
     d = 1000 * np.linalg.norm(p - x, axis=1)
     return d[ok & front].mean(), d[ok & ~front].mean()
 

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from core import metaball_surface as mbs
 from core import metaballs as mb
 from core import skeleton as sk
 from core.attractor import attractor, gather, member_table
@@ -22,7 +23,7 @@ def _outer(skel, balls, theta, root, s, rng, per_bone=40):
     xyz, _ = model_points(skel, balls, theta, root, s, rng, per_bone=per_bone)
     pose = sk.forward(skel, theta[None], root[None], s)
     Rw, cw = mb.world_frames(skel, pose, balls, s)
-    xs, ok = mb.project_to_surface(xyz, Rw[0], cw[0], balls.radii)
+    xs, ok = mbs.project_to_surface(xyz, Rw[0], cw[0], balls.radii)
     return xs[ok]
 
 

@@ -8,6 +8,7 @@ sweep than by one, while the pose of the clicked frame stays put.
 import numpy as np
 import pytest
 
+from core import metaball_surface as mbs
 from core import metaballs as mb
 from core import skeleton as sk
 from core.fit import FramePoints, SequenceSettings, fit_sequence
@@ -50,7 +51,7 @@ def _surface_mm(state, probe):
     balls = state.metaballs
     pose = sk.forward(state.skeleton, state.theta[:1], state.root_xyz[:1], state.s)
     Rw, cw = mb.world_frames(state.skeleton, pose, balls, state.s)
-    p, ok = mb.project_to_surface(probe, Rw[0], cw[0], balls.radii)
+    p, ok = mbs.project_to_surface(probe, Rw[0], cw[0], balls.radii)
     return 1000 * np.linalg.norm(p - probe, axis=1)[ok].mean()
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from core import metaball_surface as mbs
 from core import metaballs as mb
 from core import skeleton as sk
 from core.fit_bridge import unobserved
@@ -52,7 +53,7 @@ def test_blend_scale_renders_the_blended_surface():
     assert np.all(scale >= mb.VISIBLE - 1e-12) and np.all(scale <= 2 * mb.VISIBLE + 1e-12)
     pose = sk.forward(skel, theta[:1], root[:1], s)
     Rw, cw = mb.world_frames(skel, pose, balls, s)
-    u = mb.fibonacci_sphere(32)
+    u = mbs.fibonacci_sphere(32)
 
     def level(axes):
         """Mean |ln Σf − ln 0.5| on the union of the ellipsoids ``axes`` (M, 3): points

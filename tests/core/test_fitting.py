@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from core import metaball_surface as mbs
 from core import metaballs as mb
 from core import skeleton as sk
 from core.fitting import FitSettings, Observations, fit
@@ -19,7 +20,7 @@ def _model_points(skel, balls, theta, root, s, rng, per_bone=25):
         u = rng.normal(size=(per_bone, 3))
         u /= np.linalg.norm(u, axis=1, keepdims=True)
         x0 = np.einsum("nij,nj->ni", Rw[0, m], u * balls.radii[m] * mb.VISIBLE) + cw[0, m]
-        x, ok = mb.project_to_surface(x0, Rw[0, on], cw[0, on], balls.radii[on])
+        x, ok = mbs.project_to_surface(x0, Rw[0, on], cw[0, on], balls.radii[on])
         xyz.append(x[ok])
         part.append(np.full(ok.sum(), b))
     return np.concatenate(xyz), np.concatenate(part)

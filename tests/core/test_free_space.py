@@ -4,6 +4,7 @@ and the explain cost of a limb placed in front of its own points."""
 import numpy as np
 import pytest
 
+from core import metaball_surface as mbs
 from core import metaballs as mb
 from core import skeleton as sk
 from core.fit_search import explain_cost, explain_distance, search_limbs
@@ -47,7 +48,7 @@ def seen_arm(rng):
     xyz, _ = model_points(skel, balls, true, root, s, rng, per_bone=80)
     pose = sk.forward(skel, true[None], root[None], s)
     Rw, cw = mb.world_frames(skel, pose, balls, s)
-    x, ok = mb.project_to_surface(xyz, Rw[0], cw[0], balls.radii)
+    x, ok = mbs.project_to_surface(xyz, Rw[0], cw[0], balls.radii)
     x = x[ok]
     j = sk.joint_positions(skel, true, root, s)
     mid = 0.5 * (j[skel.joint_index("r_elbow")] + j[skel.joint_index("r_wrist")])
@@ -95,7 +96,7 @@ def test_a_hidden_leg_that_swung_into_the_other_is_moved_out_of_its_points(rng):
     xyz, part = model_points(skel, balls, true, root, s, rng, per_bone=60)
     pose = sk.forward(skel, true[None], root[None], s)
     Rw, cw = mb.world_frames(skel, pose, balls, s)
-    x, ok = mb.project_to_surface(xyz, Rw[0], cw[0], balls.radii)
+    x, ok = mbs.project_to_surface(xyz, Rw[0], cw[0], balls.radii)
     leg = [skel.bone_index(b) for b in ("r_hip", "r_knee", "r_ankle")]
     x = x[ok & ~np.isin(part, leg)]
     centre = np.array([0.0, -5.0, 1.0])

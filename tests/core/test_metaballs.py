@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from core import metaball_surface as mbs
 from core import metaballs as mb
 from core import skeleton as sk
 
@@ -111,7 +112,7 @@ def test_pose_and_scale_jacobians(setup, rng):
 def test_surface_sampler_lands_on_iso_surface(setup):
     skel, theta, root, s, balls = setup
     pose = sk.forward(skel, theta, root, s)
-    xyz, ok = mb.sample_surface(skel, pose, balls, s, per_ball=20)
+    xyz, ok = mbs.sample_surface(skel, pose, balls, s, per_ball=20)
     assert ok.mean() > 0.95
     Rw, cw = mb.world_frames(skel, pose, balls, s)
     F, _, _, _ = mb.field(xyz[ok], Rw[0], cw[0], balls.radii)
@@ -143,15 +144,15 @@ def test_projection_settles_each_point_on_its_own(setup):
     pose = sk.forward(skel, theta, root, s)
     Rw, cw = mb.world_frames(skel, pose, balls, s)
     Rw, cw = Rw[0], cw[0]
-    on, ok = mb.sample_surface(skel, pose, balls, s, per_ball=10)
+    on, ok = mbs.sample_surface(skel, pose, balls, s, per_ball=10)
     on = on[ok]
     far = cw[:5] + np.array([0.0, 0.0, 0.3])
-    xs, good = mb.project_to_surface(np.vstack([on, far]), Rw, cw, balls.radii)
+    xs, good = mbs.project_to_surface(np.vstack([on, far]), Rw, cw, balls.radii)
     np.testing.assert_array_equal(xs[: len(on)], on)
     assert good.all()
     F, _, _, _ = mb.field(xs, Rw, cw, balls.radii)
     np.testing.assert_allclose(F, 0.5, atol=1e-9)
-    alone, _ = mb.project_to_surface(far, Rw, cw, balls.radii)
+    alone, _ = mbs.project_to_surface(far, Rw, cw, balls.radii)
     # to round-off: the matrix products' last bit can depend on the batch's size (BLAS
     # picks its kernels by shape; 2e-16 m apart on one of our machines)
     np.testing.assert_allclose(alone, xs[len(on) :], rtol=0, atol=1e-12)
@@ -163,7 +164,7 @@ def test_deflated_blend_follows_the_rendered_ellipsoids(model, per_part):
     skel = sk.make_skeleton()
     s = np.ones(skel.n_groups)
     tmpl = mb.make_metaballs(skel, model, s)
-    flat = mb.deflate(skel, tmpl, s, per_part=per_part)
+    flat = mbs.deflate(skel, tmpl, s, per_part=per_part)
     # the rendered ellipsoids (contours, selection, segmentation) are unchanged
     np.testing.assert_allclose(flat.visible, tmpl.visible, rtol=1e-12)
     q = flat.radii / tmpl.radii
@@ -187,7 +188,7 @@ def test_deflated_blend_follows_the_rendered_ellipsoids(model, per_part):
     x = x[~inside.any(axis=1)]
     gap = {}
     for name, b in (("template", tmpl), ("deflated", flat)):
-        xs, ok = mb.project_to_surface(x, Rw, cw, b.radii, iterations=60, tol=1e-6)
+        xs, ok = mbs.project_to_surface(x, Rw, cw, b.radii, iterations=60, tol=1e-6)
         gap[name] = np.median(np.linalg.norm(xs - x, axis=1)[ok])
     # the template's blend swells a centimetre or more off its rendered ellipsoids;
     # deflated part by part, the parts' blends still add up across the joints
@@ -198,7 +199,7 @@ def test_deflated_blend_follows_the_rendered_ellipsoids(model, per_part):
 def test_visible_scale_survives_the_state_dict():
     skel = sk.make_skeleton()
     s = np.ones(skel.n_groups)
-    flat = mb.deflate(skel, mb.make_metaballs(skel, "simplified", s), s)
+    flat = mbs.deflate(skel, mb.make_metaballs(skel, "simplified", s), s)
     back = mb.Metaballs.from_dict(flat.to_dict(skel), skel)
     np.testing.assert_allclose(back.visible_scale, flat.visible_scale)
     np.testing.assert_allclose(back.visible, flat.visible)

@@ -1,9 +1,10 @@
-"""core.metaballs.render_radii: ellipsoids whose union approximates the blended surface."""
+"""core.metaball_surface.render_radii: ellipsoids whose union approximates the blended surface."""
 
 from __future__ import annotations
 
 import numpy as np
 
+from core import metaball_surface as mbs
 from core import metaballs as mb
 from core import skeleton as sk
 
@@ -17,7 +18,7 @@ def _body():
 
 
 def _iso_distance(balls, Rw, cw, x):
-    xs, ok = mb.project_to_surface(x, Rw, cw, balls.radii)
+    xs, ok = mbs.project_to_surface(x, Rw, cw, balls.radii)
     return np.linalg.norm(xs - x, axis=1)[ok]
 
 
@@ -30,7 +31,7 @@ def test_a_lone_metaball_keeps_its_visible_ellipsoid():
         balls.rot[:1],
         np.array([[0.2, 0.12, 0.08]]),
     )
-    a = mb.render_radii(skel, pose, one, s)
+    a = mbs.render_radii(skel, pose, one, s)
     np.testing.assert_allclose(a, one.radii * mb.VISIBLE, rtol=1e-6)
 
 
@@ -38,7 +39,7 @@ def test_render_ellipsoids_follow_the_blended_surface_better_than_lone_ones():
     skel, s, balls, pose = _body()
     Rw, cw = mb.world_frames(skel, pose, balls, s)
     Rw, cw = Rw[0], cw[0]
-    a = mb.render_radii(skel, pose, balls, s, per_ball=24)
+    a = mbs.render_radii(skel, pose, balls, s, per_ball=24)
     lone = balls.radii * mb.VISIBLE
     assert np.all(a >= lone - 1e-12) and np.all(a <= 2 * lone + 1e-12)
     assert (a > 1.05 * lone).any()  # overlapping metaballs blend into a larger surface

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from scipy import sparse
 
+from core import metaball_surface as mbs
 from core import metaballs as mb
 from core import skeleton as sk
 from core.shape_fit import (
@@ -37,7 +38,7 @@ def _body(rng, scale_sd=0.12):
 
 def _surface(skel, s, balls, theta, root, per_ball, seed):
     pose = sk.forward(skel, theta[None], root[None], s)
-    x, ok = mb.sample_surface(skel, pose, balls, s, per_ball=per_ball, seed=seed)
+    x, ok = mbs.sample_surface(skel, pose, balls, s, per_ball=per_ball, seed=seed)
     return x[ok]
 
 
@@ -45,7 +46,7 @@ def _distance(skel, s, balls, theta, root, x):
     """Unsigned distance of points x to the whole-body iso-surface (Newton projection)."""
     pose = sk.forward(skel, theta[None], root[None], s)
     Rw, cw = mb.world_frames(skel, pose, balls, s)
-    xs, ok = mb.project_to_surface(x, Rw[0], cw[0], balls.radii)
+    xs, ok = mbs.project_to_surface(x, Rw[0], cw[0], balls.radii)
     assert ok.mean() > 0.95
     return np.linalg.norm(xs - x, axis=1)[ok]
 
@@ -242,7 +243,7 @@ def _blend_contours(skel, s, balls, theta, root, cams):
     from core.model_render import render_parts
 
     c, a, _, p = body_ellipsoids(skel, theta, root, s, balls)
-    r = mb.render_radii(skel, sk.forward(skel, theta[None], root[None], s), balls, s)
+    r = mbs.render_radii(skel, sk.forward(skel, theta[None], root[None], s), balls, s)
     return [occluding_contours(render_parts(cam, c, a, r, p).mask, spacing=1.5) for cam in cams]
 
 

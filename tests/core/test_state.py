@@ -5,6 +5,7 @@ import json
 import numpy as np
 import pytest
 
+from core import metaball_surface as mbs
 from core import metaballs as mb
 from core import skeleton as sk
 from core.errors import InputError
@@ -126,7 +127,7 @@ def test_deflated_metaballs_round_trip_and_bad_scale(state, tmp_path):
     from dataclasses import replace
 
     skel = state.skeleton
-    flat = mb.deflate(skel, state.metaballs, state.s)
+    flat = mbs.deflate(skel, state.metaballs, state.s)
     back = read_state(write_state(tmp_path / "fit.json", replace(state, metaballs=flat)))
     np.testing.assert_array_equal(back.metaballs.visible_scale, flat.visible_scale)
     np.testing.assert_allclose(back.metaballs.visible, state.metaballs.visible)

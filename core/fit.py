@@ -78,7 +78,12 @@ clicked frame's initial posture (:mod:`core.fit_init`):
    (``smooth_unobserved``) only the angles no observation decided (step 5's filled and
    held ones) take their smoothed values; ``smooth_motion`` smooths the whole motion
    instead, each joint's path with its own smoothness and then the angles solved to it
-   (:func:`core.motion_smoother.smooth_joints`; off by default: it spreads a kick).
+   (:func:`core.motion_smoother.smooth_joints`; off by default: it spreads a kick);
+7. **clearance** (``clear_trunk``, :mod:`core.fit_clearance`) — last, after the shapes
+   (which it does not feed): a hidden arm that step 5's rules put inside the trunk, or
+   (``clear_silhouettes``, with contours) where a camera's foreground shows no body, is
+   moved out of the trunk and into the foregrounds by the least change of its
+   unobserved angles, and the unobserved angles are smoothed again.
 
 **Free space** (``free_space``, :mod:`core.free_space`; the points' ``views`` and the
 cameras): the limb search and the explain cost that picks among a frame's fits also
@@ -131,6 +136,7 @@ from dataclasses import replace
 import numpy as np
 
 from .fit_bridge import unobserved
+from .fit_clearance import clear_trunk
 from .fit_coupling import fill_unobserved
 from .fit_frame import FrameFitter
 from .fit_init import Initialisation
@@ -389,15 +395,11 @@ def fit_sequence(
             f"{int((sm.far.any(axis=1) & ~fx.div).sum())} frames with a joint more than "
             f"3 σ off its smoothed path down-weighted)"
         )
-    elif cfg.smooth_unobserved and unobs.any():
-        th_s, _, sm = smooth_angles(fx.theta, fx.root, fx.div, lo=skel.dof_lo, hi=skel.dof_hi)
-        if np.isfinite(sm.ratio).any():  # else too few fitted frames to choose a smoothness
-            # only what no observation decided: the filled and held angles
-            fx.theta[:] = np.where(unobs, th_s, fx.theta)
-            fx.msgs.append(
-                f"unobserved angles smoothed over the take in "
-                f"{int((unobs & ~fx.div[:, None]).any(axis=1).sum())} frames"
-            )
+    elif cfg.smooth_unobserved and unobs.any() and _smooth_unobserved(fx, unobs):
+        fx.msgs.append(
+            f"unobserved angles smoothed over the take in "
+            f"{int((unobs & ~fx.div[:, None]).any(axis=1).sum())} frames"
+        )
     late = None
     if shape0 is None and cfg.late_shape_points is not None:
         late = late_shape(
@@ -429,6 +431,31 @@ def fit_sequence(
             progress,
         )
     balls_out = fx.balls.copy(radii=fx.radii) if fitted_balls is None else fitted_balls.copy()
+    if cfg.clear_trunk:  # last: a hidden arm the rules put inside the trunk, or outside
+        # a foreground, moved (after the shapes, which it does not feed), smoothed again
+        th_c, clr = clear_trunk(
+            skel,
+            balls_out,
+            fx.s,
+            fx.theta,
+            fx.root,
+            unobs,
+            fx.div,
+            cfg.clear_level,
+            views=_views(contours, nf) if cfg.clear_silhouettes else None,
+            ref_frames=(f0,),
+        )
+        if clr.frames:
+            fx.theta[:] = th_c
+            if cfg.smooth_unobserved and not cfg.smooth_motion:
+                _smooth_unobserved(fx, unobs)
+            fx.msgs.append(
+                f"hidden arm moved out of the trunk or into the foregrounds in "
+                f"{len(clr.frames)} frames (trunk field at its forearm or hand up to "
+                f"{max(clr.before):.2f}, now {max(clr.after):.2f}; outside a foreground up "
+                f"to {max(clr.px_before):.1f} px beyond the tolerance, now "
+                f"{max(clr.px_after):.1f})"
+            )
     q = Quality(
         rmse_m=fx.rmse,
         theta_sigma=fx.q_sig,
@@ -464,6 +491,32 @@ def fit_sequence(
         hidden=fx.hid,
         late_shape=late,
     )
+
+
+def _smooth_unobserved(fx: FrameFitter, unobs: np.ndarray) -> bool:
+    """The angles no observation decided (the filled and held ones) take their values
+    smoothed over the take (:func:`core.motion_smoother.smooth_angles`), in place;
+    False when too few frames were fitted to choose a smoothness."""
+    skel = fx.skel
+    th_s, _, sm = smooth_angles(fx.theta, fx.root, fx.div, lo=skel.dof_lo, hi=skel.dof_hi)
+    if not np.isfinite(sm.ratio).any():
+        return False
+    fx.theta[:] = np.where(unobs, th_s, fx.theta)
+    return True
+
+
+def _views(contours: list | None, nf: int) -> list | None:
+    """Per frame the cameras with a foreground and their silhouette fields, ``(cameras,
+    fields)`` or None (:func:`core.fit_clearance.clear_trunk`'s ``views``)."""
+    if contours is None:
+        return None
+    out = []
+    for f in range(nf):
+        cf = contours[f]
+        fl = [] if cf is None else cf.fields()
+        use = [c for c, x in enumerate(fl) if x is not None]
+        out.append(([cf.cameras[c] for c in use], [fl[c] for c in use]) if use else None)
+    return out
 
 
 def contour_starts(fx: FrameFitter, f: int, direction: int, q_prev: np.ndarray) -> list:

@@ -204,12 +204,7 @@ class ContourFrame:
         held = self.containment_parts
         if k_px <= 0 or (held is not None and not np.any(held)):
             return None
-        if self._fields is None:
-            self._fields = [
-                silhouette_field(cons, cam.size) if cons else None
-                for cons, cam in zip(self.contours, self.cameras, strict=True)
-            ]
-        use = [c for c, f in enumerate(self._fields) if f is not None]
+        use = [c for c, f in enumerate(self.fields()) if f is not None]
         if not use:
             return None
         co = containment_observations(
@@ -229,6 +224,16 @@ class ContourFrame:
         r_eff = np.where(big, np.sqrt(np.maximum(2.0 * k * r - k * k, 0.0)), r)
         d = np.where(big, k / np.maximum(r_eff, 1e-12), 1.0) / k_px
         return r_eff / k_px, co.J_theta * d[:, None], co.J_root * d[:, None]
+
+    def fields(self) -> list:
+        """:func:`core.contour_obs.silhouette_field` of every camera (None for a camera
+        without contours); computed once."""
+        if self._fields is None:
+            self._fields = [
+                silhouette_field(cons, cam.size) if cons else None
+                for cons, cam in zip(self.contours, self.cameras, strict=True)
+            ]
+        return self._fields
 
     def masks(self) -> list:
         """Foreground (H, W) bool of every camera, enclosed by its contours (None for a

@@ -116,6 +116,14 @@ class SequenceSettings:
     #: from the literature's arm and hip excursions (:mod:`core.fit_gait`)
     gait_arms: bool = True
     gait_arm_ratio: float = 0.7
+    #: last, after the shapes, a hidden arm whose forearm or hand lies
+    #: inside the trunk (the trunk's field above ``clear_level`` at one of their metaball
+    #: centres; 0.5 is its surface) is moved out by the least change of its unobserved
+    #: angles, and with ``clear_silhouettes`` (and contours) one whose metaballs project
+    #: outside a camera's foreground is moved into it (:mod:`core.fit_clearance`)
+    clear_trunk: bool = True
+    clear_level: float = 0.3
+    clear_silhouettes: bool = True
     #: at the end, the motion smoothed over the take where it is seen too: each joint's
     #: path by a Kalman smoother whose smoothness that path's likelihood chooses, then
     #: the angles solved to it (:func:`core.motion_smoother.smooth_joints`).  Over 4

@@ -104,14 +104,20 @@ def trunk_depth(
 
 def _outside(skel, balls, s, theta, root, parts, views, tol_px):
     """Containment of the metaballs of ``parts`` (B,) bool in the views ``(cameras,
-    fields)``: residuals (m,) pixels beyond ``tol_px`` outside the foreground, and their
-    Jacobian (m, n) in θ; None without views."""
+    fields)`` (:class:`core.contour_obs.ContainmentObservations`: residuals (m,) in pixels
+    beyond ``tol_px`` outside a foreground, their Jacobian (m, n) in θ); None without
+    views."""
     if views is None:
         return None
     cams, flds = views
     return containment_observations(
         skel, theta, root, s, balls, cams, flds, tol_px=tol_px, keep_parts=parts
     )
+
+
+def _farthest(co) -> float:
+    """The largest containment residual (pixels beyond the tolerance), 0 for none."""
+    return 0.0 if co is None or not len(co.residual) else float(co.residual.max())
 
 
 def _resolve(skel, balls, s, theta, root, free, clear, cfg, parts=None, views=None):
@@ -128,22 +134,31 @@ def _resolve(skel, balls, s, theta, root, free, clear, cfg, parts=None, views=No
         th[free] = x
         return th
 
+    last: dict = {}
+
     def parts_at(x):
-        pose = forward(skel, full(x)[None], root[None], s)
-        Rw, cw = world_frames(skel, pose, balls, s)
-        F, g, _, _ = field(cw[0][mine], Rw[0][trunk], cw[0][trunk], balls.radii[trunk])
-        return pose, cw[0][mine], F, g
+        """The pose, the clearing centres (K, 3), the trunk's field (K,) and gradient
+        (K, 3) there, and the containment; the last state's kept (``fun`` and ``jac``
+        ask for the same one in turn)."""
+        key = x.tobytes()
+        if key not in last:
+            pose = forward(skel, full(x)[None], root[None], s)
+            Rw, cw = world_frames(skel, pose, balls, s)
+            F, g, _, _ = field(cw[0][mine], Rw[0][trunk], cw[0][trunk], balls.radii[trunk])
+            co = _outside(skel, balls, s, full(x), root, parts, views, tol_px)
+            last.clear()
+            last[key] = pose, cw[0][mine], F, g, co
+        return last[key]
 
     def fun(x):
-        _, _, F, _ = parts_at(x)
+        _, _, F, _, co = parts_at(x)
         r = [(x - th0) / sigma_keep, np.maximum(F - level, 0.0) / sigma_field]
-        co = _outside(skel, balls, s, full(x), root, parts, views, tol_px)
         if co is not None:
             r.append(co.residual / sigma_px)
         return np.concatenate(r)
 
     def jac(x):
-        pose, c, F, g = parts_at(x)
+        pose, c, F, g, co = parts_at(x)
         Rb, pb = bone_frames(skel, pose)
         b = balls.bone[mine]
         q0 = np.einsum("kji,kj->ki", Rb[0, b], c - pb[0, b])
@@ -151,7 +166,6 @@ def _resolve(skel, balls, s, theta, root, free, clear, cfg, parts=None, views=No
         dF = np.einsum("ki,kij->kj", g, Jt[0][:, :, free])  # (K, k)
         dF *= (F > level)[:, None] / sigma_field
         J = [np.eye(len(free)) / sigma_keep, dF]
-        co = _outside(skel, balls, s, full(x), root, parts, views, tol_px)
         if co is not None:
             J.append(co.J_theta[:, free] / sigma_px)
         return np.vstack(J)
@@ -274,18 +288,16 @@ def _clear_pass(skel, balls, s, theta, root, unobs, diverged, views, cfg, levels
         for f in np.flatnonzero(unobs[:, shoulder].all(axis=1) & ~diverged):
             v = None if views is None else views[f]
             F0 = trunk_depth(skel, balls, s, theta[f], root[f], clear)
-            out0 = _outside(skel, balls, s, theta[f], root[f], parts, v, tol_px)
-            px0 = 0.0 if out0 is None or not len(out0.residual) else float(out0.residual.max())
+            px0 = _farthest(_outside(skel, balls, s, theta[f], root[f], parts, v, tol_px))
             if F0.max() <= level and px0 <= 0.0:
                 continue
             free = dofs[unobs[f, dofs]]
             theta[f] = _resolve(skel, balls, s, theta[f], root[f], free, clear, side_cfg, parts, v)
-            out1 = _outside(skel, balls, s, theta[f], root[f], parts, v, tol_px)
             rep.frames.append((int(f), side))
             rep.before.append(float(F0.max()))
             rep.after.append(float(trunk_depth(skel, balls, s, theta[f], root[f], clear).max()))
             rep.px_before.append(px0)
             rep.px_after.append(
-                0.0 if out1 is None or not len(out1.residual) else float(out1.residual.max())
+                _farthest(_outside(skel, balls, s, theta[f], root[f], parts, v, tol_px))
             )
     return theta, rep

@@ -88,6 +88,12 @@ def _arm(skel: Skeleton, side: str):
     return dofs, shoulder, clear, parts
 
 
+def _trunk(skel: Skeleton, balls: Metaballs) -> np.ndarray:
+    """(M,) bool: the metaballs of the trunk's bones (:data:`TRUNK_BONES`)."""
+    bones = [skel.bone_names.index(b) for b in TRUNK_BONES if b in skel.bone_names]
+    return np.isin(balls.bone, bones)
+
+
 def trunk_depth(
     skel: Skeleton, balls: Metaballs, s: np.ndarray, theta: np.ndarray, root: np.ndarray, bones
 ) -> np.ndarray:
@@ -96,7 +102,7 @@ def trunk_depth(
     surface, larger inside."""
     pose = forward(skel, theta[None], root[None], s)
     Rw, cw = world_frames(skel, pose, balls, s)
-    trunk = np.isin(balls.bone, [skel.bone_names.index(b) for b in TRUNK_BONES])
+    trunk = _trunk(skel, balls)
     mine = np.isin(balls.bone, bones)
     F, _, _, _ = field(cw[0][mine], Rw[0][trunk], cw[0][trunk], balls.radii[trunk])
     return F
@@ -124,7 +130,7 @@ def _resolve(skel, balls, s, theta, root, free, clear, cfg, parts=None, views=No
     """The angles ``free`` of one frame re-solved out of the trunk (and into every
     view's foreground, with ``views``); returns θ (n,)."""
     level, sigma_keep, sigma_field, tol_px, sigma_px = cfg
-    trunk = np.isin(balls.bone, [skel.bone_names.index(b) for b in TRUNK_BONES])
+    trunk = _trunk(skel, balls)
     mine = np.flatnonzero(np.isin(balls.bone, clear))
     anc = skel.ancestors()
     th0 = theta[free].copy()

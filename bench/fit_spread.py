@@ -2,7 +2,7 @@
 
 ``python -m bench.fit_spread [SCENE] [--runs N] [--click-noise PX] [--cues C] [--jobs J]
 [--flow-sigma PX] [--flow NAME=VALUE ...] [--setting NAME=VALUE ...] [--shape NAME=VALUE ...]
-[--states DIR] [--visibility]``
+[--contour NAME=VALUE ...] [--states DIR] [--visibility]``
 
 The sequence fit makes discrete choices — which camera a part uses, whether a limb
 search's move is kept, which corners the texture flow lifts — so on a scene where a limb
@@ -20,7 +20,9 @@ be compared by their medians rather than by one run each; ``--flow`` sets any fi
 :class:`core.fit_flow.FlowSettings` (VALUE in JSON: ``reference=false``),
 ``--setting`` one of :class:`core.fit_types.SequenceSettings` (``shape_scales=true``)
 and ``--shape`` one of the whole-body shape fit's :class:`core.shape_fit.ShapeSettings`
-(``sigma_one_sided=0.0005``).  ``--states DIR`` writes each run's fitted state as
+(``sigma_one_sided=0.0005``), ``--contour`` one of the contour observations'
+:class:`core.fit_contours.ContourSettings` (``shape_held_parts='["head"]'``).
+``--states DIR`` writes each run's fitted state as
 ``DIR/runK.json``, for ``core evaluate`` or ``bench.visibility``; ``--visibility`` adds
 each run's visibility index against the true mesh (:func:`bench.visibility.compare`,
 outer surface, every 5th frame: the #7 figure).
@@ -107,6 +109,7 @@ def fit_once(
     shape: dict | None = None,
     states: str | None = None,
     visibility: bool = False,
+    contour: dict | None = None,
 ) -> dict:
     """One in-process fit of the scene's tracks with perturbed clicks; its figures.
     ``flow_sigma_px``: the texture flow's σ (None: ``FlowSettings``' default);
@@ -114,9 +117,11 @@ def fit_once(
     :class:`core.fit_flow.FlowSettings` fields (None: its defaults); ``shape``:
     :class:`core.shape_fit.ShapeSettings` fields of the written shape (None: its
     defaults); ``states``: a folder to write the fitted state to (``run{seed}.json``);
-    ``visibility``: also the mean |ΔVI| against the true mesh (NaN when not asked)."""
+    ``visibility``: also the mean |ΔVI| against the true mesh (NaN when not asked);
+    ``contour``: :class:`core.fit_contours.ContourSettings` fields (None: its defaults)."""
     from core.blas_threads import single_blas_thread
     from core.evaluate import evaluate_state
+    from core.fit_contours import ContourSettings
     from core.fit_flow import FlowSettings
     from core.fit_scene import run_scene
     from core.fit_types import SequenceSettings
@@ -146,6 +151,7 @@ def fit_once(
             tracks=tracks,
             flow=flow,
             settings=SequenceSettings(**settings) if settings else None,
+            contour_settings=ContourSettings(**contour) if contour else None,
         )
     wall = time.perf_counter() - t0
     ev = evaluate_state(res.state, scene.truth)
@@ -286,6 +292,13 @@ def main(argv: list[str] | None = None) -> int:
         help="a ShapeSettings field of the written shape, VALUE in JSON (repeatable)",
     )
     ap.add_argument(
+        "--contour",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="a ContourSettings field, VALUE in JSON (repeatable)",
+    )
+    ap.add_argument(
         "--states", type=Path, default=None, help="write each run's state as DIR/runK.json"
     )
     ap.add_argument(
@@ -313,12 +326,14 @@ def main(argv: list[str] | None = None) -> int:
     if (args.flow_sigma is not None or args.flow) and args.cues != "both":
         ap.error("--flow-sigma and --flow need --cues both (the flow runs only with both cues)")
 
+    from core.fit_contours import ContourSettings
     from core.fit_flow import FlowSettings
     from core.shape_fit import ShapeSettings
 
     settings = parse_settings(args.setting, ap.error)
     flow = parse_settings(args.flow, ap.error, FlowSettings, "--flow")
     shape = parse_settings(args.shape, ap.error, ShapeSettings, "--shape")
+    contour = parse_settings(args.contour, ap.error, ContourSettings, "--contour")
     scene, _ = _resolve(args.scene, RENDERS)
     if not scene.is_dir():
         ap.error(
@@ -337,6 +352,7 @@ def main(argv: list[str] | None = None) -> int:
         + "".join(f", {k} = {v!r}" for k, v in settings.items())
         + "".join(f", flow {k} = {v!r}" for k, v in flow.items())
         + "".join(f", shape {k} = {v!r}" for k, v in shape.items())
+        + "".join(f", contour {k} = {v!r}" for k, v in contour.items())
         + (f", dragged in depth onto the truth: {', '.join(drag)}" if drag else ""),
         flush=True,
     )
@@ -362,6 +378,7 @@ def main(argv: list[str] | None = None) -> int:
                 shape,
                 None if args.states is None else str(args.states),
                 args.visibility,
+                contour,
             )
             for k in range(args.runs)
         ]

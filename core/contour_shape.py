@@ -33,7 +33,7 @@ def fit_shape_to_contours(
     cameras: list[Camera],
     contours: list[list[Contour]],
     cfg: ContourTrackSettings | None = None,
-    radius_prior_m: float = 0.02,
+    radius_prior_m: float | np.ndarray = 0.02,
     iterations: int = 6,
     rays=None,
     center_prior_m=None,
@@ -44,8 +44,9 @@ def fit_shape_to_contours(
     Minimises the Huber-weighted contour residuals (σ = ``cfg.sigma_px``) plus priors:
     the pose about ``theta``/``root`` with σ ``cfg.q_sigma_theta``/``cfg.q_sigma_root``
     (e.g. the clicked pose) and every radius about its starting value with
-    σ ``radius_prior_m`` — radii along a camera's line of sight are seen by the other
-    cameras only, and the prior keeps unobserved ones where they are.
+    σ ``radius_prior_m`` (metres, one σ or (E,) per metaball) — radii along a camera's
+    line of sight are seen by the other cameras only, and the prior keeps unobserved
+    ones where they are.
 
     With ``center_prior_m`` (metres, one σ or (E,) per metaball; NaN or 0: held) the
     metaball centres (``Metaballs.center0``, in their bones' frames) are free too, about
@@ -82,7 +83,8 @@ def fit_shape_to_contours(
     slot = np.full(E, -1)
     slot[free] = np.arange(len(free))
     w_pose = np.concatenate([np.full(n, cfg.q_sigma_theta), np.full(3, cfg.q_sigma_root)]) ** -2
-    w_shape = np.concatenate([np.full(3 * E, radius_prior_m**-2), np.repeat(sig_c[free], k) ** -2])
+    sig_r = np.broadcast_to(np.asarray(radius_prior_m, float), (E,))
+    w_shape = np.concatenate([np.repeat(sig_r, 3) ** -2, np.repeat(sig_c[free], k) ** -2])
     scale = np.where(balls.group >= 0, np.asarray(s, float)[np.maximum(balls.group, 0)], 1.0)
     rms = float("nan")
     for _ in range(iterations):

@@ -375,12 +375,27 @@ def _flow_anchors(scene, cameras, flow, cframes):
     return FlowAnchors(cameras, image, cfg, rays=rays)
 
 
+#: σ of a metaball radius about the template's in the silhouette shape fit, metres
+SHAPE_RADIUS_SIGMA_M = 0.02
+
+
 def _center_sigma(skel, balls, cfg) -> np.ndarray | None:
     """σ (M,) of each metaball centre in the silhouette shape fit (NaN: held), metres."""
     if cfg is None or cfg.shape_center_sigma_m is None:
         return None
     names = np.array(skel.bone_names)[balls.bone]
-    return np.where(np.isin(names, cfg.shape_center_parts), cfg.shape_center_sigma_m, np.nan)
+    free = np.isin(names, cfg.shape_center_parts) & ~np.isin(names, cfg.shape_held_parts)
+    return np.where(free, cfg.shape_center_sigma_m, np.nan)
+
+
+def _radius_sigma(skel, balls, cfg) -> np.ndarray:
+    """σ (M,) of each metaball's radii about the template's in the silhouette shape fit:
+    ``cfg.shape_held_sigma_m`` for the parts whose template shape is kept, metres."""
+    sigma = np.full(len(balls), SHAPE_RADIUS_SIGMA_M)
+    if cfg is not None and cfg.shape_held_parts:
+        held = np.isin(np.array(skel.bone_names)[balls.bone], cfg.shape_held_parts)
+        sigma[held] = cfg.shape_held_sigma_m
+    return sigma
 
 
 def _shape_from_silhouettes(init, cameras, cframe, msgs, cfg=None):
@@ -400,6 +415,7 @@ def _shape_from_silhouettes(init, cameras, cframe, msgs, cfg=None):
         cameras,
         cframe.contours,
         tight,
+        radius_prior_m=_radius_sigma(init.skeleton, init.metaballs, cfg),
         rays=cframe.rays,
         center_prior_m=_center_sigma(init.skeleton, init.metaballs, cfg),
     )
@@ -416,9 +432,11 @@ def _shape_from_silhouettes(init, cameras, cframe, msgs, cfg=None):
         if moved.max() > 0
         else ""
     )
+    held = cfg.shape_held_parts if cfg is not None else ()
+    kept = f"; the template shape kept: {', '.join(held)}" if held else ""
     msgs.append(
         f"shape fitted to frame {init.frame}'s silhouettes (contour RMS {rms:.2f} px "
-        f"before the last step{shift})"
+        f"before the last step{shift}{kept})"
     )
     return replace(init, metaballs=balls, theta=th, root_xyz=rt)
 

@@ -184,6 +184,30 @@ def test_the_shape_settings_reach_the_pipeline_and_the_states_are_written(monkey
     assert 0.0 < row["visibility"] < 0.15
 
 
+def test_the_contour_settings_reach_the_pipeline(monkeypatch):
+    from core.fit_contours import ContourSettings
+
+    def error(msg):
+        raise ValueError(msg)
+
+    contour = parse_settings(['shape_held_parts=["head"]'], error, ContourSettings, "--contour")
+    assert contour == {"shape_held_parts": ("head",)}
+    seen = {}
+
+    def fake_run_scene(scene, **kw):
+        seen.update(kw)
+        return _StateOnly(truth_to_state(scene.truth, scene.fps)[0])
+
+    import core.fit_scene
+    from core.truth_state import truth_to_state
+
+    monkeypatch.setattr(core.fit_scene, "run_scene", fake_run_scene)
+    fit_once(SCENE, "unused.npz", "both", 0.5, 1, contour=contour)
+    assert seen["contour_settings"].shape_held_parts == ("head",)
+    fit_once(SCENE, "unused.npz", "both", 0.5, 1)
+    assert seen["contour_settings"] is None
+
+
 class _StateOnly:
     """What fit_once reads of run_scene's result."""
 

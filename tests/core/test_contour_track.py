@@ -118,6 +118,38 @@ def test_shape_from_silhouettes_moves_centres_off_the_bone_axis(rig):
     assert iou(free, th, rt) > iou(held, theta[0], root[0]) + 0.005
 
 
+def test_held_parts_keep_their_template_shape(rig):
+    """The parts ``ContourSettings.shape_held_parts`` names (the head) keep the
+    template's radii and centres while the rest of the body takes the silhouettes'."""
+    from core.fit_scene import _center_sigma, _radius_sigma
+
+    skel, balls, s, cams = rig
+    theta, root = _swing(skel, 1)
+    truth = balls.copy(radii=balls.radii * np.where(np.arange(len(balls)) % 2, 1.12, 0.9)[:, None])
+    observed = _contours(skel, theta[0], root[0], s, truth, cams)
+    names = np.array(skel.bone_names)[balls.bone]
+    head = names == "head"
+    tight = ContourTrackSettings(q_sigma_theta=0.01, q_sigma_root=0.002)
+    fitted = {}
+    for held in ((), ("head",)):
+        cfg = ContourSettings(shape_held_parts=held)
+        sig_r, sig_c = _radius_sigma(skel, balls, cfg), _center_sigma(skel, balls, cfg)
+        assert np.all(sig_r[head] == (0.002 if held else 0.02))
+        assert np.all(np.isnan(sig_c[head]) == bool(held))
+        fitted[held], *_ = fit_shape_to_contours(
+            skel, s, balls, theta[0], root[0], cams, observed, tight, sig_r, center_prior_m=sig_c
+        )
+    moved = {k: np.abs(v.radii - balls.radii).max(axis=1) for k, v in fitted.items()}
+    # free, the head takes its silhouette's size (22 mm here); held, a third of that
+    assert moved[()][head].max() > 0.015
+    assert moved[("head",)][head].max() < min(0.01, 0.35 * moved[()][head].max())
+    assert np.array_equal(fitted[("head",)].center0[head], balls.center0[head])
+    # the rest of the body is shaped as before
+    rest = ~head
+    err = {k: np.abs(v.radii[rest] - truth.radii[rest]).mean() for k, v in fitted.items()}
+    assert err[("head",)] < 1.1 * err[()], err
+
+
 def test_tracking_follows_the_motion_with_and_without_selection(rig):
     skel, balls, s, cams = rig
     theta, root = _swing(skel)

@@ -143,3 +143,13 @@ class ContourSettings:
     #: shape well (docs/design.md, "A head shaped from one frame's silhouettes")
     shape_held_parts: tuple = ()
     shape_held_sigma_m: float = 0.002
+    #: σ [px] of the silhouette shape fit's containment (opt-in; 0: off): every
+    #: metaball's rendered surface inside every camera's foreground
+    #: (:mod:`core.shape_containment`).  At 2 px it turns pirouette_ortho3's head discs
+    #: back into a head (surface 12.10 -> 10.57 mm, visibility index 0.058 -> 0.055 on
+    #: the exact clicks; MPJPE 29.2 / 31.5 / 27.4 / 22.6 mm over the four click draws,
+    #: 27.9 / 33.8 / 28.7 / 28.4 without), but dance_ortho3 is worse in two draws
+    #: (27.6 / 39.1 / 42.9 / 29.4 mm, 24.2 / 27.8 / 25.1 / 38.8 without) and walk_ortho3
+    #: run 0 goes 11.0 -> 11.6 mm (docs/design.md, "A head shaped from one frame's
+    #: silhouettes")
+    shape_containment_px: float = 0.0

@@ -38,6 +38,9 @@ def fit_shape_to_contours(
     rays=None,
     center_prior_m=None,
     center_axes: tuple = (0, 1, 2),
+    fields: list | None = None,
+    sigma_contain_px: float = 2.0,
+    contain_tol_px: float = 3.0,
 ) -> tuple[Metaballs, np.ndarray, np.ndarray, float]:
     """Metaball radii (and centres, and a pose refinement) from one frame's silhouettes.
 
@@ -60,6 +63,12 @@ def fit_shape_to_contours(
     rim rigidly, so its Jacobian is the root translation's through the bone's rotation
     and scale.  It needs a pose held by the clicks (tight ``q_sigma_*``): a free pose
     trades the centres against the joints.
+
+    With ``fields`` (per camera a :class:`core.contour_obs.SilhouetteField` or None) every
+    metaball's rendered surface is also held inside the foregrounds
+    (:func:`core.shape_containment.shape_containment`: points at 0.9 of its semi-axes,
+    ``contain_tol_px`` tolerated, σ ``sigma_contain_px``), in its radii and centres: a
+    rim that stands out further than the contour pairing reaches pays for it.
 
     Returns
     -------
@@ -122,6 +131,12 @@ def fit_shape_to_contours(
         a = np.abs(r)
         w = np.where(a <= cfg.huber_px, 1.0, cfg.huber_px / np.maximum(a, 1e-12))
         w = w / cfg.sigma_px**2
+        if fields is not None:
+            Jo, ro = _containment_rows(skel, th, rt, s, cur, cameras, fields, contain_tol_px)
+            Jo = _with_centres(Jo, ro, free, slot, ax, scale, skel, th, rt, s, cur)
+            J = np.vstack([J, np.hstack([np.zeros((len(ro), n + 3)), Jo])])
+            r = np.concatenate([r, ro.residual])
+            w = np.concatenate([w, np.full(len(ro), sigma_contain_px**-2)])
         prior_w = np.concatenate([w_pose, w_shape])
         x = np.concatenate([th, rt, radii.ravel(), cen[np.ix_(free, ax)].ravel()])
         x0 = np.concatenate([theta0, root0, r0.ravel(), c0[np.ix_(free, ax)].ravel()])
@@ -131,7 +146,33 @@ def fit_shape_to_contours(
         th, rt = th + delta[:n], rt + delta[n : n + 3]
         radii = np.maximum(radii + delta[n + 3 : n + 3 + 3 * E].reshape(E, 3), 0.01)
         cen[np.ix_(free, ax)] += delta[n + 3 + 3 * E :].reshape(-1, k)
-        rms = float(np.sqrt(np.mean(r**2)))
+        rms = float(np.sqrt(np.mean(obs.residual**2)))
         if np.max(np.abs(delta)) < 1e-5:
             break
     return balls.copy().with_parts(cen, radii), th, rt, rms
+
+
+def _containment_rows(skel, th, rt, s, balls, cameras, fields, tol_px):
+    """The containment's Jacobian in the radii (M, 3E), and its observations."""
+    from .shape_containment import shape_containment
+
+    co = shape_containment(skel, th, rt, s, balls, cameras, fields, tol_px=tol_px)
+    E = len(balls)
+    J = np.zeros((len(co), 3 * E))
+    if len(co):
+        d = co.axis_grad * co.unit * balls.vscale[co.ball]  # by the field radii
+        np.put_along_axis(J, 3 * co.ball[:, None] + np.arange(3)[None], d, axis=1)
+    return J, co
+
+
+def _with_centres(J, co, free, slot, ax, scale, skel, th, rt, s, balls):
+    """``J`` (M, 3E) with the columns of the free centres appended (M, 3E + k·len(free))."""
+    k = len(ax)
+    Jc = np.zeros((len(co), k * len(free)))
+    on = np.flatnonzero(slot[co.ball] >= 0) if len(co) else np.zeros(0, int)
+    if len(on):
+        Rb, _ = bone_frames(skel, forward(skel, th[None], rt[None], s))
+        e = co.ball[on]
+        g = np.einsum("mj,mjk->mk", co.grad[on], Rb[0, balls.bone[e]]) * scale[e, None]
+        Jc[on[:, None], k * slot[e][:, None] + np.arange(k)[None]] = g[:, ax]
+    return np.hstack([J, Jc])

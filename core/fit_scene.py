@@ -398,6 +398,13 @@ def _radius_sigma(skel, balls, cfg) -> np.ndarray:
     return sigma
 
 
+def _containment(cframe, cfg) -> dict:
+    """The containment keywords of :func:`core.contour_shape.fit_shape_to_contours`."""
+    if cfg is None or not cfg.shape_containment_px:
+        return {}
+    return {"fields": cframe.fields(), "sigma_contain_px": cfg.shape_containment_px}
+
+
 def _shape_from_silhouettes(init, cameras, cframe, msgs, cfg=None):
     """The initialisation with its metaball radii, the centres of
     ``cfg.shape_center_parts`` (:class:`core.fit_contours.ContourSettings`) and a refined
@@ -418,6 +425,7 @@ def _shape_from_silhouettes(init, cameras, cframe, msgs, cfg=None):
         radius_prior_m=_radius_sigma(init.skeleton, init.metaballs, cfg),
         rays=cframe.rays,
         center_prior_m=_center_sigma(init.skeleton, init.metaballs, cfg),
+        **_containment(cframe, cfg),
     )
     if not np.isfinite(rms) or not (np.all(np.isfinite(th)) and np.all(np.isfinite(rt))):
         msgs.append(

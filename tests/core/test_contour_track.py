@@ -150,6 +150,34 @@ def test_held_parts_keep_their_template_shape(rig):
     assert err[("head",)] < 1.1 * err[()], err
 
 
+def test_containment_pulls_a_metaball_far_out_of_the_silhouettes_back_in(rig):
+    """A head four times too wide stands out of the outlines beyond what the contour
+    pairing reaches: the containment (``fields``) brings it back, the pairing alone
+    does not."""
+    from core.contour_obs import silhouette_field
+
+    skel, balls, s, cams = rig
+    theta, root = _swing(skel, 1)
+    observed = _contours(skel, theta[0], root[0], s, balls, cams)
+    fields = [silhouette_field(c, cam.size) for c, cam in zip(observed, cams, strict=True)]
+    head = np.flatnonzero(np.array(skel.bone_names)[balls.bone] == "head")
+    start = balls.radii.copy()
+    start[head, 0] *= 4.0  # 41 cm too wide
+    tight = ContourTrackSettings(q_sigma_theta=0.01, q_sigma_root=0.002)
+    err, iou = {}, {}
+    for name, f in (("pairs", None), ("contained", fields)):
+        fit, th, rt, _ = fit_shape_to_contours(
+            skel, s, balls.copy(radii=start), theta[0], root[0], cams, observed, tight, fields=f
+        )
+        err[name] = np.abs(fit.radii[head] - balls.radii[head]).max()
+        a = [render_parts(c, *body_ellipsoids(skel, th, rt, s, fit)).mask for c in cams]
+        truth = body_ellipsoids(skel, theta[0], root[0], s, balls)
+        b = [render_parts(c, *truth).mask for c in cams]
+        iou[name] = np.mean([(x & y).sum() / (x | y).sum() for x, y in zip(a, b, strict=True)])
+    assert err["contained"] < 0.015 and err["contained"] < 0.5 * err["pairs"], err
+    assert iou["contained"] > iou["pairs"], iou
+
+
 def test_tracking_follows_the_motion_with_and_without_selection(rig):
     skel, balls, s, cams = rig
     theta, root = _swing(skel)

@@ -137,10 +137,11 @@ class ContourSettings:
     #: template's with σ ``shape_held_sigma_m`` [m] (the rest: 2 cm), centres held
     #: (whatever ``shape_center_parts`` says).  One frame's three outlines leave the
     #: head's three overlapping metaballs free to trade their sizes: on pirouette_ortho3
-    #: two became discs (14 and 30 mm thick, 18 cm across) whose rim stands out of the
-    #: silhouettes in every frame.  Held (``("head",)``), pirouette_ortho3's four click
-    #: draws gain 2–8 mm, but walk_ortho3's lose 2.5–3.5 mm, whose head the silhouettes
-    #: shape well (docs/design.md, "A head shaped from one frame's silhouettes")
+    #: two became discs (visible semi-axes 63 × 48 × 13 and 120 × 93 × 36 mm) whose rim
+    #: stands out of the silhouettes in every frame.  Held (``("head",)``),
+    #: pirouette_ortho3's four click draws gain 2–8 mm, but walk_ortho3's lose
+    #: 2.5–3.5 mm, whose head the silhouettes shape well (docs/design.md, "A head shaped
+    #: from one frame's silhouettes")
     shape_held_parts: tuple = ()
     shape_held_sigma_m: float = 0.002
     #: σ [px] of the silhouette shape fit's containment (opt-in; 0: off): every

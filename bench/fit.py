@@ -68,11 +68,12 @@ STUDIO_SCENES: dict[str, tuple[str, str, int]] = {
     "dance_line3": ("05_06.bvh", "line3", 260),
     "dance_ortho3": ("05_06.bvh", "orthogonal3", 260),
     "jumps_line3": ("01_01.bvh", "line3", 150),
+    "jumps_ortho3": ("01_01.bvh", "orthogonal3", 150),
     "dance_bend_line3": ("05_06.bvh", "line3", 120),
     "dance_bend_ortho3": ("05_06.bvh", "orthogonal3", 120),
 }
 #: The scenes run without SCENE arguments (after ``sample_scenes/walk_line3``).
-DEFAULT_SET = ("walk_ortho3", "dance_line3", "dance_ortho3", "jumps_line3")
+DEFAULT_SET = ("walk_ortho3", "dance_line3", "dance_ortho3", "jumps_line3", "jumps_ortho3")
 FRAMES, FPS, SIZE = 50, 25.0, "512x384"
 
 

@@ -113,12 +113,9 @@ def fit_shape_to_contours(
         )
         if len(obs) < cfg.min_matches:
             break
-        M = len(obs)
-        J = np.zeros((M, n + 3 + 3 * E + nc))
-        J[:, :n], J[:, n : n + 3] = obs.J_theta, obs.J_root
+        J_pose, J_radii, r, w = contour_rows(obs, E, cfg)
+        J = np.hstack([J_pose, J_radii, np.zeros((len(obs), nc))])
         e = obs.ellipsoid
-        cols = n + 3 + 3 * e[:, None] + np.arange(3)[None]
-        np.put_along_axis(J, cols, obs.J_radii, axis=1)
         if nc and (on := slot[e] >= 0).any():
             Rb, _ = bone_frames(skel, forward(skel, th[None], rt[None], s))
             eo = e[on]
@@ -127,10 +124,6 @@ def fit_shape_to_contours(
                 np.flatnonzero(on)[:, None],
                 n + 3 + 3 * E + k * slot[eo][:, None] + np.arange(k)[None],
             ] = Jc[:, ax]
-        r = obs.residual
-        a = np.abs(r)
-        w = np.where(a <= cfg.huber_px, 1.0, cfg.huber_px / np.maximum(a, 1e-12))
-        w = w / cfg.sigma_px**2
         if fields is not None:
             Jo, ro = _containment_rows(skel, th, rt, s, cur, cameras, fields, contain_tol_px)
             Jo = _with_centres(Jo, ro, free, slot, ax, scale, skel, th, rt, s, cur)
@@ -150,6 +143,31 @@ def fit_shape_to_contours(
         if np.max(np.abs(delta)) < 1e-5:
             break
     return balls.copy().with_parts(cen, radii), th, rt, rms
+
+
+def contour_rows(obs, n_balls: int, cfg) -> tuple:
+    """The contour observations' Jacobian blocks and Huber weights.
+
+    Parameters
+    ----------
+    obs : :class:`core.contour_obs.ContourObservations` of one frame (M pairs)
+    n_balls : E, the number of metaballs
+    cfg : settings with ``sigma_px`` and ``huber_px`` (pixels)
+
+    Returns
+    -------
+    J_pose : (M, n + 3) — by the joint angles (rad) and the root translation (m), px
+    J_radii : (M, 3E) — by every metaball's three radii (m), px
+    r : (M,) residuals, px
+    w : (M,) weights, 1/px² (Huber-reweighted 1/σ²)
+    """
+    J_radii = np.zeros((len(obs), 3 * n_balls))
+    cols = 3 * obs.ellipsoid[:, None] + np.arange(3)[None]
+    np.put_along_axis(J_radii, cols, obs.J_radii, axis=1)
+    r = obs.residual
+    a = np.abs(r)
+    w = np.where(a <= cfg.huber_px, 1.0, cfg.huber_px / np.maximum(a, 1e-12))
+    return np.hstack([obs.J_theta, obs.J_root]), J_radii, r, w / cfg.sigma_px**2
 
 
 def _containment_rows(skel, th, rt, s, balls, cameras, fields, tol_px):

@@ -231,8 +231,15 @@ def run_scene(
         and settings.silhouette_second_pass
         and settings.shape == "fit"
     )
-    res = fit_sequence(obs, init, settings, contours=cframes, defer_shape=not silhouette_pass, **kw)
-    if silhouette_pass and res.shape is not None and res.shape.frame_ok.any():
+    multi = silhouette_shaped and contour_settings.shape_fit_frames > 1
+    res = fit_sequence(
+        obs, init, settings, contours=cframes, defer_shape=multi or not silhouette_pass, **kw
+    )
+    if multi and (~res.state.quality.diverged).sum() > 1:
+        res = _frames_shape_pass(
+            obs, init, settings, res, cframes, anchors, kw, timings, t2, contour_settings
+        )
+    elif silhouette_pass and res.shape is not None and res.shape.frame_ok.any():
         res = _second_pass(
             obs, init, settings, res, cframes, anchors, kw, timings, time.perf_counter() - t2
         )
@@ -280,6 +287,58 @@ def _second_pass(obs, init, settings, first, cframes, anchors, kw, timings, seco
     )
     shape_msgs = [m for m in first.messages if m.startswith("whole-body shape")]
     return replace(res, shape=first.shape, messages=shape_msgs + [note] + res.messages)
+
+
+def _frames_shape_pass(obs, init, settings, first, cframes, anchors, kw, timings, t_start, cfg):
+    """The motion fitted again with the radii of several of the ``first`` pass's frames.
+
+    The clicked frame's silhouettes shaped the body (:func:`_shape_from_silhouettes`);
+    the radii are re-solved over ``cfg.shape_fit_frames`` fitted frames, evenly spaced
+    among those not diverged (:func:`core.contour_shape_frames.fit_shape_to_frames`),
+    then the take is fitted again from the clicks with that shape.
+    """
+    from .contour_shape_frames import fit_shape_to_frames
+    from .contour_track import ContourTrackSettings
+
+    timings["first_pass"] = time.perf_counter() - t_start
+    st = first.state
+    ok = np.flatnonzero(~st.quality.diverged)
+    pick = np.unique(ok[np.round(np.linspace(0, len(ok) - 1, cfg.shape_fit_frames)).astype(int)])
+    balls, _, _, rms = fit_shape_to_frames(
+        init.skeleton,
+        init.s,
+        init.metaballs,
+        st.theta[pick],
+        st.root_xyz[pick],
+        kw["cameras"],
+        [cframes[f].contours for f in pick],
+        ContourTrackSettings(),
+        radius_prior_m=_radius_sigma(init.skeleton, init.metaballs, cfg),
+        pose_sigma_rad=cfg.shape_frames_pose_sigma_rad,
+        root_sigma_m=cfg.shape_frames_root_sigma_m,
+        rays=cframes[pick[0]].rays,
+    )
+    if not np.isfinite(rms):
+        return replace(
+            first,
+            messages=first.messages + ["shape over several frames: too few contour pairs, kept"],
+        )
+    moved = np.abs(balls.radii - init.metaballs.radii).max() * 1000
+    note = (
+        f"shape re-solved over frames {pick.tolist()}'s silhouettes (contour RMS "
+        f"{rms:.2f} px before the last step; radii moved {moved:.0f} mm at most): the "
+        "motion fitted again with it"
+    )
+    kw = {**kw, "progress": prefixed(kw.get("progress"), "second pass (shape over frames): ")}
+    res = fit_sequence(
+        obs,
+        replace(init, metaballs=balls),
+        settings,
+        contours=_fresh(cframes, anchors),
+        defer_shape=True,
+        **kw,
+    )
+    return replace(res, messages=[note] + res.messages)
 
 
 def _fresh(cframes, anchors):

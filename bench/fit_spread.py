@@ -154,6 +154,9 @@ def fit_once(
             contour_settings=ContourSettings(**contour) if contour else None,
         )
     wall = time.perf_counter() - t0
+    for m in getattr(res, "messages", []):  # how the silhouettes shaped the body
+        if m.startswith("shape "):
+            print(f"run {seed}: {m}", flush=True)
     ev = evaluate_state(res.state, scene.truth)
     vi = np.nan
     if visibility:
@@ -261,6 +264,7 @@ def main(argv: list[str] | None = None) -> int:
         help="scene folder or studio scene name (default: the sample scene)",
     )
     ap.add_argument("--runs", type=int, default=5, help="fits, the first unperturbed")
+    ap.add_argument("--first", type=int, default=0, help="the first run's number (its seed)")
     ap.add_argument("--click-noise", type=float, default=0.5, help="pixels, per axis")
     ap.add_argument("--cues", default="both", choices=("texture", "contours", "both"))
     ap.add_argument("--jobs", type=int, default=2, help="fits at a time")
@@ -346,8 +350,9 @@ def main(argv: list[str] | None = None) -> int:
     except subprocess.CalledProcessError:
         ap.error(f"{scene}: tracking failed (python -m core track printed why, above)")
     print(
-        f"{scene.name}: {args.runs} fits of {tracks}, cues {args.cues}, clicks moved by "
-        f"N(0, {args.click_noise} px) in runs 1..{args.runs - 1}"
+        f"{scene.name}: {args.runs} fits (runs {args.first}–{args.first + args.runs - 1}) "
+        f"of {tracks}, cues {args.cues}, clicks moved by "
+        f"N(0, {args.click_noise} px) in runs 1..{args.first + args.runs - 1}"
         + ("" if args.flow_sigma is None else f", flow σ {args.flow_sigma} px")
         + "".join(f", {k} = {v!r}" for k, v in settings.items())
         + "".join(f", flow {k} = {v!r}" for k, v in flow.items())
@@ -380,7 +385,7 @@ def main(argv: list[str] | None = None) -> int:
                 args.visibility,
                 contour,
             )
-            for k in range(args.runs)
+            for k in range(args.first, args.first + args.runs)
         ]
         for fut in futs:
             r = fut.result()

@@ -154,11 +154,16 @@ class ContourSettings:
     #: run 0 goes 11.0 -> 11.6 mm (docs/design.md, "A head shaped from one frame's
     #: silhouettes")
     shape_containment_px: float = 0.0
-    #: a take shaped from its clicked frame's silhouettes: after the first pass, the
-    #: radii re-solved over this many of its fitted frames (evenly spaced among those not
+    #: a take shaped from its clicked frame's silhouettes: after the fit, the radii
+    #: re-solved over this many of its fitted frames (evenly spaced among those not
     #: diverged; their poses about the fitted ones with σ ``shape_frames_pose_sigma_rad``
-    #: / ``shape_frames_root_sigma_m``, the centres held), then the motion fitted again
-    #: with that shape (:mod:`core.contour_shape_frames`; 0 or 1: off)
+    #: / ``shape_frames_root_sigma_m``, the centres held) and written with the fitted
+    #: motion (:mod:`core.contour_shape_frames`; 0 or 1: off)
     shape_fit_frames: int = 0
     shape_frames_pose_sigma_rad: float = 0.1
     shape_frames_root_sigma_m: float = 0.02
+    #: ... the radii along each metaball's bone (its z) about the clicked frame's with this
+    #: σ [m] (None: as the others): a chain's outline hardly shows them
+    shape_frames_along_sigma_m: float | None = None
+    #: ... and the motion fitted again with that shape (a second pass)
+    shape_frames_refit: bool = False

@@ -50,8 +50,8 @@ def fit_shape_to_frames(
     plus priors: each frame's joint angles about ``thetas[k]`` with σ ``pose_sigma_rad``
     and its root about ``roots[k]`` with σ ``root_sigma_m`` (the fitted poses: free
     enough for the outline of a new shape to move them), and every radius about its
-    starting value with σ ``radius_prior_m`` (metres, one σ or (E,) per metaball), which
-    keeps the radii no frame observes where they are.
+    starting value with σ ``radius_prior_m`` (metres: one σ, (E,) per metaball or (E, 3)
+    per radius), which keeps the radii no frame observes where they are.
 
     Parameters
     ----------
@@ -75,7 +75,8 @@ def fit_shape_to_frames(
     radii = r0.copy()
     R = slice(K * p, K * p + 3 * E)  # the radii's columns, after the K poses'
     sig_pose = np.tile(np.r_[np.full(n, pose_sigma_rad), np.full(3, root_sigma_m)], K)
-    sig_r = np.repeat(np.broadcast_to(np.asarray(radius_prior_m, float), (E,)), 3)
+    sig_r = np.asarray(radius_prior_m, float)
+    sig_r = np.broadcast_to(sig_r[:, None] if sig_r.ndim == 1 else sig_r, (E, 3)).ravel()
     prior_w = np.concatenate([sig_pose, sig_r]) ** -2
     rms = float("nan")
     for _ in range(iterations):

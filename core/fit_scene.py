@@ -290,12 +290,13 @@ def _second_pass(obs, init, settings, first, cframes, anchors, kw, timings, seco
 
 
 def _frames_shape_pass(obs, init, settings, first, cframes, anchors, kw, timings, t_start, cfg):
-    """The motion fitted again with the radii of several of the ``first`` pass's frames.
+    """The ``first`` pass's motion with the radii of several of its frames.
 
     The clicked frame's silhouettes shaped the body (:func:`_shape_from_silhouettes`);
     the radii are re-solved over ``cfg.shape_fit_frames`` fitted frames, evenly spaced
     among those not diverged (:func:`core.contour_shape_frames.fit_shape_to_frames`),
-    then the take is fitted again from the clicks with that shape.
+    and written with the fitted motion, or (``cfg.shape_frames_refit``) the take is
+    fitted again from the clicks with that shape.
     """
     from .contour_shape_frames import fit_shape_to_frames
     from .contour_track import ContourTrackSettings
@@ -304,6 +305,9 @@ def _frames_shape_pass(obs, init, settings, first, cframes, anchors, kw, timings
     st = first.state
     ok = np.flatnonzero(~st.quality.diverged)
     pick = np.unique(ok[np.round(np.linspace(0, len(ok) - 1, cfg.shape_fit_frames)).astype(int)])
+    sigma = np.repeat(_radius_sigma(init.skeleton, init.metaballs, cfg)[:, None], 3, axis=1)
+    if cfg.shape_frames_along_sigma_m is not None:
+        sigma[:, 2] = cfg.shape_frames_along_sigma_m
     balls, _, _, rms = fit_shape_to_frames(
         init.skeleton,
         init.s,
@@ -313,22 +317,29 @@ def _frames_shape_pass(obs, init, settings, first, cframes, anchors, kw, timings
         kw["cameras"],
         [cframes[f].contours for f in pick],
         ContourTrackSettings(),
-        radius_prior_m=_radius_sigma(init.skeleton, init.metaballs, cfg),
+        radius_prior_m=sigma,
         pose_sigma_rad=cfg.shape_frames_pose_sigma_rad,
         root_sigma_m=cfg.shape_frames_root_sigma_m,
         rays=cframes[pick[0]].rays,
     )
     if not np.isfinite(rms):
-        return replace(
-            first,
-            messages=first.messages + ["shape over several frames: too few contour pairs, kept"],
-        )
-    moved = np.abs(balls.radii - init.metaballs.radii).max() * 1000
+        note = "shape over several frames: too few contour pairs, the clicked frame's kept"
+        return replace(first, messages=first.messages + [note])
+    moved = np.abs(balls.radii - init.metaballs.radii) * 1000
+    most, axis = np.unravel_index(np.argmax(moved), moved.shape)
     note = (
         f"shape re-solved over frames {pick.tolist()}'s silhouettes (contour RMS "
-        f"{rms:.2f} px before the last step; radii moved {moved:.0f} mm at most): the "
-        "motion fitted again with it"
+        f"{rms:.2f} px before the last step; radii moved {np.median(moved):.0f} mm median, "
+        f"{moved.max():.0f} mm at most, {init.skeleton.bone_names[init.metaballs.bone[most]]}"
+        f"'s {'xyz'[axis]})"
     )
+    if not cfg.shape_frames_refit:  # the fitted motion, written with that shape
+        return replace(
+            first,
+            state=replace(st, metaballs=balls),
+            messages=first.messages + [note + ": written with the fitted motion"],
+        )
+    note += ": the motion fitted again with it"
     kw = {**kw, "progress": prefixed(kw.get("progress"), "second pass (shape over frames): ")}
     res = fit_sequence(
         obs,

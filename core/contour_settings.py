@@ -157,13 +157,30 @@ class ContourSettings:
     #: a take shaped from its clicked frame's silhouettes: after the fit, the radii
     #: re-solved over this many of its fitted frames (evenly spaced among those not
     #: diverged; their poses about the fitted ones with σ ``shape_frames_pose_sigma_rad``
-    #: / ``shape_frames_root_sigma_m``, the centres held) and written with the fitted
-    #: motion (:mod:`core.contour_shape_frames`; 0 or 1: off)
-    shape_fit_frames: int = 0
+    #: / ``shape_frames_root_sigma_m``, the centres held), and the motion fitted again
+    #: with that shape (:mod:`core.contour_shape_frames`; 0 or 1: off).  One frame's
+    #: three outlines leave radii free that its posture hides; the fitted take shows
+    #: them.  bench.fit_spread, four click draws, 0 -> 5 (MPJPE mm): pirouette_ortho3
+    #: 27.9 / 33.8 / 28.7 / 28.4 -> 22.4 / 24.7 / 24.3 / 20.9, dance_ortho3 24.2 / 27.8 /
+    #: 25.1 / 38.8 -> 24.5 / 25.6 / 26.9 / 27.5, walk_ortho3 11.0 / 10.9 / 12.9 / 11.8 ->
+    #: 11.2 / 11.1 / 10.1 / 12.2, jumps_ortho3 10.0 / 10.3 / 11.0 / 10.9 -> 10.3 / 10.8 /
+    #: 10.6 / 11.2 (docs/design.md, stop 66).  That shape written with the first fit's
+    #: motion instead puts jumps_ortho3's metaball surface 45-51 mm from the true mesh
+    #: (11.8 mm by default): the outlines fit a union of ellipsoids, and radii hidden
+    #: inside it swell the blended field; the second pass writes its shape from the
+    #: points again
+    shape_fit_frames: int = 5
     shape_frames_pose_sigma_rad: float = 0.1
     shape_frames_root_sigma_m: float = 0.02
     #: ... the radii along each metaball's bone (its z) about the clicked frame's with this
-    #: σ [m] (None: as the others): a chain's outline hardly shows them
-    shape_frames_along_sigma_m: float | None = None
-    #: ... and the motion fitted again with that shape (a second pass)
-    shape_frames_refit: bool = False
+    #: σ [m] (None: as the others): a chain's outline hardly shows them.  Free, they grew
+    #: by up to 26 cm (jumps_ortho3's spine), and run 0 went: jumps 10.3 -> 9.2, dance
+    #: 24.5 -> 27.9, walk 11.2 -> 10.0, pirouette 22.4 -> 21.3 mm; its limb segments
+    #: 17.4 -> 23.6 deg, the walk's 17.1 -> 18.8; the jumps' draws 1-3 10.8 / 10.6 / 11.2
+    #: -> 13.0 / 12.0 / 12.2, the dance's 25.6 / 26.9 / 27.5 -> 29.7 / 50.1 / 26.6
+    shape_frames_along_sigma_m: float | None = 0.002
+    #: ... only where two cameras see the body from directions at least this many
+    #: degrees apart: views close together leave every radius along them to the prior,
+    #: which five frames' outlines outweigh.  The skin look (bench.looks, walk_line3's
+    #: rig, 39 deg) with it: 15.4 -> 17.2 mm, limb segments 20.2 -> 32.7 deg
+    shape_frames_min_spread_deg: float = 60.0

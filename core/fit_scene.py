@@ -232,6 +232,14 @@ def run_scene(
         and settings.shape == "fit"
     )
     multi = silhouette_shaped and contour_settings.shape_fit_frames > 1
+    if multi and (spread := _views_spread_deg(cameras, init.root_xyz)) < (
+        contour_settings.shape_frames_min_spread_deg
+    ):
+        multi = False
+        msgs.append(
+            f"shape over several frames: not solved, the cameras see the body from "
+            f"directions within {spread:.0f} deg of each other"
+        )
     res = fit_sequence(
         obs, init, settings, contours=cframes, defer_shape=multi or not silhouette_pass, **kw
     )
@@ -290,13 +298,12 @@ def _second_pass(obs, init, settings, first, cframes, anchors, kw, timings, seco
 
 
 def _frames_shape_pass(obs, init, settings, first, cframes, anchors, kw, timings, t_start, cfg):
-    """The ``first`` pass's motion with the radii of several of its frames.
+    """The motion fitted again with the radii of several of the ``first`` pass's frames.
 
     The clicked frame's silhouettes shaped the body (:func:`_shape_from_silhouettes`);
     the radii are re-solved over ``cfg.shape_fit_frames`` fitted frames, evenly spaced
     among those not diverged (:func:`core.contour_shape_frames.fit_shape_to_frames`),
-    and written with the fitted motion, or (``cfg.shape_frames_refit``) the take is
-    fitted again from the clicks with that shape.
+    then the take is fitted again from the clicks with that shape.
     """
     from .contour_shape_frames import fit_shape_to_frames
     from .contour_track import ContourTrackSettings
@@ -333,12 +340,6 @@ def _frames_shape_pass(obs, init, settings, first, cframes, anchors, kw, timings
         f"{moved.max():.0f} mm at most, {init.skeleton.bone_names[init.metaballs.bone[most]]}"
         f"'s {'xyz'[axis]})"
     )
-    if not cfg.shape_frames_refit:  # the fitted motion, written with that shape
-        return replace(
-            first,
-            state=replace(st, metaballs=balls),
-            messages=first.messages + [note + ": written with the fitted motion"],
-        )
     note += ": the motion fitted again with it"
     kw = {**kw, "progress": prefixed(kw.get("progress"), "second pass (shape over frames): ")}
     res = fit_sequence(
@@ -350,6 +351,13 @@ def _frames_shape_pass(obs, init, settings, first, cframes, anchors, kw, timings
         **kw,
     )
     return replace(res, messages=[note] + res.messages)
+
+
+def _views_spread_deg(cameras, point) -> float:
+    """The largest angle between two cameras' lines of sight to ``point`` (3,), degrees."""
+    d = np.array([np.asarray(point, float) - cam.center for cam in cameras])
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return float(np.degrees(np.arccos(np.clip((d @ d.T).min(), -1.0, 1.0))))
 
 
 def _fresh(cframes, anchors):

@@ -1,6 +1,9 @@
 """The metaball radii from several frames' silhouettes, on the model's own renders."""
 
+from pathlib import Path
+
 import numpy as np
+import pytest
 
 from core.contour_obs import body_ellipsoids
 from core.contour_shape_frames import fit_shape_to_frames
@@ -60,3 +63,51 @@ def test_frames_without_contours_keep_their_pose_and_nothing_else_moves(rig):  #
     assert np.isnan(rms)
     assert np.array_equal(fitted.radii, balls.radii)
     assert np.array_equal(th, theta) and np.array_equal(rt, root)
+
+
+@pytest.mark.slow
+def test_core_fit_shape_frames_fits_the_take_again_with_the_shape_of_several(tmp_path, capsys):
+    """``core fit --cues contours --shape-frames 3`` on a rig whose views lie 90° apart:
+    the silhouettes shape the body at the clicked frame, the radii are solved again over
+    three fitted frames, and the take is fitted again with them, said so; finite output."""
+    from core.cli import main
+    from core.state import read_state
+    from tests.core._bodyscene import look_at
+    from tests.core.test_fit_contours_sequence import _silhouette_scene
+
+    wide = [
+        look_at(n, p)
+        for n, p in (("cam01", (0, -4, 1.2)), ("cam02", (4, 0, 1.2)), ("cam03", (-3, -3, 1.2)))
+    ]
+    _silhouette_scene(tmp_path, cams=wide)
+    argv = ["fit", str(tmp_path), "--cues", "contours", "--model", "simplified"]
+    assert main([*argv, "--shape-frames", "3"]) == 0
+    out = capsys.readouterr().out
+    line = next(ln for ln in out.splitlines() if "shape re-solved over frames" in ln)
+    picked = [int(v) for v in line.split("frames [")[1].split("]")[0].split(",")]
+    assert len(picked) == 3 and picked[0] == 0 and picked[-1] == 5  # spread over the take
+    assert "the motion fitted again with it" in line
+    st = read_state(tmp_path / "fit.json")
+    for arr in (st.theta, st.root_xyz, st.metaballs.radii):
+        assert np.all(np.isfinite(arr))
+    assert st.quality.diverged.sum() <= 1
+
+
+def test_core_fit_shape_frames_needs_two_frames_at_least(tmp_path, capsys):
+    from core.cli import main
+
+    scene = Path(__file__).resolve().parents[2] / "sample_scenes" / "walk_line3"
+    assert main(["fit", str(scene), "--shape-frames", "1", "-o", str(tmp_path / "f.json")]) == 2
+    err = capsys.readouterr().err
+    assert "--shape-frames must be 0 (off) or at least 2" in err
+    assert not (tmp_path / "f.json").exists()
+
+
+def test_the_views_spread_tells_a_rig_in_a_line_from_an_orthogonal_one():
+    from core.fit_scene import _views_spread_deg
+    from tests.core._bodyscene import cameras, look_at
+
+    body = np.array([0.0, 0.0, 1.0])
+    assert _views_spread_deg(cameras(), body) == pytest.approx(41.1, abs=0.1)
+    wide = [look_at("a", (0, -4, 1.0)), look_at("b", (4, 0, 1.0))]
+    assert _views_spread_deg(wide, body) == pytest.approx(90.0)

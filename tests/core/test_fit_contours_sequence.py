@@ -73,10 +73,11 @@ def test_unusable_background_gives_no_contours_and_a_flag():
     assert ok.all() and all(len(c) == 1 for c in cons)
 
 
-def _silhouette_scene(root, noise_cams=()):
+def _silhouette_scene(root, noise_cams=(), cams=None):
     """A scene folder whose images are the model's own silhouettes walking across a grey
-    background (6 frames, three 512x384 cameras); ``noise_cams``: cameras whose images
-    are fresh noise in every frame (no usable background)."""
+    background (6 frames, three 512x384 cameras: ``cams``, by default in a line);
+    ``noise_cams``: cameras whose images are fresh noise in every frame (no usable
+    background)."""
     import json
 
     import cv2
@@ -88,7 +89,7 @@ def _silhouette_scene(root, noise_cams=()):
     s = np.ones(skel.n_groups)
     balls = mb.make_metaballs(skel, "simplified", s)
     theta, _ = _pose(skel)
-    cams = line_cameras()
+    cams = line_cameras() if cams is None else cams
     nf = 6
     rng = np.random.default_rng(5)
     (root / "scene.toml").write_text(
@@ -160,6 +161,8 @@ def test_cli_contours_alone_with_one_unusable_camera(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "camera cam02: no usable background" in out
     assert "silhouette contours alone" in out
+    # the rig's views lie within 41 deg: no shape over several frames (core/contour_settings)
+    assert "shape over several frames: not solved" in out and "within 41 deg" in out
     line = next(ln for ln in out.splitlines() if "whole-body shape fit of frames" in ln)
     assert "frames [0, 1, 2, 4, 5]" in line  # 5 spread over 6
     assert "silhouette RMS" in line and "surface RMS" not in line

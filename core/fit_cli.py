@@ -124,7 +124,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="where the silhouettes alone shape the body (no texture points at the clicked "
         "frame) and two cameras see it from at least 60 degrees apart: its radii are "
         "solved again over N fitted frames' silhouettes and the motion fitted again with "
-        "them (default 5; 0: off, about half the fit time; the orthogonal pirouette 23.5 "
+        "them (default 5; 0: off, about half the fit time; the orthogonal pirouette 23.35 "
         "against 28.5 mm, median of 4 click draws; see core/contour_shape_frames.py)",
     )
     parser.add_argument(

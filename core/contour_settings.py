@@ -158,7 +158,8 @@ class ContourSettings:
     #: re-solved over this many of its fitted frames (evenly spaced among those not
     #: diverged; their poses about the fitted ones with σ ``shape_frames_pose_sigma_rad``
     #: / ``shape_frames_root_sigma_m``, the centres held), and the motion fitted again
-    #: with that shape (:mod:`core.contour_shape_frames`; 0 or 1: off).  One frame's
+    #: with that shape (:mod:`core.contour_shape_frames`; 0 or 1: off, and off in a
+    #: one-pass fit, ``SequenceSettings.late_shape_points`` None).  One frame's
     #: three outlines leave radii free that its posture hides; the fitted take shows
     #: them.  bench.fit_spread, four click draws, 0 -> 5 (MPJPE mm): pirouette_ortho3
     #: 27.9 / 33.8 / 28.7 / 28.4 -> 22.4 / 24.7 / 24.3 / 20.9, dance_ortho3 24.2 / 27.8 /

@@ -112,9 +112,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--one-pass",
         action="store_true",
         help="no second pass with the late shape (bones the shape frames hardly saw, "
-        "shaped over the fitted take): about half the fit time where a bone qualifies, "
-        "but the default scene's walk 12.3 against 14.0 mm (median of 4 click draws; "
-        "see core/fit_late_shape.py)",
+        "shaped over the fitted take), nor with the shape over --shape-frames: about half "
+        "the fit time where a bone qualifies, but the default scene's walk 12.3 against "
+        "14.0 mm (median of 4 click draws; see core/fit_late_shape.py)",
     )
     parser.add_argument(
         "--shape-frames",
@@ -124,7 +124,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="where the silhouettes alone shape the body (no texture points at the clicked "
         "frame) and two cameras see it from at least 60 degrees apart: its radii are "
         "solved again over N fitted frames' silhouettes and the motion fitted again with "
-        "them (default 5; 0: off, about half the fit time; the orthogonal pirouette 23.35 "
+        "them (default 5; 0 or --one-pass: off, about half the fit time; the orthogonal "
+        "pirouette 23.35 "
         "against 28.5 mm, median of 4 click draws; see core/contour_shape_frames.py)",
     )
     parser.add_argument(

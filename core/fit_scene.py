@@ -231,7 +231,11 @@ def run_scene(
         and settings.silhouette_second_pass
         and settings.shape == "fit"
     )
-    multi = silhouette_shaped and contour_settings.shape_fit_frames > 1
+    multi = (  # a one-pass fit (no late shape: core fit --one-pass) keeps one pass here too
+        silhouette_shaped
+        and contour_settings.shape_fit_frames > 1
+        and settings.late_shape_points is not None
+    )
     if multi and (spread := _views_spread_deg(cameras, init.root_xyz)) < (
         contour_settings.shape_frames_min_spread_deg
     ):

@@ -91,6 +91,9 @@ def test_core_fit_shape_frames_fits_the_take_again_with_the_shape_of_several(tmp
     for arr in (st.theta, st.root_xyz, st.metaballs.radii):
         assert np.all(np.isfinite(arr))
     assert st.quality.diverged.sum() <= 1
+    # a one-pass fit keeps one pass
+    assert main([*argv, "--one-pass", "-o", str(tmp_path / "once.json")]) == 0
+    assert "shape re-solved" not in capsys.readouterr().out
 
 
 def test_core_fit_shape_frames_needs_two_frames_at_least(tmp_path, capsys):

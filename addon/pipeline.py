@@ -112,10 +112,8 @@ def run_fit(
     (``SequenceSettings(contour_starts=False)``, ``core fit --prediction-start-only``;
     on by default: about 2x the fit time on a rig without points, but it keeps fast
     limbs, e.g. on the orthogonal rig).  ``late_shape=False`` fits the motion once: no
-    late shape and no second pass, nor the one after the shape over several frames
-    (``core fit --one-pass``; on by default, about 2x the fit time where a bone
-    qualifies or the silhouettes alone shape the body on a wide rig, make demo's walk
-    12.9 → 11.1 mm).  The options
+    late shape and no second pass (``core fit --one-pass``; on by default, about 2x the
+    fit time where a bone qualifies, make demo's walk 12.9 → 11.1 mm).  The options
     that differ from these defaults give one ``SequenceSettings`` with all of them set
     (:func:`sequence_settings`); none, core's default settings are used (no
     ``settings`` is passed).

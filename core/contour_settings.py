@@ -165,12 +165,15 @@ class ContourSettings:
     #: 27.9 / 33.8 / 28.7 / 28.4 -> 22.4 / 24.7 / 24.3 / 20.9, dance_ortho3 24.2 / 27.8 /
     #: 25.1 / 38.8 -> 24.5 / 25.6 / 26.9 / 27.5, walk_ortho3 11.0 / 10.9 / 12.9 / 11.8 ->
     #: 11.2 / 11.1 / 10.1 / 12.2, jumps_ortho3 10.0 / 10.3 / 11.0 / 10.9 -> 10.3 / 10.8 /
-    #: 10.6 / 11.2 (docs/design.md, stop 66).  That shape written with the first fit's
+    #: 10.6 / 11.2 (docs/design.md, stop 66).  Off by default (5 for takes that spin):
+    #: the written body's visibility index gets worse, walk_ortho3 0.048 / 0.045 / 0.048
+    #: / 0.045 -> 0.052 / 0.046 / 0.050 / 0.050, jumps_ortho3 run 0 0.038 -> 0.054, and
+    #: it doubles the fit's time.  That shape written with the first fit's
     #: motion instead puts jumps_ortho3's metaball surface 45-51 mm from the true mesh
     #: (11.8 mm by default): the outlines fit a union of ellipsoids, and radii hidden
     #: inside it swell the blended field; the second pass writes its shape from the
     #: points again
-    shape_fit_frames: int = 5
+    shape_fit_frames: int = 0
     shape_frames_pose_sigma_rad: float = 0.1
     shape_frames_root_sigma_m: float = 0.02
     #: ... the radii along each metaball's bone (its z) about the clicked frame's with this

@@ -342,9 +342,8 @@ def _frames_shape_pass(obs, init, settings, first, cframes, anchors, kw, timings
         f"shape re-solved over frames {pick.tolist()}'s silhouettes (contour RMS "
         f"{rms:.2f} px before the last step; radii moved {np.median(moved):.0f} mm median, "
         f"{moved.max():.0f} mm at most, {init.skeleton.bone_names[init.metaballs.bone[most]]}"
-        f"'s {'xyz'[axis]})"
+        f"'s {'xyz'[axis]}): the motion fitted again with it"
     )
-    note += ": the motion fitted again with it"
     kw = {**kw, "progress": prefixed(kw.get("progress"), "second pass (shape over frames): ")}
     res = fit_sequence(
         obs,

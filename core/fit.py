@@ -165,6 +165,7 @@ def fit_sequence(
     flow=None,
     shape0: LateShape | None = None,
     defer_shape: bool = False,
+    shape_start=None,
 ) -> SequenceResult:
     """Fit shape and motion to the observations of every frame.
 
@@ -190,6 +191,12 @@ def fit_sequence(
         is then not fitted here (the second pass writes its own; on make demo's walk
         it took 15–21 s of a first pass of ~150–160 s).  The state then carries the
         shape the motion was tracked with.
+    shape_start : Metaballs or None — the start and prior of the whole-body shape written
+        to the state (None: ``init.metaballs``, the shape the motion is tracked with).
+        The shape over several frames (:func:`core.fit_scene._frames_shape_pass`) tracks
+        with its own radii and writes the body from the clicked frame's: written from
+        its own, walk_ortho3's and jumps_ortho3's visibility index went 0.048 -> 0.052
+        and 0.038 -> 0.054 (run 0), from the clicked frame's 0.047 and 0.040.
 
     Returns
     -------
@@ -293,9 +300,10 @@ def fit_sequence(
     refit_shape_frames()
     shape_rec = None
     fitted_balls = None
-    start = init.metaballs  # the whole-body shape fit's start and prior
+    base = init.metaballs if shape_start is None else shape_start
+    start = base  # the whole-body shape fit's start and prior
     if cfg.shape == "fit" and cfg.shape_fit_deflate:
-        start = deflate(skel, init.metaballs, fx.s)
+        start = deflate(skel, base, fx.s)
     if shape_first:
         fitted_balls, _, shape_rec = whole_body_shape(
             skel,

@@ -307,7 +307,8 @@ def _frames_shape_pass(obs, init, settings, first, cframes, anchors, kw, timings
     The clicked frame's silhouettes shaped the body (:func:`_shape_from_silhouettes`);
     the radii are re-solved over ``cfg.shape_fit_frames`` fitted frames, evenly spaced
     among those not diverged (:func:`core.contour_shape_frames.fit_shape_to_frames`),
-    then the take is fitted again from the clicks with that shape.
+    then the take is fitted again from the clicks with that shape.  The whole-body
+    shape written to the state starts from the clicked frame's (``shape_start``).
     """
     from .contour_shape_frames import fit_shape_to_frames
     from .contour_track import ContourTrackSettings
@@ -351,6 +352,7 @@ def _frames_shape_pass(obs, init, settings, first, cframes, anchors, kw, timings
         settings,
         contours=_fresh(cframes, anchors),
         defer_shape=True,
+        shape_start=init.metaballs,
         **kw,
     )
     return replace(res, messages=[note] + res.messages)

@@ -167,8 +167,10 @@ class ContourSettings:
     #: 11.2 / 11.1 / 10.1 / 12.2, jumps_ortho3 10.0 / 10.3 / 11.0 / 10.9 -> 10.3 / 10.8 /
     #: 10.6 / 11.2 (docs/design.md, stop 66).  Off by default (5 for takes that spin):
     #: the written body's visibility index gets worse, walk_ortho3 0.048 / 0.045 / 0.048
-    #: / 0.045 -> 0.052 / 0.046 / 0.050 / 0.050, jumps_ortho3 run 0 0.038 -> 0.054, and
-    #: it doubles the fit's time.  That shape written with the first fit's
+    #: / 0.045 -> 0.052 / 0.046 / 0.050 / 0.050, jumps_ortho3 run 0 0.038 -> 0.054 (with
+    #: the body written from the clicked frame's shape, ``fit_sequence(shape_start=)``,
+    #: run 0 0.047 and 0.040; draws 1-3 not re-measured), and it doubles the fit's time.
+    #: That shape written with the first fit's
     #: motion instead puts jumps_ortho3's metaball surface 45-51 mm from the true mesh
     #: (11.8 mm by default): the outlines fit a union of ellipsoids, and radii hidden
     #: inside it swell the blended field; the second pass writes its shape from the

@@ -126,7 +126,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "solved again over N fitted frames' silhouettes and the motion fitted again with "
         "them (off by default, 5 measured: about twice the fit time; for takes that "
         "spin, the orthogonal pirouette 23.35 against 28.5 mm, median of 4 click draws, "
-        "but the written body's visibility index worse on the walk and the jumps; see "
+        "its visibility index on all four draws not yet re-measured; see "
         "core/contour_shape_frames.py)",
     )
     parser.add_argument(

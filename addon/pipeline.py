@@ -69,6 +69,8 @@ def sequence_settings(
     ``late_shape=False`` sets ``late_shape_points`` to None (on by default: bones the
     shape frames hardly saw are shaped over the fitted take and the motion is fitted a
     second time, :mod:`core.fit_late_shape`; off, one pass, ``core fit --one-pass``).
+    One pass also leaves out the shape over several frames that a take shaped by its
+    silhouettes alone gets on a wide rig (``ContourSettings.shape_fit_frames``).
     """
     SequenceSettings = _core.load("fit").SequenceSettings
     default = SequenceSettings()

@@ -165,17 +165,20 @@ class ContourSettings:
     #: 27.9 / 33.8 / 28.7 / 28.4 -> 22.4 / 24.7 / 24.3 / 20.9, dance_ortho3 24.2 / 27.8 /
     #: 25.1 / 38.8 -> 24.5 / 25.6 / 26.9 / 27.5, walk_ortho3 11.0 / 10.9 / 12.9 / 11.8 ->
     #: 11.2 / 11.1 / 10.1 / 12.2, jumps_ortho3 10.0 / 10.3 / 11.0 / 10.9 -> 10.3 / 10.8 /
-    #: 10.6 / 11.2 (docs/design.md, stop 66).  Off by default (5 for takes that spin):
-    #: the written body's visibility index gets worse, walk_ortho3 0.048 / 0.045 / 0.048
-    #: / 0.045 -> 0.052 / 0.046 / 0.050 / 0.050, jumps_ortho3 run 0 0.038 -> 0.054 (with
-    #: the body written from the clicked frame's shape, ``fit_sequence(shape_start=)``,
-    #: run 0 0.047 and 0.040; draws 1-3 not re-measured), and it doubles the fit's time.
-    #: That shape written with the first fit's
+    #: 10.6 / 11.2 (docs/design.md, stop 66).  On by default since stop 67: the written
+    #: body (from the clicked frame's shape, ``fit_sequence(shape_start=)``) keeps its
+    #: visibility index, draws 0-3 default -> 5: walk_ortho3 0.048 / 0.045 / 0.048 /
+    #: 0.045 -> 0.047 / 0.049 / 0.049 / 0.053, jumps_ortho3 0.038 / 0.047 / 0.045 / 0.042
+    #: -> 0.040 / 0.044 / 0.040 / 0.037, dance_ortho3 0.049 / 0.046 / 0.047 / 0.052 ->
+    #: 0.049 / 0.046 / 0.049 / 0.054, pirouette_ortho3 0.058 / 0.067 / 0.062 / 0.054 ->
+    #: 0.052 / 0.056 / 0.063 / 0.049 (the mean of the sixteen 0.0495 -> 0.0485).  It
+    #: doubles such a take's fit time (0 or ``core fit --one-pass``: one pass).  That
+    #: shape written with the first fit's
     #: motion instead puts jumps_ortho3's metaball surface 45-51 mm from the true mesh
     #: (11.8 mm by default): the outlines fit a union of ellipsoids, and radii hidden
     #: inside it swell the blended field; the second pass writes its shape from the
     #: points again
-    shape_fit_frames: int = 0
+    shape_fit_frames: int = 5
     shape_frames_pose_sigma_rad: float = 0.1
     shape_frames_root_sigma_m: float = 0.02
     #: ... the radii along each metaball's bone (its z) about the clicked frame's with this

@@ -124,9 +124,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="where the silhouettes alone shape the body (no texture points at the clicked "
         "frame) and two cameras see it from at least 60 degrees apart: its radii are "
         "solved again over N fitted frames' silhouettes and the motion fitted again with "
-        "them (off by default, 5 measured: about twice the fit time; for takes that "
-        "spin, the orthogonal pirouette 23.35 against 28.5 mm, median of 4 click draws, "
-        "its visibility index on all four draws not yet re-measured; see "
+        "them (default 5; 0: off, one pass, about half the fit time; the orthogonal "
+        "pirouette 23.35 against 28.5 mm with it, median of 4 click draws; see "
         "core/contour_shape_frames.py)",
     )
     parser.add_argument(

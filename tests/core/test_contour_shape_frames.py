@@ -67,9 +67,10 @@ def test_frames_without_contours_keep_their_pose_and_nothing_else_moves(rig):  #
 
 @pytest.mark.slow
 def test_core_fit_shape_frames_fits_the_take_again_with_the_shape_of_several(tmp_path, capsys):
-    """``core fit --cues contours --shape-frames 3`` on a rig whose views lie 90° apart:
-    the silhouettes shape the body at the clicked frame, the radii are solved again over
-    three fitted frames, and the take is fitted again with them, said so; finite output."""
+    """``core fit --cues contours`` on a rig whose views lie 90° apart: the silhouettes
+    shape the body at the clicked frame, the radii are solved again over five fitted
+    frames by default (``--shape-frames``), and the take is fitted again with them, said
+    so; finite output.  ``--shape-frames 0`` and ``--one-pass`` fit once."""
     from core.cli import main
     from core.state import read_state
     from tests.core._bodyscene import look_at
@@ -81,18 +82,22 @@ def test_core_fit_shape_frames_fits_the_take_again_with_the_shape_of_several(tmp
     ]
     _silhouette_scene(tmp_path, cams=wide)
     argv = ["fit", str(tmp_path), "--cues", "contours", "--model", "simplified"]
-    assert main([*argv, "--shape-frames", "3"]) == 0
+    assert main(argv) == 0
     out = capsys.readouterr().out
     line = next(ln for ln in out.splitlines() if "shape re-solved over frames" in ln)
     picked = [int(v) for v in line.split("frames [")[1].split("]")[0].split(",")]
-    assert len(picked) == 3 and picked[0] == 0 and picked[-1] == 5  # spread over the take
+    # five of the six frames (those not diverged), spread over the take
+    assert len(picked) == 5 and picked[0] == 0 and picked[-1] == 5
     assert "the motion fitted again with it" in line
     st = read_state(tmp_path / "fit.json")
     for arr in (st.theta, st.root_xyz, st.metaballs.radii):
         assert np.all(np.isfinite(arr))
     assert st.quality.diverged.sum() <= 1
-    # a one-pass fit keeps one pass
-    assert main([*argv, "--shape-frames", "3", "--one-pass", "-o", str(tmp_path / "o.json")]) == 0
+    # off, and a one-pass fit keeps one pass
+    assert main([*argv, "--shape-frames", "0", "-o", str(tmp_path / "z.json")]) == 0
+    out = capsys.readouterr().out
+    assert "shape re-solved" not in out
+    assert main([*argv, "--one-pass", "-o", str(tmp_path / "o.json")]) == 0
     assert "shape re-solved" not in capsys.readouterr().out
 
 

@@ -276,18 +276,23 @@ def project_params(
     return _project(params, xyz, jacobian, camera_jacobian, one_camera=False)
 
 
-def _project(params, xyz, jacobian, camera_jacobian, one_camera):
+def _project(params, xyz, jacobian, camera_jacobian, one_camera, rotation=None):
     """:func:`project_params`; ``one_camera`` (params (15,)): the rotation computed
     once for all points and applied as one matrix product — equal to the per-point path
     to rounding (the calibration and the intersection keep the per-point path, whose
     last bits the tracker's results follow).  The per-point path with one camera's
     params (15,) also computes the rotation once, then applies it point by point as
-    before: the same bits."""
+    before: the same bits.  ``rotation`` (1, 3, 3): that one camera's rotation as
+    ``rodrigues_batch(params[None, :3])`` gives it, computed before (not with
+    ``camera_jacobian``)."""
     xyz = np.asarray(xyz, dtype=float).reshape(-1, 3)
     params = np.asarray(params, dtype=float)
     need_dR = jacobian and camera_jacobian
     if one_camera:
-        R, dR = rodrigues_batch(params[None, :3], need_dR)
+        if rotation is not None and not need_dR:
+            R, dR = rotation, None
+        else:
+            R, dR = rodrigues_batch(params[None, :3], need_dR)
         t = params[None, 3:6]
         f, a, cx, cy, k1, k2, k3, p1, p2 = params[6:]
         pc = xyz @ R[0].T + t
@@ -321,13 +326,12 @@ def _project(params, xyz, jacobian, camera_jacobian, one_camera):
     dxd_dy = 2.0 * x * y * D + 2.0 * p1 * x + 2.0 * p2 * y
     dyd_dx = dxd_dy
     dyd_dy = radial + 2.0 * y * y * D + 6.0 * p1 * y + 2.0 * p2 * x
-    J_d = np.stack(
-        [np.stack([f * dxd_dx, f * dxd_dy], -1), np.stack([fy * dyd_dx, fy * dyd_dy], -1)], -2
-    )  # (M, 2, 2)
-    zero = np.zeros_like(x)
-    J_n = np.stack(
-        [np.stack([1.0 / zs, zero, -x / zs], -1), np.stack([zero, 1.0 / zs, -y / zs], -1)], -2
-    )  # (M, 2, 3)
+    J_d = np.empty(x.shape + (2, 2))  # filled, not stacked: the same values, less time
+    J_d[:, 0, 0], J_d[:, 0, 1] = f * dxd_dx, f * dxd_dy
+    J_d[:, 1, 0], J_d[:, 1, 1] = fy * dyd_dx, fy * dyd_dy
+    J_n = np.zeros(x.shape + (2, 3))
+    J_n[:, 0, 0] = J_n[:, 1, 1] = 1.0 / zs
+    J_n[:, 0, 2], J_n[:, 1, 2] = -x / zs, -y / zs
     J_pc = J_d @ J_n  # d uv / d pc
     J_xyz = J_pc @ R
     if not camera_jacobian:
@@ -359,4 +363,30 @@ def camera_project_jacobians(cam: Camera, xyz: np.ndarray, camera_jacobian: bool
 
     See :func:`project_params`; ``cam.K[0, 1]`` (skew) must be zero.
     """
-    return _project(pack_camera(cam), xyz, True, camera_jacobian, one_camera=True)
+    if camera_jacobian:
+        return _project(pack_camera(cam), xyz, True, True, one_camera=True)
+    params, R = _packed(cam)
+    return _project(params, xyz, True, False, one_camera=True, rotation=R)
+
+
+#: :func:`_packed`'s cache: a camera's contents (bytes) -> (params (15,), R (1, 3, 3))
+_PACKED: dict = {}
+
+
+def _packed(cam: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`pack_camera` of ``cam`` and the rotation ``rodrigues_batch`` makes of its
+    vector (1, 3, 3), remembered by the camera's contents: the fit projects through the
+    same few cameras some hundred thousand times (the silhouette limb search above all),
+    and the Rodrigues round trip cost more than the projection.  The same bits as
+    computing both anew; a camera changed in place gets a new entry."""
+    key = (cam.R.tobytes(), cam.t.tobytes(), cam.K.tobytes(), cam.dist.tobytes())
+    hit = _PACKED.get(key)
+    if hit is None:
+        if len(_PACKED) >= 256:  # e.g. a calibration's many trial cameras
+            _PACKED.clear()
+        params = pack_camera(cam)
+        params.flags.writeable = False
+        R = rodrigues_batch(params[None, :3], False)[0]
+        R.flags.writeable = False
+        hit = _PACKED[key] = (params, R)
+    return hit

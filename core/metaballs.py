@@ -249,13 +249,23 @@ def _align_z(direction: np.ndarray) -> np.ndarray:
     return np.stack([x, np.cross(z, x), z], axis=1)
 
 
-def world_frames(skel: Skeleton, pose: Pose, balls: Metaballs, s: np.ndarray):
-    """World rotation (F, M, 3, 3) and centre (F, M, 3) of every metaball."""
-    Rb, pb = bone_frames(skel, pose)
-    scale = np.where(balls.group >= 0, np.asarray(s, float)[np.maximum(balls.group, 0)], 1.0)
-    c = balls.center0 * scale[:, None]
-    Rw = Rb[:, balls.bone] @ balls.rot[None]
-    cw = np.einsum("fmij,mj->fmi", Rb[:, balls.bone], c) + pb[:, balls.bone]
+def world_frames(skel: Skeleton, pose: Pose, balls: Metaballs, s: np.ndarray, which=None):
+    """World rotation (F, M, 3, 3) and centre (F, M, 3) of every metaball, or of the
+    metaballs ``which`` (indices or a bool mask (M,)) only: (F, M', ...), the same bits,
+    from the frames of their bones alone (``pose`` may hold only those:
+    :func:`core.skeleton.forward`'s ``dofs``)."""
+    group, bone, rot, c0 = balls.group, balls.bone, balls.rot, balls.center0
+    if which is None:
+        Rb, pb = bone_frames(skel, pose)
+    else:
+        group, bone, rot, c0 = group[which], bone[which], rot[which], c0[which]
+        used, bone = np.unique(bone, return_inverse=True)
+        Rb = pose.R[:, skel.bone_dof[used]] @ skel.bone_post[used][None]
+        pb = pose.p[:, skel.bone_dof[used]]
+    scale = np.where(group >= 0, np.asarray(s, float)[np.maximum(group, 0)], 1.0)
+    c = c0 * scale[:, None]
+    Rw = Rb[:, bone] @ rot[None]
+    cw = np.einsum("fmij,mj->fmi", Rb[:, bone], c) + pb[:, bone]
     return Rw, cw
 
 

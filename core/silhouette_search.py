@@ -40,7 +40,7 @@ import numpy as np
 
 from .camera import Camera, camera_project_jacobians
 from .contour_obs import body_ellipsoids
-from .ellipse_kernel import covered
+from .ellipse_kernel import background_area, covered, image_covariances
 from .fit_search import LIMBS, grid_search
 from .metaballs import Metaballs, world_frames
 from .skeleton import Skeleton, forward, joint_positions
@@ -154,8 +154,7 @@ def image_ellipses(
     """
     centers = np.asarray(centers, float).reshape(-1, 3)
     uv, _, J = camera_project_jacobians(camera, centers)
-    cov3 = np.einsum("mij,mj,mkj->mik", axes, np.asarray(radii, float) ** 2, axes)
-    cov2 = np.einsum("mai,mij,mbj->mab", J, cov3, J)
+    cov2 = image_covariances(axes, radii, J)
     det = cov2[:, 0, 0] * cov2[:, 1, 1] - cov2[:, 0, 1] * cov2[:, 1, 0]
     z = camera.to_camera(centers)[:, 2]
     ok = np.all(np.isfinite(uv), axis=1) & (z > 1e-6) & (det > 1e-12)
@@ -283,41 +282,6 @@ class SilhouetteSearch:
     gain_px: float
 
 
-#: Unit-disc sample pattern (K, 2) for the background a projected ellipse covers: the
-#: centre and two rings of six, at radii splitting the disc into near-equal areas.
-_DISC = np.vstack(
-    [np.zeros((1, 2))]
-    + [
-        r * np.stack([np.cos(a), np.sin(a)], axis=1)
-        for r, a in ((0.5, np.arange(6) * np.pi / 3), (0.85, (np.arange(6) + 0.5) * np.pi / 3))
-    ]
-)
-
-
-def _ellipse_background(mask: np.ndarray, mu: np.ndarray, inv: np.ndarray) -> np.ndarray:
-    """Background area (..., E) in pixels that ellipses (mu (..., E, 2), inverse shapes
-    inv (..., E, 2, 2)) cover: each ellipse's area times the share of its
-    :data:`_DISC` samples on background (outside the image counts as background)."""
-    a, b, c = inv[..., 0, 0], inv[..., 0, 1], inv[..., 1, 1]
-    det = a * c - b * b
-    live = det > 1e-18
-    det = np.where(live, det, 1.0)
-    # covariance = inv⁻¹, its Cholesky factor maps the unit disc onto the ellipse
-    s00, s01, s11 = c / det, -b / det, a / det
-    l00 = np.sqrt(np.maximum(s00, 0.0))
-    l10 = s01 / np.maximum(l00, 1e-12)
-    l11 = np.sqrt(np.maximum(s11 - l10**2, 0.0))
-    u = mu[..., None, 0] + l00[..., None] * _DISC[:, 0]
-    v = mu[..., None, 1] + l10[..., None] * _DISC[:, 0] + l11[..., None] * _DISC[:, 1]
-    h, w = mask.shape
-    iu, iv = np.rint(u).astype(np.int64), np.rint(v).astype(np.int64)
-    inside = (iu >= 0) & (iv >= 0) & (iu < w) & (iv < h)
-    fg = np.zeros(iu.shape, bool)
-    fg[inside] = mask[iv[inside], iu[inside]]
-    area = np.pi / np.sqrt(det)
-    return np.where(live, area * (1.0 - fg.mean(axis=-1)), 0.0)
-
-
 def _new_folds(skel: Skeleton, grid, theta: np.ndarray, poses: np.ndarray) -> np.ndarray:
     """(H,) bool: ``poses`` (H, n) that fold a hinge of the limb's ``grid`` (a knee or an
     elbow flexed beyond :data:`FOLDED_DEG`) that ``theta`` (n,) has unfolded."""
@@ -391,20 +355,21 @@ def _limb_gain(
     if not views:
         return 0.0, None
     r_on = radii[on]
+    on_dofs = skel.bone_dof[balls.bone[on]]  # the limb's frames alone are posed
 
     def score(th):
         """(H,) unexplained foreground covered minus weighted background, pixels."""
-        pose = forward(skel, th, np.repeat(root[None], len(th), axis=0), s)
-        Rw, cw = world_frames(skel, pose, balls, s)
+        pose = forward(skel, th, np.repeat(root[None], len(th), axis=0), s, dofs=on_dofs)
+        Rw, cw = world_frames(skel, pose, balls, s, which=on)
         H, E = len(th), int(on.sum())
         total = np.zeros(H)
         for cam, mask, uv in views:
             mu, inv = image_ellipses(
-                cam, cw[:, on].reshape(-1, 3), Rw[:, on].reshape(-1, 3, 3), np.tile(r_on, (H, 1))
+                cam, cw.reshape(-1, 3), Rw.reshape(-1, 3, 3), np.tile(r_on, (H, 1))
             )
             mu, inv = mu.reshape(H, E, 2), inv.reshape(H, E, 2, 2)
             total += covered(uv, mu, inv).sum(axis=1) * float(step) ** 2
-            total -= w_background * _ellipse_background(mask, mu, inv).sum(axis=1)
+            total -= w_background * background_area(mask, mu, inv).sum(axis=1)
         return total
 
     def cost(th):

@@ -39,6 +39,7 @@ Arrays: ``theta`` (F, n_dof) radians, ``root_xyz`` (F, 3) metres, ``s`` (G,).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
@@ -408,7 +409,13 @@ def _as_frames(theta, root_xyz):
     return np.atleast_2d(theta), root_xyz.reshape(-1, 3), single
 
 
-def forward(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray, s: np.ndarray) -> Pose:
+def forward(
+    skel: Skeleton,
+    theta: np.ndarray,
+    root_xyz: np.ndarray,
+    s: np.ndarray,
+    dofs: np.ndarray | None = None,
+) -> Pose:
     """Forward kinematics, eq. (2)-(3), batched over frames.
 
     Parameters
@@ -416,6 +423,9 @@ def forward(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray, s: np.ndarr
     theta : (F, n) or (n,) radians
     root_xyz : (F, 3) or (3,) metres, world position of the root DOF frame origin
     s : (G,) scale coefficients
+    dofs : indices of the DOFs whose frames are wanted, optional; with their ancestors
+        (:func:`dof_chains`), those alone are computed (the same bits), the others NaN —
+        for a search that poses one limb many times
 
     Returns
     -------
@@ -426,13 +436,18 @@ def forward(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray, s: np.ndarr
     nf, n = theta.shape[0], skel.n_dof
     scale = np.where(skel.dof_group >= 0, s[np.maximum(skel.dof_group, 0)], 1.0)
     local_off = skel.dof_offset * scale[:, None]
-    Rz = rot_z(theta)
-    DR = skel.dof_rot[None] @ Rz  # (F, n, 3, 3) = A_k Rz(θ_k)
-    R = np.empty((nf, n, 3, 3))
-    p = np.empty((nf, n, 3))
-    Rp = np.empty((nf, n, 3, 3))
+    if dofs is None:
+        order, make = range(n), np.empty
+        DR = skel.dof_rot[None] @ rot_z(theta)  # (F, n, 3, 3) = A_k Rz(θ_k)
+    else:
+        order, make = dof_chains(skel, dofs), partial(np.full, fill_value=np.nan)
+        DR = make((nf, n, 3, 3))
+        DR[:, order] = skel.dof_rot[None, order] @ rot_z(theta[:, order])
+    R = make((nf, n, 3, 3))
+    p = make((nf, n, 3))
+    Rp = make((nf, n, 3, 3))
     eye = np.broadcast_to(np.eye(3), (nf, 3, 3))
-    for k in range(n):
+    for k in order:
         par = skel.dof_parent[k]
         if par < 0:
             Rpar, ppar = eye, root_xyz
@@ -442,6 +457,16 @@ def forward(skel: Skeleton, theta: np.ndarray, root_xyz: np.ndarray, s: np.ndarr
         R[:, k] = Rpar @ DR[:, k]
         p[:, k] = ppar + Rpar @ local_off[k]
     return Pose(R=R, p=p, R_parent=Rp)
+
+
+def dof_chains(skel: Skeleton, dofs) -> np.ndarray:
+    """The DOFs ``dofs`` and all their ancestors, ascending (parents before children)."""
+    need = set()
+    for k in np.asarray(dofs, int).ravel():
+        while k >= 0 and k not in need:
+            need.add(int(k))
+            k = skel.dof_parent[k]
+    return np.array(sorted(need), int)
 
 
 def bone_frames(skel: Skeleton, pose: Pose) -> tuple[np.ndarray, np.ndarray]:

@@ -128,3 +128,24 @@ def test_one_camera_for_all_points_equals_per_point_parameters(rng):
     assert J_cam is None
     np.testing.assert_allclose(uv, one[0], rtol=1e-12)
     np.testing.assert_allclose(J_xyz, one[2], rtol=1e-12)
+
+
+def test_remembered_camera_projects_to_the_same_bits(rng):
+    """camera_project_jacobians remembers a camera's packed vector and rotation: the
+    same bits as packing it anew, and a camera changed in place is packed again."""
+    from core.camera import _PACKED, _project, camera_project_jacobians
+
+    cam = _camera(rng)
+    xyz = rng.normal(size=(30, 3)) * 0.5
+    fresh = _project(pack_camera(cam), xyz, True, False, one_camera=True)
+    for _ in range(2):  # the second call is served from the cache
+        got = camera_project_jacobians(cam, xyz)
+        for a, b in zip(got, fresh, strict=True):
+            np.testing.assert_array_equal(a, b)
+    assert any(v[0] is not None for v in _PACKED.values())
+    cam.t[2] += 0.5  # moved in place: a new entry, not the old projection
+    moved = camera_project_jacobians(cam, xyz)
+    np.testing.assert_array_equal(
+        moved[0], _project(pack_camera(cam), xyz, True, False, one_camera=True)[0]
+    )
+    assert not np.allclose(moved[0], fresh[0])

@@ -227,3 +227,15 @@ def test_the_hip_girdle_follows_the_hips_when_they_sit_in_front_of_the_pelvis():
         np.testing.assert_allclose(b.rot[on], Q @ a.rot[on], atol=1e-12)
         np.testing.assert_allclose(b.radii, a.radii)
         assert np.allclose(a.rot[on], np.eye(3))  # hips straight below: as the template
+
+
+def test_world_frames_of_some_metaballs(setup):
+    """world_frames(..., which=...) gives those metaballs' frames, the same bits, also
+    from a pose of their bones' DOFs alone."""
+    skel, theta, root, s, balls = setup
+    which = np.isin(balls.bone, [skel.bone_index(b) for b in ("r_knee", "r_ankle")])
+    Rw, cw = mb.world_frames(skel, sk.forward(skel, theta, root, s), balls, s)
+    dofs = skel.bone_dof[balls.bone[which]]
+    sub = mb.world_frames(skel, sk.forward(skel, theta, root, s, dofs=dofs), balls, s, which)
+    np.testing.assert_array_equal(sub[0], Rw[:, which])
+    np.testing.assert_array_equal(sub[1], cw[:, which])

@@ -184,3 +184,19 @@ def test_limits_allow_abduction_more_than_adduction(skel, side):
     elevation = hi if up_dir > 0 else -lo
     depression = -lo if up_dir > 0 else hi
     assert elevation > depression, (dof, lo, hi)
+
+
+def test_forward_of_some_dofs_is_the_full_forward_there(skel, rng):
+    """forward(..., dofs=...) poses the DOFs asked for and their ancestors alone: the
+    same bits as the full forward there, NaN elsewhere (the silhouette limb search poses
+    one limb hundreds of times a frame)."""
+    theta, root, s = _random_pose(skel, rng, nf=5)
+    full = sk.forward(skel, theta, root, s)
+    elbow = skel.dof_index("l_elbow_x")
+    part = sk.forward(skel, theta, root, s, dofs=[elbow])
+    chain = sk.dof_chains(skel, [elbow])
+    assert chain[0] == 0 and chain[-1] == elbow and list(chain) == sorted(chain)
+    assert all(skel.dof_parent[k] in chain for k in chain[1:])
+    for a, b in ((part.R, full.R), (part.p, full.p), (part.R_parent, full.R_parent)):
+        np.testing.assert_array_equal(a[:, chain], b[:, chain])
+        assert np.isnan(np.delete(a, chain, axis=1)).all()

@@ -14,8 +14,8 @@ for H hypotheses, E ellipses and G pixels, and was the fit's largest single cost
 make demo's walk (41 s of 300); the compiled path loops and stops at the first ellipse
 that covers a pixel.  Both evaluate the quadratic form in the same order, so they agree
 bit for bit.  The other two kernels replace numpy temporaries over the few thousand
-ellipses of a limb's grid (with the camera's projection, 45 % of the search's time on
-walk_ortho3 before they were compiled) and keep numpy's order of operations.
+ellipses of a limb's grid (with the camera's projection, 49 s of the search's 86 in
+walk_ortho3's fit before they were compiled) and keep numpy's order of operations.
 
 Optional at run time like :mod:`core.field_kernel` (whose :func:`~core.field_kernel.run`
 and :func:`~core.field_kernel.enabled` it shares): without numba, with

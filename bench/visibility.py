@@ -148,7 +148,9 @@ def compare(
     other ellipsoid of the body is not skin (:func:`core.model_render.render_parts`).
 
     Returns a dict with ``mean_abs_diff``, ``decision_agreement``, ``n`` (scored
-    part-camera-frame triples) and per-part mean differences.
+    part-camera-frame triples), per-part mean differences (``per_part``, ``per_part_n``)
+    and per-camera ones (``per_camera``: camera name -> (mean |ΔVI|, the worst part and
+    its mean there)).
     """
     if labels not in ("model", "segments"):
         raise ValueError(f"unknown part labels {labels!r}")
@@ -159,11 +161,12 @@ def compare(
     vpart = vertex_parts(skel, truth["vertices"][0], j0)
     rays = [camera_rays(c) for c in cameras]
     diffs, agree, per_part = [], [], [[] for _ in range(n_parts)]
+    per_cam = [[[] for _ in range(n_parts)] for _ in cameras]
     for f in frames:
         centers, axes, radii, bone = body_render(state, f, surface)
         if labels == "model":
             vpart = model_vertex_parts(truth["vertices"][f], centers, axes, radii, bone)
-        for cam, r in zip(cameras, rays, strict=True):
+        for c, (cam, r) in enumerate(zip(cameras, rays, strict=True)):
             ref, full = mesh_visibility(cam, truth["vertices"][f], truth["faces"], vpart, n_parts)
             ours = render_parts(
                 cam,
@@ -182,19 +185,28 @@ def compare(
             agree.extend(((vi >= 0.2) == (ref >= 0.2))[scored])
             for k in np.flatnonzero(scored):
                 per_part[k].append(abs(vi[k] - ref[k]))
+                per_cam[c][k].append(abs(vi[k] - ref[k]))
+    per_camera = {}
+    for cam, parts in zip(cameras, per_cam, strict=True):
+        means = {skel.bone_names[k]: float(np.mean(v)) for k, v in enumerate(parts) if v}
+        if means:
+            worst = max(means, key=means.get)
+            per_camera[cam.name] = (float(np.mean(np.concatenate(parts))), worst, means[worst])
     return {
         "mean_abs_diff": float(np.mean(diffs)),
         "decision_agreement": float(np.mean(agree)),
         "n": len(diffs),
         "per_part": {skel.bone_names[k]: float(np.mean(v)) for k, v in enumerate(per_part) if v},
         "per_part_n": {skel.bone_names[k]: len(v) for k, v in enumerate(per_part)},
+        "per_camera": per_camera,
     }
 
 
 def report(label: str, state, scene, frames) -> None:
     """Print mean |ΔVI|, the VI ≥ 0.2 decision's agreement, the scored part-views and
     the worst parts of ``state`` over ``frames`` of ``scene``, whole ellipsoids and
-    outer surface."""
+    outer surface; then, for the outer surface, each camera's mean |ΔVI| and its worst
+    part (a camera looking down the trunk stacks its parts along the view)."""
     cams = scene.calibration()
     for outer, how in ((False, "whole ellipsoids"), (True, "outer surface")):
         r = compare(state, scene.truth, cams, frames, outer_only=outer)
@@ -204,6 +216,10 @@ def report(label: str, state, scene, frames) -> None:
             f"{100 * r['decision_agreement']:12.1f} % {r['n']:5d}   "
             + ", ".join(f"{k} {v:.3f}" for k, v in worst)
         )
+    print(
+        f"{'':28s} {'per camera':16s} "
+        + ", ".join(f"{c} {m:.3f} ({p} {w:.3f})" for c, (m, p, w) in r["per_camera"].items())
+    )
 
 
 def main(argv=None) -> int:

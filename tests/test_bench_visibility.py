@@ -27,6 +27,12 @@ def test_the_outer_surface_brings_the_index_towards_the_mesh():
     assert sum(outer["per_part_n"].values()) == outer["n"]
     # a fully seen part (the head, in front in all three cameras) agrees to a few hundredths
     assert abs(outer["per_part"]["head"]) < 0.05
+    # per camera: every camera scored, and the cameras' means weigh up to the whole
+    per_cam = outer["per_camera"]
+    assert set(per_cam) == {c.name for c in cams}
+    assert min(m for m, _, _ in per_cam.values()) <= outer["mean_abs_diff"]
+    assert outer["mean_abs_diff"] <= max(m for m, _, _ in per_cam.values())
+    assert all(w >= m for m, _, w in per_cam.values())  # the worst part is at least the mean
 
 
 def test_the_command_line_prints_both_areas(capsys):
@@ -36,3 +42,4 @@ def test_the_command_line_prints_both_areas(capsys):
     assert len(rows) == 2 and "whole ellipsoids" in rows[0] and "outer surface" in rows[1]
     values = [float(r.split()[5]) for r in rows]
     assert all(np.isfinite(values)) and values[1] < values[0]
+    assert sum("per camera" in ln for ln in out.splitlines()) == 1

@@ -366,7 +366,7 @@ def containment_observations(
     Rb, pb = bone_frames(skel, pose)
     anc = skel.ancestors()
     q0 = np.einsum("mji,mj->mi", Rb[0, bone], xyz - pb[0, bone])
-    _, J_th, _ = point_jacobians(skel, pose, bone, q0, np.full(len(bone), -1), s, anc)
+    _, J_th, _ = point_jacobians(skel, pose, bone, q0, np.full(len(bone), -1), s, anc, scales=False)
     J_th = J_th[0]
     res, Jt, Jr, parts, cams, outside = [], [], [], [], [], []
     for c, (cam, fld) in enumerate(zip(cameras, fields, strict=True)):

@@ -124,7 +124,7 @@ def match_frame(
         for c, (cam, rim) in enumerate(zip(cameras, rims, strict=True)):
             if len(rim) == 0:
                 continue
-            _, J_th = _rim_point_jacobian(skel, pose, rim.part, rim.xyz, s, anc)
+            _, J_th, _ = _rim_point_jacobian(skel, pose, rim.part, rim.xyz, s, anc)
             _, _, J_xyz = camera_project_jacobians(cam, rim.xyz)
             duv = np.einsum("mij,mjk,k->mi", J_xyz, J_th, np.asarray(theta_rate, float))
             sums = np.zeros((n_parts, 2))
@@ -211,12 +211,16 @@ def outer_rim(camera: Camera, rim, mask: np.ndarray, offset_px: float = 3.0) -> 
     return ~covered
 
 
-def _rim_point_jacobian(skel, pose, bone, xyz, s, anc):
-    """World positions (M, 3) and d x / d θ (M, 3, n) of points fixed in their bones."""
+def _rim_point_jacobian(skel, pose, bone, xyz, s, anc, scales=False):
+    """World positions (M, 3) and d x / d θ (M, 3, n) of points fixed in their bones;
+    with ``scales`` also d x / d s (M, 3, G) through the DOF offsets above each point
+    (its own offset held unscaled), else None."""
     Rb, pb = bone_frames(skel, pose)
     q0 = np.einsum("mji,mj->mi", Rb[0, bone], xyz - pb[0, bone])
-    x, J_theta, _ = point_jacobians(skel, pose, bone, q0, np.full(len(bone), -1), s, anc)
-    return x[0], J_theta[0]
+    x, J_theta, J_s = point_jacobians(
+        skel, pose, bone, q0, np.full(len(bone), -1), s, anc, scales=scales
+    )
+    return x[0], J_theta[0], None if J_s is None else J_s[0]
 
 
 def contour_block(
@@ -263,7 +267,7 @@ def contour_block(
     e, bone = pairs.ellipsoid, pairs.bone
     local = balls.visible[e] * pairs.p_unit  # (K, 3) in the metaball's axes
     xyz = cw[0, e] + (Rw[0, e] @ local[:, :, None])[:, :, 0]
-    _, J_th = _rim_point_jacobian(skel, pose, bone, xyz, s, anc)
+    _, J_th, Js0 = _rim_point_jacobian(skel, pose, bone, xyz, s, anc, scales=shape)
     nJ = np.zeros((K, 3))  # n^T d proj / d x
     for c, cam in enumerate(cameras):
         k = np.flatnonzero(pairs.camera == c)
@@ -276,12 +280,11 @@ def contour_block(
     J_r[:] = -nJ
     if shape:
         # bone scales: the DOF offsets above the point (point_jacobians' J_s of a point
-        # with no group) and the metaball's own centre c0 · s_g in its bone's frame
-        q0 = np.zeros((K, 3))
-        _, _, Js0 = point_jacobians(skel, pose, bone, q0, np.full(K, -1), s, anc)
+        # with no group: its own offset does not enter) and the metaball's own centre
+        # c0 · s_g in its bone's frame
         g = balls.group[e]
         own = np.einsum("kij,kj->ki", Rb[0, bone], balls.center0[e])
-        Js = Js0[0].copy()
+        Js = Js0.copy()
         has = np.flatnonzero(g >= 0)
         Js[has, :, g[has]] += own[has]
         J_s[:] = -np.einsum("kj,kjg->kg", nJ, Js)

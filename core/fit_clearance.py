@@ -168,7 +168,7 @@ def _resolve(skel, balls, s, theta, root, free, clear, cfg, parts=None, views=No
         Rb, pb = bone_frames(skel, pose)
         b = balls.bone[mine]
         q0 = np.einsum("kji,kj->ki", Rb[0, b], c - pb[0, b])
-        _, Jt, _ = point_jacobians(skel, pose, b, q0, np.full(len(b), -1), s, anc)
+        _, Jt, _ = point_jacobians(skel, pose, b, q0, np.full(len(b), -1), s, anc, scales=False)
         dF = np.einsum("ki,kij->kj", g, Jt[0][:, :, free])  # (K, k)
         dF *= (F > level)[:, None] / sigma_field
         J = [np.eye(len(free)) / sigma_keep, dF]

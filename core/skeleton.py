@@ -506,6 +506,7 @@ def point_jacobians(
     group: np.ndarray,
     s: np.ndarray,
     anc: np.ndarray | None = None,
+    scales: bool = True,
 ):
     """Analytic Jacobians of bone-fixed points (see :func:`points_world`).
 
@@ -513,7 +514,7 @@ def point_jacobians(
     -------
     x : (F, N, 3) world positions
     J_theta : (F, N, 3, n) — ``∂x/∂θ_k = ω_k × (x − p_k)`` for DOFs k above the point
-    J_s : (F, N, 3, G) — derivative w.r.t. the scale coefficients
+    J_s : (F, N, 3, G) — derivative w.r.t. the scale coefficients; None unless ``scales``
     (the derivative w.r.t. ``root_xyz`` is the identity.)
     """
     bone = np.asarray(bone, dtype=int)
@@ -532,6 +533,8 @@ def point_jacobians(
         np.subtract(w[a] * d[b], w[b] * d[a], out=J[..., c])
     J *= mask[None, :, :, None]
     J_theta = np.swapaxes(J, 2, 3)  # (F, N, 3, n)
+    if not scales:
+        return x, J_theta, None
     # scale: each DOF offset term R_parent(k) o_k s_g, plus the point's own q0 s_g
     G = skel.n_groups
     off_world = np.einsum("fkij,kj->fki", pose.R_parent, skel.dof_offset)  # (F, n, 3)

@@ -115,6 +115,24 @@ def test_attached_point_jacobians(skel, rng):
     mask = skel.ancestors()[skel.bone_dof[bone]]
     ref = np.cross(pose.axes[:, None], x[:, :, None] - pose.p[:, None]) * mask[None, :, :, None]
     np.testing.assert_array_equal(J_theta, np.swapaxes(ref, 2, 3))
+    # without the scales: the same positions and rotation columns, to the bit
+    x2, J_theta2, J_s2 = sk.point_jacobians(skel, pose, bone, q0, group, s, scales=False)
+    np.testing.assert_array_equal(x2, x)
+    np.testing.assert_array_equal(J_theta2, J_theta)
+    assert J_s2 is None
+
+
+def test_unscaled_points_scale_jacobian_is_their_bones(skel, rng):
+    """A point with no scale group moves with s only through the DOF offsets above
+    it: its J_s is its bone's, wherever on the bone it sits (contour_pairs relies on
+    this to take the scales from its rim points' own call)."""
+    theta, root, s = _random_pose(skel, rng, 1)
+    pose = sk.forward(skel, theta, root, s)
+    bone = rng.integers(0, len(skel.bone_names), 30)
+    none = np.full(30, -1)
+    J_a = sk.point_jacobians(skel, pose, bone, rng.normal(0, 0.1, (30, 3)), none, s)[2]
+    J_b = sk.point_jacobians(skel, pose, bone, np.zeros((30, 3)), none, s)[2]
+    np.testing.assert_array_equal(J_a, J_b)
 
 
 def test_bone_matrices_follow_bones(skel, rng):

@@ -8,9 +8,10 @@ texture on the body move.  After a frame is fitted, good corners
 are *lifted* onto the fitted body: the z-buffer of the rendered ellipsoids
 (:func:`core.model_render.render_parts`) gives the surface point under the pixel, which
 is stored in its bone's frame (``q0``).  The corners are followed into the next frame's
-image of the same camera by pyramidal Lucas–Kanade with a forward–backward check; each
-followed corner ``z`` (pixels) is an observation of that bone-fixed point's projection
-(two equations, pixels)
+image of the same camera by pyramidal Lucas–Kanade with a forward–backward check (with
+``refine_lsm``, then by least squares matching from the previous image: Lucas–Kanade
+trails a turning surface, :mod:`bench.flow_truth`); each followed corner ``z`` (pixels)
+is an observation of that bone-fixed point's projection (two equations, pixels)
 
     r_i = π_c(p_b(θ, root, s) + R_b(θ) q0_i) − z_i,
 
@@ -65,6 +66,20 @@ class FlowSettings:
     window_px: int = 15  # Lucas–Kanade window
     levels: int = 2  # pyramid levels above the image
     fb_px: float = 0.5  # largest forward–backward disagreement, pixels
+    #: each followed corner refined by least squares matching (affine + radiometric,
+    #: :func:`core.lsm.match`) from the previous frame's image, started where
+    #: Lucas–Kanade put it.  Lucas–Kanade's one shift per 15 px window falls short of
+    #: a turning surface's motion: on dance_ortho3's true mesh, head corners trail
+    #: their material points by 0.07–0.71 px on average per 5–9 px frame-to-frame move
+    #: (90th percentile error 0.7–1.1 px); refined, 0.05–0.13 px (0.25–0.6).  Off: the
+    #: pirouette gains in each of four draws (median 23.35 -> 22.55 mm), but the dance
+    #: loses limbs (26.25 -> 36.3); with ``refine_drop`` False the dance keeps them
+    #: (26.25) and the pirouette loses (24.6; docs/design.md, "Lucas–Kanade trails a
+    #: turning surface")
+    refine_lsm: bool = False
+    refine_max_shift_px: float = 3.0  # LSM's largest move from Lucas–Kanade's point
+    refine_max_sigma_px: float = 0.3  # LSM's largest σ of a refined corner, pixels
+    refine_drop: bool = True  # a corner LSM rejects is dropped; False: Lucas–Kanade's kept
     #: a-priori σ of a followed corner, pixels.  3 -> 1.5 (in-process on the scenes'
     #: tracks, cues both, one run each): walk_ortho3 17.6 -> 15.7 mm (neck 9.9 -> 6.5,
     #: left shoulder 20.7 -> 11.1, right knee 30.2 -> 19.5), the skin walk 16.9 -> 16.2;
@@ -342,6 +357,32 @@ def follow_corners(
     return uv1, ok
 
 
+def refine_corners(img0: np.ndarray, img1: np.ndarray, uv0, uv1, ok, cfg: FlowSettings):
+    """Least squares matching of the corners ``uv0`` (K, 2) of ``img0`` into ``img1``
+    (uint8 (H, W)), started at ``uv1`` (K, 2) where ``ok`` (K,): ``(uv1 (K, 2), ok (K,))``
+    with the matched points, and ``ok`` False where the match failed (with
+    ``cfg.refine_drop``; else the start is kept there)."""
+    from .lsm import match
+
+    uv1, ok = uv1.copy(), ok.copy()
+    k = np.flatnonzero(ok)
+    if not len(k):
+        return uv1, ok
+    res = match(
+        img0,
+        img1,
+        uv0[k],
+        uv1[k],
+        max_shift_px=cfg.refine_max_shift_px,
+        max_sigma_px=cfg.refine_max_sigma_px,
+    )
+    good = res.status == 0
+    uv1[k[good]] = res.uv[good]
+    if cfg.refine_drop:
+        ok[k[~good]] = False
+    return uv1, ok
+
+
 class FlowAnchors:
     """Corners lifted onto the last fitted frame, followed into the next on request.
 
@@ -468,7 +509,10 @@ class FlowAnchors:
             if not len(uv0):
                 followed.append((uv0, b, q))
                 continue
-            uv1, ok = follow_corners(self.image(c, self.frame), self.image(c, frame), uv0, self.cfg)
+            img0, img1 = self.image(c, self.frame), self.image(c, frame)
+            uv1, ok = follow_corners(img0, img1, uv0, self.cfg)
+            if self.cfg.refine_lsm:
+                uv1, ok = refine_corners(img0, img1, uv0, uv1, ok, self.cfg)
             followed.append((uv1[ok], b[ok], q[ok]))
             bone.append(b[ok])
             q0.append(q[ok])

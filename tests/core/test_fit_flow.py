@@ -13,6 +13,7 @@ from core.fit_flow import (
     FlowSettings,
     follow_corners,
     lift_corners,
+    refine_corners,
     render_body,
 )
 from core.fit_reference import visible_points
@@ -431,3 +432,41 @@ def test_a_reference_corners_depth_along_its_clicked_ray_is_refined_from_its_mat
     # median 0.0x mm off
     assert np.median(np.abs(t[True] + err)) < 0.001, np.percentile(t[True], [10, 50, 90])
     assert np.all(t[False] == 0.0)
+
+
+def test_lsm_refines_what_lucas_kanade_follows_on_a_turning_body():
+    """The body spins 8.6° about the vertical: Lucas–Kanade's one shift per window
+    falls short of the turning surface's motion, and least squares matching (affine +
+    radiometric) from the previous image, started there, brings the corners closer to
+    their true projections (here median 0.43 -> 0.15 px, 90th percentile 0.91 ->
+    0.38)."""
+    skel, s, balls, theta0, root = _body()
+    cam = look_at("near", (0.0, -2.5, 1.0))
+    rays = camera_rays(cam)
+    theta1 = theta0.copy()
+    theta1[skel.dof_index("pelvis_z")] += 0.15
+    img0 = _textured(skel, balls, theta0, root, s, cam, rays)
+    img1 = _textured(skel, balls, theta1, root, s, cam, rays)
+    uv0, bone, q0 = lift_corners(
+        skel, balls, theta0, root, s, cam, img0, None, FlowSettings(), rays
+    )
+    pose1 = forward(skel, theta1[None], root[None], s)
+    truth = cam.project(points_world(skel, pose1, bone, q0, np.full(len(bone), -1), s)[0])
+    ren1 = render_body(skel, balls, pose1, s, cam, rays)
+    seen = visible_points(skel, pose1, cam, ren1, bone, q0, 0.005)[1]
+    cfg = FlowSettings()
+    lk, ok = follow_corners(img0, img1, uv0, cfg)
+    fine, ok_fine = refine_corners(img0, img1, uv0, lk, ok, cfg)
+    assert not np.any(ok_fine & ~ok)  # refining only drops corners
+    both = ok_fine & seen
+    assert both.sum() > 0.5 * seen.sum() > 50
+    move = truth[both] - uv0[both]
+    assert np.median(np.linalg.norm(move, axis=1)) > 3.0  # a real move
+    e_lk = np.linalg.norm(lk[both] - truth[both], axis=1)
+    e_fine = np.linalg.norm(fine[both] - truth[both], axis=1)
+    assert np.median(e_fine) < 0.7 * np.median(e_lk)
+    assert np.percentile(e_fine, 90) < np.percentile(e_lk, 90)
+    kept, ok_kept = refine_corners(img0, img1, uv0, lk, ok, FlowSettings(refine_drop=False))
+    np.testing.assert_array_equal(ok_kept, ok)  # nothing dropped: the start kept instead
+    np.testing.assert_array_equal(kept[ok_fine], fine[ok_fine])
+    np.testing.assert_array_equal(kept[ok & ~ok_fine], lk[ok & ~ok_fine])

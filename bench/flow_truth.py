@@ -13,8 +13,9 @@ motion is known too:
   eroded by 3 px — as the fit lifts them, but on the true body instead of the fitted
   one;
 * the true point: the corner's pixel ray meets the true mesh's depth map
-  (:func:`core.truth_points.depth_map`) in a triangle; its barycentric coordinates
-  carry it into the next frame's mesh, which is projected;
+  (:func:`core.truth_points.depth_map`); the nearest triangle there
+  (:func:`bench.meshtruth.nearest_on_mesh`) and its barycentric coordinates carry it
+  into the next frame's mesh, which is projected;
 * ``LK``: :func:`core.fit_flow.follow_corners` (pyramidal Lucas–Kanade, 15 px window,
   forward–backward check); ``LK + LSM``: the same, then
   :func:`core.fit_flow.refine_corners` (least squares matching, affine + radiometric,
@@ -47,33 +48,11 @@ def _region_centre(truth: dict, names: list, part: str, f: int):
     return J[f, names.index(part)], 0.12
 
 
-def _material_points(P: np.ndarray, tri: np.ndarray, near: np.ndarray):
-    """For points P (K, 3) on the mesh, the nearest of the ``near`` triangles (indices)
-    and barycentric coordinates: (face (K,), bary (K, 3))."""
-    cent = tri[near].mean(axis=1)
-    faces, bary = np.zeros(len(P), int), np.zeros((len(P), 3))
-    for i, p in enumerate(P):
-        cand = near[np.argsort(np.linalg.norm(cent - p, axis=1))[:12]]
-        a, b, c = tri[cand, 0], tri[cand, 1], tri[cand, 2]
-        n = np.cross(b - a, c - a)
-        n /= np.linalg.norm(n, axis=1, keepdims=True)
-        h = np.sum((p - a) * n, axis=1)
-        q = p - h[:, None] * n
-        T = np.stack([b - a, c - a], axis=2)  # (12, 3, 2)
-        lam = np.stack(
-            [np.linalg.lstsq(T[k], q[k] - a[k], rcond=None)[0] for k in range(len(cand))]
-        )
-        bc = np.column_stack([1.0 - lam.sum(axis=1), lam])
-        cost = np.abs(h) + 0.01 * np.maximum(0.0, -bc.min(axis=1))
-        k = int(np.argmin(cost))
-        faces[i], bary[i] = cand[k], bc[k]
-    return faces, bary
-
-
 def measure(scene, parts: list[str], step: int = 1, progress=None) -> dict:
     """Rows per (part, method) (K, 6): frame, camera, distance from the outline (px),
     error (px), true motion (px), error along the motion (px).  ``progress``: a
     :class:`core.progress.Progress` or None."""
+    from bench.meshtruth import nearest_on_mesh
     from core.fit_flow import FlowSettings, follow_corners, refine_corners
     from core.truth_points import depth_map
 
@@ -88,7 +67,6 @@ def measure(scene, parts: list[str], step: int = 1, progress=None) -> dict:
     nf = V.shape[0]
     for f in range(0, nf - 1, step):
         tri = V[f][F]
-        cent = tri.mean(axis=1)
         for c, cam in enumerate(cams):
             z = depth_map(cam, tri)
             h, w = z.shape
@@ -115,8 +93,7 @@ def measure(scene, parts: list[str], step: int = 1, progress=None) -> dict:
                 iu, iv = np.rint(uv[:, 0]).astype(int), np.rint(uv[:, 1]).astype(int)
                 _, du = cam.rays(uv)
                 P = cam.center + du * (z[iv, iu] / (du @ cam.R.T)[:, 2])[:, None]
-                near = np.flatnonzero(np.linalg.norm(cent - c0, axis=1) < rad + 0.05)
-                face, bary = _material_points(P, tri, near)
+                _, face, bary = nearest_on_mesh(P, V[f], F)
                 true0 = cam.project(np.einsum("kj,kji->ki", bary, tri[face]))
                 true1 = cam.project(np.einsum("kj,kji->ki", bary, V[f + 1][F[face]]))
                 true1 = true1 + (uv - true0)  # the corner's own sub-pixel offset

@@ -4,11 +4,11 @@
 
     blender -c somacap fit SCENE --out take.blend [--target character.blend] [--fit fit.json]
                               [--cues texture|contours|both] [--feet-from-points] [--smooth]
-                              [--prediction-start-only] [--one-pass]
+                              [--prediction-start-only] [--one-pass] [--one-flow]
     blender -c somacap retarget fit.json --target character.blend --out take.blend
     blender -c somacap batch TAKES_DIR --out OUT_DIR [--target character.blend] [--cues …]
                               [--feet-from-points] [--smooth] [--prediction-start-only]
-                              [--one-pass]
+                              [--one-pass] [--one-flow]
 
 The same commands run with the ``bpy`` module of the project's environment through the
 launcher: ``python -m addon.launch fit SCENE --out take.blend`` (from the repository root).
@@ -41,11 +41,17 @@ None)``, ``core fit --one-pass``): by default the bones the first frames hardly 
 are shaped over the fitted take and the motion is fitted a second time from that
 shape (:mod:`core.fit_late_shape`; about 2x the fit time where a bone qualifies); it
 too fits anew.
+``--one-flow`` fits a take that the silhouettes shape (no texture points at the clicked
+frame, e.g. the orthogonal rig) and that follows the texture flow once, with
+Lucas–Kanade's flow corners (core's ``SequenceSettings(flow_choice=False)``, ``core fit
+--one-flow``): by default such a take is fitted a second time with LSM-refined flow
+corners and the fit the foregrounds explain better is kept (:mod:`core.fit_choice`;
+about twice the fit time there); it too fits anew.
 ``retarget`` builds the same file from a fitted state, without cameras.
 ``batch`` converts every take of a folder (scene folders and ``*.json`` states) into
 ``OUT_DIR/<take>.blend``, continues past a failing take, prints the failures and exits
 with status 1 when any take failed; ``--cues``, ``--feet-from-points``, ``--smooth``,
-``--prediction-start-only`` and ``--one-pass`` refit every scene folder (``.json``
+``--prediction-start-only``, ``--one-pass`` and ``--one-flow`` refit every scene folder (``.json``
 states are used as they are).  Bad input: one line ``somacap: error: …``, status 2.
 """
 
@@ -133,6 +139,16 @@ def build_parser() -> argparse.ArgumentParser:
             "before a second pass; about half the fit time where a bone qualifies, but "
             "make demo's walk 11.1 -> 12.9 mm; as core fit --one-pass",
         )
+        sp.add_argument(
+            "--one-flow",
+            action="store_true",
+            help="fit a take the silhouettes shape (no texture points at the clicked frame, "
+            "e.g. the orthogonal rig) that follows the texture flow once, with Lucas-Kanade's "
+            "flow corners, fitting anew (SCENE/fit.json is not used); by default it is fitted "
+            "a second time with corners refined by least squares matching and the fit the "
+            "foregrounds explain better is kept, about twice the fit time there; as core fit "
+            "--one-flow",
+        )
     for sp in (f, r, b):
         sp.add_argument(
             "--foot-lock",
@@ -198,6 +214,7 @@ def _fit_options(args) -> dict:
         "smooth_motion": args.smooth,
         "contour_starts": not args.prediction_start_only,
         "late_shape": not args.one_pass,
+        "flow_choice": not args.one_flow,
     }
 
 
@@ -218,6 +235,7 @@ def cmd_fit(args) -> int:
             ("--smooth", args.smooth),
             ("--prediction-start-only", args.prediction_start_only),
             ("--one-pass", args.one_pass),
+            ("--one-flow", args.one_flow),
         )
         if on
     ]

@@ -130,6 +130,7 @@ class SOMACAP_OT_fit(bpy.types.Operator):
             "smooth_motion": s.smooth_motion,
             "contour_starts": s.contour_starts,
             "late_shape": s.late_shape,
+            "flow_choice": s.flow_choice,
         }
         moved = {} if state_path else pipeline.moved_clicks(scene_dir)
         self._moved = sorted(moved)

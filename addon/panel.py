@@ -40,6 +40,7 @@ class SOMACAP_PT_main(bpy.types.Panel):
         opts.prop(s, "smooth_motion")
         opts.prop(s, "contour_starts")
         opts.prop(s, "late_shape")
+        opts.prop(s, "flow_choice")
         if s.status:
             col.label(text=s.status)
         col.prop(s, "state_path")

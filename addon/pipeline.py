@@ -45,6 +45,7 @@ FIT_OPTIONS = {
     "smooth_motion": False,
     "contour_starts": True,
     "late_shape": True,
+    "flow_choice": True,
 }
 
 
@@ -58,6 +59,7 @@ def sequence_settings(
     smooth_motion: bool = False,
     contour_starts: bool = True,
     late_shape: bool = True,
+    flow_choice: bool = True,
 ):
     """core's ``SequenceSettings`` with the fit's options that differ from core's
     defaults set (the rest core's defaults), or None when none does: core's own default.
@@ -71,6 +73,10 @@ def sequence_settings(
     second time, :mod:`core.fit_late_shape`; off, one pass, ``core fit --one-pass``).
     One pass also leaves out the shape over several frames that a take shaped by its
     silhouettes alone gets on a wide rig (``ContourSettings.shape_fit_frames``).
+    ``flow_choice`` sets ``flow_choice`` (on by default: a take the silhouettes shape
+    and that follows the texture flow is fitted a second time with LSM-refined flow
+    corners and the fit the foregrounds explain better is kept, :mod:`core.fit_choice`;
+    off, one fit with Lucas–Kanade's corners, ``core fit --one-flow``).
     """
     SequenceSettings = _core.load("fit").SequenceSettings
     default = SequenceSettings()
@@ -79,6 +85,7 @@ def sequence_settings(
         "smooth_motion": smooth_motion,
         "contour_starts": contour_starts,
         "late_shape_points": default.late_shape_points if late_shape else None,
+        "flow_choice": flow_choice,
     }
     fields = {name: v for name, v in asked.items() if v != getattr(default, name)}
     return SequenceSettings(**fields) if fields else None
@@ -94,6 +101,7 @@ def run_fit(
     smooth_motion: bool = False,
     contour_starts: bool = True,
     late_shape: bool = True,
+    flow_choice: bool = True,
 ) -> Path:
     """Run core's whole pipeline on a scene folder and write ``fit.json``
     (:func:`core.fit_scene.fit_scene`; cancellable through ``progress``).
@@ -115,7 +123,13 @@ def run_fit(
     on by default: about 2x the fit time on a rig without points, but it keeps fast
     limbs, e.g. on the orthogonal rig).  ``late_shape=False`` fits the motion once: no
     late shape and no second pass (``core fit --one-pass``; on by default, about 2x the
-    fit time where a bone qualifies, make demo's walk 12.9 → 11.1 mm).  The options
+    fit time where a bone qualifies, make demo's walk 12.9 → 11.1 mm).
+    ``flow_choice=False`` fits a take that the silhouettes shape (no texture points at
+    the clicked frame, e.g. the orthogonal rig) and that follows the texture flow once,
+    with Lucas–Kanade's flow corners (``SequenceSettings(flow_choice=False)``, ``core fit
+    --one-flow``; on by default: such a take is fitted a second time with LSM-refined
+    flow corners and the fit the foregrounds explain better is kept,
+    :mod:`core.fit_choice`, about twice the fit time there).  The options
     that differ from these defaults give one ``SequenceSettings`` with all of them set
     (:func:`sequence_settings`); none, core's default settings are used (no
     ``settings`` is passed).
@@ -131,6 +145,7 @@ def run_fit(
         smooth_motion=smooth_motion,
         contour_starts=contour_starts,
         late_shape=late_shape,
+        flow_choice=flow_choice,
     )
     kw = {} if settings is None else {"settings": settings}
     state = _core.load("fit_scene").fit_scene(sc, progress=progress, cues=cues, **kw)
@@ -149,6 +164,7 @@ def state_for_scene(
     smooth_motion: bool = False,
     contour_starts: bool = True,
     late_shape: bool = True,
+    flow_choice: bool = True,
 ):
     """The fitted state of a scene: ``fit_path``, else ``SCENE/fit.json``, else fit now.
 
@@ -157,7 +173,8 @@ def state_for_scene(
     joints dragged in the viewport (``clicks_xyz``), ``feet_from_points=True`` (the
     feet turned to their points), ``smooth_motion=True`` (the motion smoothed over
     the take), ``contour_starts=False`` (frames from contours alone fitted from the
-    prediction only) and ``late_shape=False`` (one pass; all :func:`run_fit`).
+    prediction only), ``late_shape=False`` (one pass) and ``flow_choice=False`` (one
+    fit with Lucas–Kanade's flow corners; all :func:`run_fit`).
     """
     scene_dir = Path(scene_dir)
     check_cues(cues)
@@ -168,6 +185,7 @@ def state_for_scene(
         "smooth_motion": smooth_motion,
         "contour_starts": contour_starts,
         "late_shape": late_shape,
+        "flow_choice": flow_choice,
     }
     fresh = refit or clicks_xyz or asks_new_fit(**options)
     if not fresh and (scene_dir / "fit.json").is_file():

@@ -66,7 +66,7 @@ class SOMACAP_PG_settings(bpy.types.PropertyGroup):
         default="texture",
         description="Observations the fit uses (a scene's existing fit.json is used "
         "as it is, unless Feet from points or Smooth motion is on or Extra starts "
-        "(contours alone) or Second pass (late shape) is off)",
+        "(contours alone), Second pass (late shape) or Refined-flow second fit is off)",
         items=[
             ("texture", "Texture", "3-D surface points from the tracker (needs textured clothing)"),
             (
@@ -118,6 +118,15 @@ class SOMACAP_PG_settings(bpy.types.PropertyGroup):
         "second time from that shape. About 2x the fit time where a bone qualifies (the "
         "default scene's walk: 12.9 to 11.1 mm joint error). Off: one pass, and a new "
         "fit (a scene's fit.json is not used)",
+    )
+    flow_choice: BoolProperty(
+        name="Refined-flow second fit",
+        default=True,
+        description="Where the silhouettes alone shape the body (no texture points at the "
+        "clicked frame, e.g. the orthogonal rig) and the texture flow is followed, fit the "
+        "take a second time with LSM-refined flow corners and keep the fit the foregrounds "
+        "explain better. About twice the fit time there. Off: one fit with Lucas-Kanade's "
+        "flow corners, and a new fit (a scene's fit.json is not used)",
     )
     export_format: EnumProperty(name="Format", items=[("BVH", "BVH", ""), ("FBX", "FBX", "")])
     progress: FloatProperty(name="Progress", subtype="PERCENTAGE", min=0, max=100)

@@ -154,8 +154,8 @@ def fit_once(
             contour_settings=ContourSettings(**contour) if contour else None,
         )
     wall = time.perf_counter() - t0
-    for m in getattr(res, "messages", []):  # how the silhouettes shaped the body
-        if m.startswith("shape "):
+    for m in getattr(res, "messages", []):  # how the silhouettes shaped the body, and
+        if m.startswith(("shape ", "texture flow: ")):  # which flow's fit was kept
             print(f"run {seed}: {m}", flush=True)
     ev = evaluate_state(res.state, scene.truth)
     vi = np.nan

@@ -75,7 +75,8 @@ class FlowSettings:
     #: pirouette gains in each of four draws (median 23.35 -> 22.55 mm), but the dance
     #: loses limbs (26.25 -> 36.3); with ``refine_drop`` False the dance keeps them
     #: (26.25) and the pirouette loses (24.6; docs/design.md, "Lucas–Kanade trails a
-    #: turning surface")
+    #: turning surface").  ``SequenceSettings.flow_choice`` fits a take the silhouettes
+    #: shaped both ways and keeps the fit the foregrounds explain better
     refine_lsm: bool = False
     refine_max_shift_px: float = 3.0  # LSM's largest move from Lucas–Kanade's point
     refine_max_sigma_px: float = 0.3  # LSM's largest σ of a refined corner, pixels

@@ -244,19 +244,19 @@ def run_scene(
             f"shape over several frames: not solved, the cameras see the body from "
             f"directions within {spread:.0f} deg of each other"
         )
-    res = fit_sequence(
-        obs, init, settings, contours=cframes, defer_shape=multi or not silhouette_pass, **kw
+    passes = dict(
+        obs=obs,
+        init=init,
+        settings=settings,
+        multi=multi,
+        silhouette_pass=silhouette_pass,
+        contour_settings=contour_settings,
     )
-    if multi and (~res.state.quality.diverged).sum() > 1:
-        res = _frames_shape_pass(
-            obs, init, settings, res, cframes, anchors, kw, timings, t2, contour_settings
+    res = _fit_passes(cframes, anchors, kw, timings, t2, **passes)
+    if silhouette_shaped and anchors is not None and _choose_refined(settings, anchors.cfg):
+        res = _refined_alternative(
+            res, scene, cameras, cframes, anchors.cfg, kw, timings, passes, progress
         )
-    elif silhouette_pass and res.shape is not None and res.shape.frame_ok.any():
-        res = _second_pass(
-            obs, init, settings, res, cframes, anchors, kw, timings, time.perf_counter() - t2
-        )
-    elif res.late_shape is not None:
-        res = _late_pass(obs, init, settings, res, cframes, anchors, kw, timings, t2)
     timings["fit"] = time.perf_counter() - t2
     timings["total"] = time.perf_counter() - t0
     if res.shape is not None:
@@ -273,6 +273,75 @@ def run_scene(
         contour_rms_px=None if cframes is None else res.contour_rms_px,
         hidden=res.hidden,
     )
+
+
+def _fit_passes(
+    cframes,
+    anchors,
+    kw,
+    timings,
+    t_start,
+    *,
+    obs,
+    init,
+    settings,
+    multi,
+    silhouette_pass,
+    contour_settings,
+):
+    """The sequence fit and the pass after it that :func:`run_scene` chose: the shape
+    over several frames, the second pass with the written shape, or the late shape."""
+    res = fit_sequence(
+        obs, init, settings, contours=cframes, defer_shape=multi or not silhouette_pass, **kw
+    )
+    if multi and (~res.state.quality.diverged).sum() > 1:
+        return _frames_shape_pass(
+            obs, init, settings, res, cframes, anchors, kw, timings, t_start, contour_settings
+        )
+    if silhouette_pass and res.shape is not None and res.shape.frame_ok.any():
+        return _second_pass(
+            obs,
+            init,
+            settings,
+            res,
+            cframes,
+            anchors,
+            kw,
+            timings,
+            time.perf_counter() - t_start,
+        )
+    if res.late_shape is not None:
+        return _late_pass(obs, init, settings, res, cframes, anchors, kw, timings, t_start)
+    return res
+
+
+def _choose_refined(settings, flow) -> bool:
+    """Whether a fit with the sequence settings ``settings`` and the flow settings
+    ``flow`` is made again with refined corners (a take the silhouettes shaped)."""
+    return bool(settings.flow_choice and not flow.refine_lsm)
+
+
+def _refined_alternative(first, scene, cameras, cframes, cfg, kw, timings, passes, progress):
+    """The take fitted again with LSM-refined flow corners; the fit whose body the
+    foregrounds explain better is returned (:func:`core.fit_choice.choose`), with a
+    message giving both totals."""
+    from .fit_choice import choose
+
+    t0 = time.perf_counter()
+    anchors = _flow_anchors(scene, cameras, replace(cfg, refine_lsm=True), cframes)
+    kw = {**kw, "flow": anchors, "progress": prefixed(progress, "refined corners: ")}
+    alt_timings: dict = {}
+    second = _fit_passes(_fresh(cframes, None), anchors, kw, alt_timings, t0, **passes)
+    best, totals = choose([first.state, second.state], cameras, cframes)
+    timings["refined_alternative"] = time.perf_counter() - t0
+    kept = ("Lucas–Kanade's corners", "LSM-refined corners")[best]
+    note = (
+        "texture flow: the take fitted with Lucas–Kanade's corners and with LSM-refined "
+        f"ones, their bodies disagreeing with the foregrounds at {totals[0]:,.0f} / "
+        f"{totals[1]:,.0f} pixels over the take: the fit with {kept} kept"
+    )
+    res = (first, second)[best]
+    return replace(res, messages=res.messages + [note])
 
 
 def _second_pass(obs, init, settings, first, cframes, anchors, kw, timings, seconds):

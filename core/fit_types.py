@@ -71,6 +71,16 @@ class SequenceSettings:
     #: the crossing legs for each other (docs/design.md, "Three starts for a frame
     #: fitted from contours alone"; a margin of 0.05 lost that dance again)
     contour_starts: bool = True
+    #: a take the silhouettes shaped (no 3-D points at the clicked frame) and that
+    #: follows the texture flow is fitted twice, with Lucas–Kanade's corners and with
+    #: corners refined by least squares matching (``FlowSettings.refine_lsm``); the fit
+    #: whose body disagrees with the foregrounds at fewer pixels over the take is kept
+    #: (:mod:`core.fit_choice`).  Twice the fit time there.  ``bench.fit_spread``, four
+    #: click draws, median MPJPE: dance_ortho3 26.25 -> 25.05 mm, pirouette_ortho3
+    #: 23.35 -> 22.8, walk_ortho3 11.15 -> 10.35, jumps_ortho3 10.7 (the first fit kept);
+    #: no draw loses a limb, which the refined fit alone does in two of the dance's
+    #: (docs/design.md, "Two fits of a take, the foregrounds choose")
+    flow_choice: bool = True
     contour_start_margin: float = 0.0
     #: the hips' rest offsets keep their forward part from the clicked pelvis
     #: (:func:`core.fit_init.initialise`): jumps_line3 draws 0-3 14.5 -> 13.4 mm median,

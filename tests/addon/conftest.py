@@ -47,8 +47,8 @@ def makehuman(shared_data, bpy_module):
 def fake_run_fit(bpy_module, monkeypatch):
     """Replace ``addon.pipeline.run_fit``: record ``(scene, cues, *options that are on)``
     (e.g. ``("walk", "both", "smooth_motion")``, then ``"prediction_start_only"`` when
-    ``contour_starts`` is off and ``"one_pass"`` when ``late_shape`` is), write a
-    4-frame state."""
+    ``contour_starts`` is off, ``"one_pass"`` when ``late_shape`` is and ``"one_flow"``
+    when ``flow_choice`` is), write a 4-frame state."""
     from addon import pipeline
 
     calls = []
@@ -63,10 +63,12 @@ def fake_run_fit(bpy_module, monkeypatch):
         smooth_motion=False,
         contour_starts=True,
         late_shape=True,
+        flow_choice=True,
     ):
         on = {"feet_from_points": feet_from_points, "smooth_motion": smooth_motion}
         off = () if contour_starts else ("prediction_start_only",)
         off += () if late_shape else ("one_pass",)
+        off += () if flow_choice else ("one_flow",)
         calls.append((scene_dir.name, cues, *(name for name in OPTIONS if on[name]), *off))
         write_state(out_json, synthetic_state(4, seed=len(calls)))
         return out_json

@@ -382,6 +382,7 @@ def test_fit_button_uses_the_key_joints_the_user_moved(registered, monkeypatch, 
         smooth_motion=False,
         contour_starts=True,
         late_shape=True,
+        flow_choice=True,
     ):
         got.append(clicks_xyz)
         write_state(out_json, synthetic_state(4, seed=5))

@@ -193,7 +193,7 @@ def fit_sequence(
         shape the motion was tracked with.
     shape_start : Metaballs or None — the start and prior of the whole-body shape written
         to the state (None: ``init.metaballs``, the shape the motion is tracked with).
-        The shape over several frames (:func:`core.fit_scene._frames_shape_pass`) tracks
+        The shape over several frames (:func:`core.fit_passes.frames_shape_pass`) tracks
         with its own radii and writes the body from the clicked frame's: written from
         its own, walk_ortho3's and jumps_ortho3's visibility index went 0.048 -> 0.052
         and 0.038 -> 0.054 (run 0), from the clicked frame's 0.047 and 0.040.

@@ -24,10 +24,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from . import fit_passes
 from .errors import InputError
-from .fit import FramePoints, SequenceSettings, fit_sequence
+from .fit import FramePoints, SequenceSettings
+from .fit_silhouette_shape import shape_from_silhouettes
 from .fit_types import ShapeRecord
-from .progress import Progress, prefixed
+from .progress import Progress
 from .state import FitState
 
 
@@ -201,7 +203,7 @@ def run_scene(
     silhouette_shaped = False
     if cframes is not None and (cues == "contours" or len(obs[init.frame].xyz) < min_points):
         # no points to shape the body at the clicked frame: the silhouettes do
-        init = _shape_from_silhouettes(init, cameras, cframes[init.frame], msgs, contour_settings)
+        init = shape_from_silhouettes(init, cameras, cframes[init.frame], msgs, contour_settings)
         silhouette_shaped = True
         # the shape is the silhouettes': no further shape frames, however the fit is
         # called (core fit passes its own settings and had two until da6b412, the add-on
@@ -216,7 +218,7 @@ def run_scene(
     if flow == "auto":
         flow = cues == "both"
     if flow:
-        anchors = _flow_anchors(scene, cameras, flow, cframes)
+        anchors = fit_passes.flow_anchors(scene, cameras, flow, cframes)
     kw = dict(
         fps=scene.fps,
         source_scene=str(scene.root),
@@ -236,7 +238,7 @@ def run_scene(
         and contour_settings.shape_fit_frames > 1
         and settings.late_shape_points is not None
     )
-    if multi and (spread := _views_spread_deg(cameras, init.root_xyz)) < (
+    if multi and (spread := fit_passes.views_spread_deg(cameras, init.root_xyz)) < (
         contour_settings.shape_frames_min_spread_deg
     ):
         multi = False
@@ -252,9 +254,13 @@ def run_scene(
         silhouette_pass=silhouette_pass,
         contour_settings=contour_settings,
     )
-    res = _fit_passes(cframes, anchors, kw, timings, t2, **passes)
-    if silhouette_shaped and anchors is not None and _choose_refined(settings, anchors.cfg):
-        res = _refined_alternative(
+    res = fit_passes.run_passes(cframes, anchors, kw, timings, t2, **passes)
+    if (
+        silhouette_shaped
+        and anchors is not None
+        and fit_passes.choose_refined(settings, anchors.cfg)
+    ):
+        res = fit_passes.refined_alternative(
             res, scene, cameras, cframes, anchors.cfg, kw, timings, passes, progress
         )
     timings["fit"] = time.perf_counter() - t2
@@ -273,190 +279,6 @@ def run_scene(
         contour_rms_px=None if cframes is None else res.contour_rms_px,
         hidden=res.hidden,
     )
-
-
-def _fit_passes(
-    cframes,
-    anchors,
-    kw,
-    timings,
-    t_start,
-    *,
-    obs,
-    init,
-    settings,
-    multi,
-    silhouette_pass,
-    contour_settings,
-):
-    """The sequence fit and the pass after it that :func:`run_scene` chose: the shape
-    over several frames, the second pass with the written shape, or the late shape."""
-    res = fit_sequence(
-        obs, init, settings, contours=cframes, defer_shape=multi or not silhouette_pass, **kw
-    )
-    if multi and (~res.state.quality.diverged).sum() > 1:
-        return _frames_shape_pass(
-            obs, init, settings, res, cframes, anchors, kw, timings, t_start, contour_settings
-        )
-    if silhouette_pass and res.shape is not None and res.shape.frame_ok.any():
-        return _second_pass(
-            obs,
-            init,
-            settings,
-            res,
-            cframes,
-            anchors,
-            kw,
-            timings,
-            time.perf_counter() - t_start,
-        )
-    if res.late_shape is not None:
-        return _late_pass(obs, init, settings, res, cframes, anchors, kw, timings, t_start)
-    return res
-
-
-def _choose_refined(settings, flow) -> bool:
-    """Whether a fit with the sequence settings ``settings`` and the flow settings
-    ``flow`` is made again with refined corners (a take the silhouettes shaped)."""
-    return bool(settings.flow_choice and not flow.refine_lsm)
-
-
-def _refined_alternative(first, scene, cameras, cframes, cfg, kw, timings, passes, progress):
-    """The take fitted again with LSM-refined flow corners; the fit whose body the
-    foregrounds explain better is returned (:func:`core.fit_choice.choose`), with a
-    message giving both totals."""
-    from .fit_choice import choose
-
-    t0 = time.perf_counter()
-    anchors = _flow_anchors(scene, cameras, replace(cfg, refine_lsm=True), cframes)
-    kw = {**kw, "flow": anchors, "progress": prefixed(progress, "refined corners: ")}
-    alt_timings: dict = {}
-    second = _fit_passes(_fresh(cframes, None), anchors, kw, alt_timings, t0, **passes)
-    best, totals = choose([first.state, second.state], cameras, cframes)
-    timings["refined_alternative"] = time.perf_counter() - t0
-    kept = ("Lucas–Kanade's corners", "LSM-refined corners")[best]
-    note = (
-        "texture flow: the take fitted with Lucas–Kanade's corners and with LSM-refined "
-        f"ones, their bodies disagreeing with the foregrounds at {totals[0]:,.0f} / "
-        f"{totals[1]:,.0f} pixels over the take: the fit with {kept} kept"
-    )
-    res = (first, second)[best]
-    return replace(res, messages=res.messages + [note])
-
-
-def _second_pass(obs, init, settings, first, cframes, anchors, kw, timings, seconds):
-    """The motion fitted again, tracked with the whole-body shape of the ``first`` pass.
-
-    A take shaped from one frame's silhouettes tracks a shape that only that posture
-    showed; the first pass's written shape follows the silhouettes (and any points) of
-    frames spread over the take.  The second pass keeps it (``shape = "template"``:
-    nothing to re-solve without points), on fresh contour frames and flow anchors; the
-    result carries the first pass's shape record.
-    """
-    timings["first_pass"] = seconds
-    res = fit_sequence(
-        obs,
-        replace(init, metaballs=first.state.metaballs),
-        replace(settings, shape="template", late_shape_points=None),
-        contours=_fresh(cframes, anchors),
-        **kw,
-    )
-    note = (
-        "second pass: the motion tracked with the first pass's whole-body shape "
-        f"({int(first.state.quality.diverged.sum())} -> "
-        f"{int(res.state.quality.diverged.sum())} diverged frames)"
-    )
-    shape_msgs = [m for m in first.messages if m.startswith("whole-body shape")]
-    return replace(res, shape=first.shape, messages=shape_msgs + [note] + res.messages)
-
-
-def _frames_shape_pass(obs, init, settings, first, cframes, anchors, kw, timings, t_start, cfg):
-    """The motion fitted again with the radii of several of the ``first`` pass's frames.
-
-    The clicked frame's silhouettes shaped the body (:func:`_shape_from_silhouettes`);
-    the radii are re-solved over ``cfg.shape_fit_frames`` fitted frames, evenly spaced
-    among those not diverged (:func:`core.contour_shape_frames.fit_shape_to_frames`),
-    then the take is fitted again from the clicks with that shape.  The whole-body
-    shape written to the state starts from the clicked frame's (``shape_start``).
-    """
-    from .contour_shape_frames import fit_shape_to_frames
-    from .contour_track import ContourTrackSettings
-
-    timings["first_pass"] = time.perf_counter() - t_start
-    st = first.state
-    ok = np.flatnonzero(~st.quality.diverged)
-    pick = np.unique(ok[np.round(np.linspace(0, len(ok) - 1, cfg.shape_fit_frames)).astype(int)])
-    sigma = np.repeat(_radius_sigma(init.skeleton, init.metaballs, cfg)[:, None], 3, axis=1)
-    if cfg.shape_frames_along_sigma_m is not None:
-        sigma[:, 2] = cfg.shape_frames_along_sigma_m
-    balls, _, _, rms = fit_shape_to_frames(
-        init.skeleton,
-        init.s,
-        init.metaballs,
-        st.theta[pick],
-        st.root_xyz[pick],
-        kw["cameras"],
-        [cframes[f].contours for f in pick],
-        ContourTrackSettings(),
-        radius_prior_m=sigma,
-        pose_sigma_rad=cfg.shape_frames_pose_sigma_rad,
-        root_sigma_m=cfg.shape_frames_root_sigma_m,
-        rays=cframes[pick[0]].rays,
-    )
-    if not np.isfinite(rms):
-        note = "shape over several frames: too few contour pairs, the clicked frame's kept"
-        return replace(first, messages=first.messages + [note])
-    moved = np.abs(balls.radii - init.metaballs.radii) * 1000
-    most, axis = np.unravel_index(np.argmax(moved), moved.shape)
-    note = (
-        f"shape re-solved over frames {pick.tolist()}'s silhouettes (contour RMS "
-        f"{rms:.2f} px before the last step; radii moved {np.median(moved):.0f} mm median, "
-        f"{moved.max():.0f} mm at most, {init.skeleton.bone_names[init.metaballs.bone[most]]}"
-        f"'s {'xyz'[axis]}): the motion fitted again with it"
-    )
-    kw = {**kw, "progress": prefixed(kw.get("progress"), "second pass (shape over frames): ")}
-    res = fit_sequence(
-        obs,
-        replace(init, metaballs=balls),
-        settings,
-        contours=_fresh(cframes, anchors),
-        defer_shape=True,
-        shape_start=init.metaballs,
-        **kw,
-    )
-    return replace(res, messages=[note] + res.messages)
-
-
-def _views_spread_deg(cameras, point) -> float:
-    """The largest angle between two cameras' lines of sight to ``point`` (3,), degrees."""
-    d = np.array([np.asarray(point, float) - cam.center for cam in cameras])
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    return float(np.degrees(np.arccos(np.clip((d @ d.T).min(), -1.0, 1.0))))
-
-
-def _fresh(cframes, anchors):
-    """Contour frames without a fit's cached state, and the flow's anchors cleared."""
-    from .fit_contours import ContourFrame
-
-    if anchors is not None:
-        anchors.clear()
-    if cframes is None:
-        return None
-    return [
-        None if cf is None else ContourFrame(cf.cameras, cf.contours, cf.cfg, rays=cf.rays)
-        for cf in cframes
-    ]
-
-
-def _late_pass(obs, init, settings, first, cframes, anchors, kw, timings, t_start):
-    """The motion fitted again, tracked with the ``first`` pass's late shape
-    (:mod:`core.fit_late_shape`: the parts the shape frames hardly saw, shaped from the
-    fitted take)."""
-    timings["first_pass"] = time.perf_counter() - t_start
-    late = first.late_shape
-    kw = {**kw, "progress": prefixed(kw.get("progress"), "second pass (late shape): ")}
-    res = fit_sequence(obs, init, settings, contours=_fresh(cframes, anchors), shape0=late, **kw)
-    return replace(res, messages=[late.message()] + res.messages)
 
 
 #: The observation types ``run_scene`` / ``python -m core fit --cues`` can fit.
@@ -506,99 +328,6 @@ def _scene_contour_frames(scene, cameras, nf: int, cues: str, cfg, progress):
             "(no contours there)"
         )
     return contour_frames(cameras, sc.contours, cfg), msgs
-
-
-def _flow_anchors(scene, cameras, flow, cframes):
-    """The :class:`core.fit_flow.FlowAnchors` of a scene: its grey images, read on demand
-    and kept for the last few frames only (the flow reads two neighbouring frames)."""
-    from .fit_flow import FlowAnchors, FlowSettings
-
-    cache: dict = {}
-
-    def image(c, f):
-        if (c, f) not in cache:
-            if len(cache) >= 4 * len(cameras):
-                del cache[next(iter(cache))]  # the oldest read
-            cache[c, f] = scene.image(c, f)
-        return cache[c, f]
-
-    cfg = flow if isinstance(flow, FlowSettings) else FlowSettings()
-    rays = None if not cframes else cframes[0].rays
-    return FlowAnchors(cameras, image, cfg, rays=rays)
-
-
-#: σ of a metaball radius about the template's in the silhouette shape fit, metres
-SHAPE_RADIUS_SIGMA_M = 0.02
-
-
-def _center_sigma(skel, balls, cfg) -> np.ndarray | None:
-    """σ (M,) of each metaball centre in the silhouette shape fit (NaN: held), metres."""
-    if cfg is None or cfg.shape_center_sigma_m is None:
-        return None
-    names = np.array(skel.bone_names)[balls.bone]
-    free = np.isin(names, cfg.shape_center_parts) & ~np.isin(names, cfg.shape_held_parts)
-    return np.where(free, cfg.shape_center_sigma_m, np.nan)
-
-
-def _radius_sigma(skel, balls, cfg) -> np.ndarray:
-    """σ (M,) of each metaball's radii about the template's in the silhouette shape fit:
-    ``cfg.shape_held_sigma_m`` for the parts whose template shape is kept, metres."""
-    sigma = np.full(len(balls), SHAPE_RADIUS_SIGMA_M)
-    if cfg is not None and cfg.shape_held_parts:
-        held = np.isin(np.array(skel.bone_names)[balls.bone], cfg.shape_held_parts)
-        sigma[held] = cfg.shape_held_sigma_m
-    return sigma
-
-
-def _containment(cframe, cfg) -> dict:
-    """The containment keywords of :func:`core.contour_shape.fit_shape_to_contours`."""
-    if cfg is None or not cfg.shape_containment_px:
-        return {}
-    return {"fields": cframe.fields(), "sigma_contain_px": cfg.shape_containment_px}
-
-
-def _shape_from_silhouettes(init, cameras, cframe, msgs, cfg=None):
-    """The initialisation with its metaball radii, the centres of
-    ``cfg.shape_center_parts`` (:class:`core.fit_contours.ContourSettings`) and a refined
-    pose fitted to the clicked frame's silhouettes
-    (:func:`core.contour_track.fit_shape_to_contours`; the clicked pose held tightly)."""
-    from .contour_track import ContourTrackSettings, fit_shape_to_contours
-
-    tight = ContourTrackSettings(q_sigma_theta=0.01, q_sigma_root=0.002)
-    balls, th, rt, rms = fit_shape_to_contours(
-        init.skeleton,
-        init.s,
-        init.metaballs,
-        init.theta,
-        init.root_xyz,
-        cameras,
-        cframe.contours,
-        tight,
-        radius_prior_m=_radius_sigma(init.skeleton, init.metaballs, cfg),
-        rays=cframe.rays,
-        center_prior_m=_center_sigma(init.skeleton, init.metaballs, cfg),
-        **_containment(cframe, cfg),
-    )
-    if not np.isfinite(rms) or not (np.all(np.isfinite(th)) and np.all(np.isfinite(rt))):
-        msgs.append(
-            f"frame {init.frame}: too few silhouette contour pairs for the shape: "
-            "the template shape is kept"
-        )
-        return init
-    moved = np.linalg.norm(balls.center0 - init.metaballs.center0, axis=1) * 100
-    shift = (
-        f"; {int((moved > 0).sum())} metaball centres moved, {np.median(moved[moved > 0]):.1f}"
-        f" cm median, {moved.max():.1f} cm at most"
-        if moved.max() > 0
-        else ""
-    )
-    held = cfg.shape_held_parts if cfg is not None else ()
-    kept = f"; the template shape kept: {', '.join(held)}" if held else ""
-    msgs.append(
-        f"shape fitted to frame {init.frame}'s silhouettes (contour RMS {rms:.2f} px "
-        f"before the last step{shift}{kept})"
-    )
-    return replace(init, metaballs=balls, theta=th, root_xyz=rt)
 
 
 def fit_scene(scene, progress: Progress | None = None, **kwargs) -> FitState:

@@ -112,10 +112,10 @@ def test_core_fit_shape_frames_needs_two_frames_at_least(tmp_path, capsys):
 
 
 def test_the_views_spread_tells_a_rig_in_a_line_from_an_orthogonal_one():
-    from core.fit_scene import _views_spread_deg
+    from core.fit_passes import views_spread_deg
     from tests.core._bodyscene import cameras, look_at
 
     body = np.array([0.0, 0.0, 1.0])
-    assert _views_spread_deg(cameras(), body) == pytest.approx(41.1, abs=0.1)
+    assert views_spread_deg(cameras(), body) == pytest.approx(41.1, abs=0.1)
     wide = [look_at("a", (0, -4, 1.0)), look_at("b", (4, 0, 1.0))]
-    assert _views_spread_deg(wide, body) == pytest.approx(90.0)
+    assert views_spread_deg(wide, body) == pytest.approx(90.0)

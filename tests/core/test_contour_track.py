@@ -121,7 +121,7 @@ def test_shape_from_silhouettes_moves_centres_off_the_bone_axis(rig):
 def test_held_parts_keep_their_template_shape(rig):
     """The parts ``ContourSettings.shape_held_parts`` names (the head) keep the
     template's radii and centres while the rest of the body takes the silhouettes'."""
-    from core.fit_scene import _center_sigma, _radius_sigma
+    from core.fit_silhouette_shape import center_sigma, radius_sigma
 
     skel, balls, s, cams = rig
     theta, root = _swing(skel, 1)
@@ -133,7 +133,7 @@ def test_held_parts_keep_their_template_shape(rig):
     fitted = {}
     for held in ((), ("head",)):
         cfg = ContourSettings(shape_held_parts=held)
-        sig_r, sig_c = _radius_sigma(skel, balls, cfg), _center_sigma(skel, balls, cfg)
+        sig_r, sig_c = radius_sigma(skel, balls, cfg), center_sigma(skel, balls, cfg)
         assert np.all(sig_r[head] == (0.002 if held else 0.02))
         assert np.all(np.isnan(sig_c[head]) == bool(held))
         fitted[held], *_ = fit_shape_to_contours(

@@ -91,10 +91,10 @@ def test_a_frame_without_a_pose_counts_all_its_foreground_and_fewer_diverged_fra
 
 @pytest.fixture
 def fake_passes(monkeypatch):
-    """core.fit_scene's passes replaced: each call records whether its flow corners are
+    """core.fit_passes's passes replaced: each call records whether its flow corners are
     refined and returns the clicked posture held over the take, the left knee folded
     from frame 1 on in the fit with Lucas–Kanade's corners."""
-    import core.fit_scene as fs
+    import core.fit_passes as fp
     from core.fit_types import SequenceResult
 
     calls = []
@@ -113,13 +113,14 @@ def fake_passes(monkeypatch):
         z = np.zeros(nf)
         return SequenceResult(st, z, z, z, np.zeros(nf, bool), [f"fit {len(calls)}"], 0.0)
 
-    monkeypatch.setattr(fs, "_fit_passes", passes)
+    monkeypatch.setattr(fp, "run_passes", passes)
     return calls
 
 
 def test_a_take_the_silhouettes_shaped_is_fitted_twice_and_the_better_fit_kept(fake_passes):
     from core.fit_flow import FlowSettings
-    from core.fit_scene import _choose_refined, run_scene
+    from core.fit_passes import choose_refined
+    from core.fit_scene import run_scene
     from core.fit_types import SequenceSettings
     from core.scene import load_scene
 
@@ -134,9 +135,9 @@ def test_a_take_the_silhouettes_shaped_is_fitted_twice_and_the_better_fit_kept(f
 
     # one fit where the choice is off, or where the corners are refined anyway
     on, off = SequenceSettings(), SequenceSettings(flow_choice=False)
-    assert _choose_refined(on, FlowSettings())
-    assert not _choose_refined(off, FlowSettings())
-    assert not _choose_refined(on, FlowSettings(refine_lsm=True))
+    assert choose_refined(on, FlowSettings())
+    assert not choose_refined(off, FlowSettings())
+    assert not choose_refined(on, FlowSettings(refine_lsm=True))
 
 
 def test_cli_one_flow_fits_once(monkeypatch):

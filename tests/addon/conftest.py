@@ -40,7 +40,7 @@ def makehuman(shared_data, bpy_module):
     return shared_data / "characters" / "makehuman_cmu_mb.blend"
 
 
-# -- the fit options' tests (test_fit_cues.py, test_fit_starts.py) --------------------
+# -- the fit options' tests (test_fit_cues.py, test_fit_default_on_options.py) --------
 
 
 @pytest.fixture

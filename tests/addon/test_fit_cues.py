@@ -1,9 +1,8 @@
-"""The fit's cue choice (texture / contours / both), its opt-in options, feet from
+"""The fit's cue choice (texture / contours / both) and its opt-in options, feet from
 points (``SequenceSettings(foot_heading=True)``) and smooth motion
-(``SequenceSettings(smooth_motion=True)``), and its opt-out of the extra starts of a
-frame fitted from contours alone (``test_fit_starts.py``), from the pipeline, CLI,
-panel and operator down to core's ``fit_scene``; core's fit is replaced by a recorder
-(seconds)."""
+(``SequenceSettings(smooth_motion=True)``), from the pipeline, CLI, panel and operator
+down to core's ``fit_scene`` (its default-on options, which are switched off, are in
+``test_fit_default_on_options.py``); core's fit is replaced by a recorder (seconds)."""
 
 from __future__ import annotations
 
